@@ -1,0 +1,95 @@
+"""The environment contract: `Environment`, `EnvState`, `EnvParams`.
+
+jaxnat follows gymnax 1.0's functional API::
+
+    obs, state = env.reset(key, params)
+    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+
+Implementers write `reset_env`, `step_env`, `default_params`, `observation_space(params)` and
+`action_space(params)`. The public `reset`/`step` own the step counter: `step` increments
+`state.time` after `step_env` and sets `truncated = time >= params.max_steps_in_episode` unless
+the step terminated, so a time limit is never reported as termination. States and params are
+`flax.struct.dataclass`es; params are traced (vmappable), shapes are constructor arguments.
+
+`step` checks the action's shape and dtype against `action_space(params)` while tracing, so a
+wrong action fails once, at trace time, with a readable message.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Generic, TypeVar
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxnat import spaces
+
+__all__ = ["Environment", "EnvState", "EnvParams"]
+
+
+@struct.dataclass
+class EnvState:
+    """Base of every env state: `time` counts steps taken in the episode (int32)."""
+
+    time: jax.Array
+
+
+@struct.dataclass
+class EnvParams:
+    """Base of every env's params: the time limit after which `truncated` is set."""
+
+    max_steps_in_episode: int = 1000
+
+
+TState = TypeVar("TState", bound=EnvState)
+TParams = TypeVar("TParams", bound=EnvParams)
+
+
+class Environment(Generic[TState, TParams]):
+    """A pure, jittable environment. Nothing on `self` changes after construction."""
+
+    @property
+    def default_params(self) -> TParams:
+        raise NotImplementedError
+
+    @property
+    def name(self) -> str:
+        return type(self).__name__
+
+    def reset_env(self, key: jax.Array, params: TParams) -> tuple[Any, TState]:
+        """Return `(obs, state)` with `state.time == 0`."""
+        raise NotImplementedError
+
+    def step_env(
+        self, key: jax.Array, state: TState, action: Any, params: TParams
+    ) -> tuple[Any, TState, jax.Array, jax.Array, dict]:
+        """Return `(obs, state, reward, terminated, info)`; `time` is advanced by `step`."""
+        raise NotImplementedError
+
+    def observation_space(self, params: TParams) -> spaces.Space:
+        raise NotImplementedError
+
+    def action_space(self, params: TParams) -> spaces.Space:
+        raise NotImplementedError
+
+    def reset(self, key: jax.Array, params: TParams | None = None) -> tuple[Any, TState]:
+        if params is None:
+            params = self.default_params
+        return self.reset_env(key, params)
+
+    def step(
+        self, key: jax.Array, state: TState, action: Any, params: TParams | None = None
+    ) -> tuple[Any, TState, jax.Array, jax.Array, jax.Array, dict]:
+        if params is None:
+            params = self.default_params
+        self.action_space(params).check(action, "action")
+        obs, state, reward, terminated, info = self.step_env(key, state, action, params)
+        time = state.time + 1
+        state = state.replace(time=time)
+        terminated = jnp.asarray(terminated, dtype=jnp.bool_)
+        truncated = (time >= params.max_steps_in_episode) & ~terminated
+        return obs, state, jnp.asarray(reward, jnp.float32), terminated, truncated, info
+
+    def __repr__(self) -> str:
+        return f"<{self.name}>"

@@ -1,0 +1,171 @@
+"""Registry of environment ids (`Namespace/Name-vN`) -> lazy entry points.
+
+Entry points are `"module:attr"` strings, imported only when `make` is called, so optional
+dependencies (mujoco, ale-py) load only for the envs that need them. Keyword arguments passed to
+`make` go to the env's constructor when it names them, and otherwise replace fields of its
+default params; anything else is an error that names the argument and lists the valid ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib
+import inspect
+from typing import Any, Callable
+
+__all__ = [
+    "EnvSpec",
+    "UnknownEnvError",
+    "MissingDependencyError",
+    "register",
+    "registered_envs",
+    "spec",
+    "make",
+    "make_vec",
+]
+
+
+class UnknownEnvError(KeyError):
+    """An id that is not registered. The message lists the closest registered ids."""
+
+    def __str__(self) -> str:  # KeyError would repr() the message
+        return str(self.args[0])
+
+
+class MissingDependencyError(ImportError):
+    """An env needs an optional dependency that is not installed."""
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSpec:
+    """What `make` needs to build an env.
+
+    Attributes:
+        id: `Namespace/Name-vN`.
+        entry_point: `"module:attr"` (imported lazily) or a callable returning an `Environment`.
+        kwargs: defaults passed to the entry point and/or params, overridable in `make`.
+        extra: the pip extra that provides this env's optional dependencies, if any.
+    """
+
+    id: str
+    entry_point: str | Callable[..., Any]
+    kwargs: dict = dataclasses.field(default_factory=dict)
+    extra: str | None = None
+
+
+_REGISTRY: dict[str, EnvSpec] = {}
+
+
+def register(
+    id: str, entry_point: str | Callable[..., Any], *, extra: str | None = None, **kwargs: Any
+) -> None:
+    """Register `id`. Re-registering an id replaces it (useful in notebooks)."""
+    namespace, _, rest = id.partition("/")
+    if not namespace or not rest or "-v" not in rest:
+        raise ValueError(f"Env ids look like 'Namespace/Name-v0', got {id!r}")
+    _REGISTRY[id] = EnvSpec(id=id, entry_point=entry_point, kwargs=dict(kwargs), extra=extra)
+
+
+def registered_envs() -> tuple[str, ...]:
+    """All registered ids, sorted."""
+    return tuple(sorted(_REGISTRY))
+
+
+def spec(id: str) -> EnvSpec:
+    """The `EnvSpec` of `id`; unknown ids raise `UnknownEnvError` with the closest matches."""
+    try:
+        return _REGISTRY[id]
+    except KeyError:
+        pass
+    ids = registered_envs()
+    folded = {i.lower(): i for i in ids}
+    close = difflib.get_close_matches(id, ids, n=5, cutoff=0.5)
+    close += [folded[m] for m in difflib.get_close_matches(id.lower(), folded, n=5, cutoff=0.5)]
+    close = list(dict.fromkeys(close))  # de-duplicate, keep order
+    hint = f" Did you mean: {', '.join(close)}?" if close else ""
+    raise UnknownEnvError(
+        f"No env registered as {id!r}.{hint} See jaxnat.registered_envs() for all "
+        f"{len(ids)} ids."
+    )
+
+
+def _load_entry_point(env_spec: EnvSpec) -> Callable[..., Any]:
+    entry = env_spec.entry_point
+    if callable(entry):
+        return entry
+    module_name, _, attr = entry.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        if err.name and not err.name.startswith("jaxnat"):
+            fix = (
+                f"pip install 'jaxnat[{env_spec.extra}]'"
+                if env_spec.extra
+                else f"pip install {err.name}"
+            )
+            raise MissingDependencyError(
+                f"{env_spec.id} needs the package {err.name!r}, which is not installed. "
+                f"Fix: {fix}"
+            ) from err
+        raise
+    return getattr(module, attr)
+
+
+def _split_kwargs(entry: Callable[..., Any], kwargs: dict, env_id: str) -> tuple[dict, dict]:
+    """Split kwargs into constructor kwargs and params overrides, rejecting unknown names."""
+    target = entry.__init__ if inspect.isclass(entry) else entry
+    signature = inspect.signature(target)
+    ctor_names = {n for n in signature.parameters if n not in ("self", "args", "kwargs")}
+    params_type = getattr(entry, "params_type", None)
+    param_names = {f.name for f in dataclasses.fields(params_type)} if params_type else set()
+    ctor = {k: v for k, v in kwargs.items() if k in ctor_names}
+    params = {k: v for k, v in kwargs.items() if k not in ctor_names and k in param_names}
+    unknown = sorted(set(kwargs) - set(ctor) - set(params))
+    if unknown:
+        valid = sorted(ctor_names | param_names)
+        raise TypeError(
+            f"{env_id} got unknown keyword argument(s) {unknown}. Valid: {valid}."
+        )
+    return ctor, params
+
+
+def make(id: str, *, autoreset: bool = True, **kwargs: Any):
+    """Build a registered env: `env, params = jaxnat.make("Classify/MNIST-v0", w=5)`.
+
+    Args:
+        id: a registered id (see `registered_envs()`).
+        autoreset: wrap in `AutoResetWrapper` (a fresh reset inside `step` when an episode
+            ends, the final observation in `info["final_observation"]`), as gymnax users
+            expect. `False` returns the raw env.
+        **kwargs: constructor arguments (static: dataset, split, shapes) or params fields
+            (traced: window size, time limit, rewards), by name.
+
+    Returns:
+        `(env, params)`.
+    """
+    env_spec = spec(id)
+    entry = _load_entry_point(env_spec)
+    ctor_kwargs, param_kwargs = _split_kwargs(entry, {**env_spec.kwargs, **kwargs}, id)
+    env = entry(**ctor_kwargs)
+    params = env.default_params
+    if param_kwargs:
+        params = params.replace(**param_kwargs)
+    if autoreset:
+        from jaxnat.wrappers import AutoResetWrapper
+
+        env = AutoResetWrapper(env)
+    return env, params
+
+
+def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
+    """Build `num_envs` copies of an env behind one batched interface.
+
+    Pure-JAX envs come back in a `VmapWrapper` (one key in, `num_envs` envs out). Envs that
+    are batched by nature (host emulators) may register an entry point that accepts
+    `num_envs` themselves.
+    """
+    from jaxnat.wrappers import VmapWrapper
+
+    env, params = make(id, autoreset=autoreset, **kwargs)
+    return VmapWrapper(env, num_envs), params

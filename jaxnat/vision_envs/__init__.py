@@ -1,0 +1,1 @@
+"""Pure-JAX navigation tasks over image datasets: `classify.py`, `localize.py`."""

@@ -1,0 +1,211 @@
+"""Image classification by navigation: `Classify/*`.
+
+The agent sees a masked image and uncovers it one square window at a time while guessing the
+class. Semantics: `shared/spec/environments.md` section 1.
+
+- **Data**: uint8 images `[N, H, W, C]` and int32 labels `[N]` of one official split
+  (`split="train"` or `"test"`), held on the device in `params.images` / `params.labels`.
+  One trace serves any image of the split.
+- **Reset**: an image drawn uniformly from the split. The window (side `w = params.window`,
+  always fully inside the image, top-left in `[0, H-w] x [0, W-w]`) starts at a uniformly
+  random position (`start="random"`, the paper) or at top-left `(H//2 - w, W//2 - w)`
+  (`start="center"`, the authors' code: `(16-w, 16-w)` on 32x32). The window is revealed.
+- **Action**: `int32[2] = (move, label)`, space `MultiDiscrete([4, num_classes])`.
+  `move`: 0 UP, 1 DOWN, 2 LEFT, 3 RIGHT shifts the window by `w` pixels, clamped inside the
+  image (UP and LEFT work: the authors' code had them as no-ops). `label`: the guessed class.
+- **Step order**: apply the move, reveal the new window, `t += 1`, then judge the label.
+- **Reward**: `params.correct_reward` (+1.0) and `terminated` when the label is right, else
+  `params.wrong_reward` (-0.1). A perfect agent scores 1.0; an always-wrong one -0.1 * M.
+- **Time limit**: `truncated` when `t >= params.max_steps_in_episode` (M, default 20) and the
+  step did not terminate. The time limit is never reported as termination.
+- **Observation**: uint8 `[H, W, C + 2]`: the image where revealed and 0 elsewhere (channels
+  `0..C-1`), the revealed mask (255/0, channel `C`) and the current window (255/0, channel
+  `C+1`). The mask channel tells an unrevealed pixel from a black one (the authors used -1).
+- **Info**: `{}` (`terminated` already says the label was right).
+
+Example::
+
+    import jax, jaxnat
+    env, params = jaxnat.make("Classify/Digits-v0", w=5)
+    obs, state = env.reset(jax.random.key(0), params)
+    action = env.action_space(params).sample(jax.random.key(1))
+    obs, state, reward, terminated, truncated, info = env.step(
+        jax.random.key(2), state, action, params)
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxnat import spaces
+from jaxnat.core import Environment, EnvParams, EnvState
+
+__all__ = ["Classify", "ClassifyState", "ClassifyParams", "UP", "DOWN", "LEFT", "RIGHT"]
+
+UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
+# (dy, dx) per move, in units of the window side.
+_MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
+_STARTS = ("random", "center")
+
+
+@struct.dataclass
+class ClassifyState(EnvState):
+    image_index: jax.Array  # int32: which image of the split
+    label: jax.Array  # int32: its class
+    top_left: jax.Array  # int32[2]: (row, col) of the window
+    revealed: jax.Array  # bool[H, W]: pixels uncovered so far
+
+
+@struct.dataclass(kw_only=True)
+class ClassifyParams(EnvParams):
+    images: jax.Array  # uint8 [N, H, W, C]
+    labels: jax.Array  # int32 [N]
+    window: int = 5
+    max_steps_in_episode: int = 20
+    correct_reward: float = 1.0
+    wrong_reward: float = -0.1
+
+
+class Classify(Environment[ClassifyState, ClassifyParams]):
+    """Classify an image by moving a window over it (see the module docstring for the spec).
+
+    Args:
+        dataset: a name from `jaxnat.datasets.DATASETS` ("mnist", "fashion_mnist", "digits",
+            "cifar10", "cifar100", "image_folder") or a loaded `jaxnat.datasets.ImageDataset`.
+        split: "train" or "test" (the dataset's official split; train envs never see test
+            images).
+        start: "random" (the paper) or "center" (the authors' code).
+        root: where the dataset lives (else `$JAXNAT_DATA_DIR`, then the Debian packages'
+            locations); required for "image_folder".
+        image_size: optional `(H, W)` or int to resize every image to at load time.
+        w, M: shortcuts accepted by `jaxnat.make`; see `ClassifyParams.window` and
+            `max_steps_in_episode`.
+    """
+
+    params_type = ClassifyParams
+
+    def __init__(
+        self,
+        dataset="mnist",
+        split: str = "train",
+        start: str = "random",
+        root: str | os.PathLike | None = None,
+        image_size: int | tuple[int, int] | None = None,
+        w: int | None = None,
+        M: int | None = None,
+    ):
+        if start not in _STARTS:
+            raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
+        if isinstance(dataset, str):
+            from jaxnat import datasets
+
+            dataset = datasets.load(dataset, split, root=root)
+        images = np.asarray(dataset.images)
+        if image_size is not None:
+            images = _resize(images, image_size)
+        if images.dtype != np.uint8 or images.ndim != 4:
+            raise ValueError(f"images must be uint8 [N, H, W, C], got {images.dtype} {images.shape}")
+        labels = np.asarray(dataset.labels, dtype=np.int32)
+        if labels.shape != images.shape[:1]:
+            raise ValueError(f"{labels.shape[0]} labels for {images.shape[0]} images")
+        self.dataset_name = dataset.name
+        self.split = dataset.split
+        self.class_names = tuple(dataset.class_names)
+        self.num_classes = len(self.class_names)
+        self.start = start
+        self.image_shape = images.shape[1:]
+        self._window = 5 if w is None else int(w)
+        self._max_steps = 20 if M is None else int(M)
+        _check_window(self._window, self.image_shape)
+        # Device-resident once; params hand the same buffers to every trace.
+        self._images = jnp.asarray(images)
+        self._labels = jnp.asarray(labels)
+
+    @property
+    def name(self) -> str:
+        return f"Classify[{self.dataset_name}/{self.split}]"
+
+    @property
+    def default_params(self) -> ClassifyParams:
+        return ClassifyParams(
+            images=self._images,
+            labels=self._labels,
+            window=self._window,
+            max_steps_in_episode=self._max_steps,
+        )
+
+    def observation_space(self, params: ClassifyParams) -> spaces.Box:
+        h, w, c = self.image_shape
+        return spaces.Box(0, 255, (h, w, c + 2), jnp.uint8)
+
+    def action_space(self, params: ClassifyParams) -> spaces.MultiDiscrete:
+        return spaces.MultiDiscrete([4, self.num_classes])
+
+    def reset_env(self, key, params: ClassifyParams):
+        key_image, key_pos = jax.random.split(key)
+        h, w = self.image_shape[:2]
+        side = params.window
+        image_index = jax.random.randint(key_image, (), 0, params.images.shape[0])
+        if self.start == "random":
+            top_left = jax.random.randint(key_pos, (2,), 0, jnp.array([h, w]) - side + 1)
+        else:
+            top_left = jnp.maximum(jnp.array([h // 2, w // 2]) - side, 0)
+        window = self._window_mask(top_left, side)
+        state = ClassifyState(
+            time=jnp.zeros((), jnp.int32),
+            image_index=image_index,
+            label=params.labels[image_index],
+            top_left=top_left.astype(jnp.int32),
+            revealed=window,
+        )
+        return self._observation(state, window, params), state
+
+    def step_env(self, key, state: ClassifyState, action, params: ClassifyParams):
+        move, label = action[0], action[1]
+        h, w = self.image_shape[:2]
+        side = params.window
+        limit = jnp.array([h, w]) - side
+        top_left = jnp.clip(state.top_left + jnp.asarray(_MOVES)[move] * side, 0, limit)
+        window = self._window_mask(top_left, side)
+        state = state.replace(top_left=top_left, revealed=state.revealed | window)
+        correct = label == state.label
+        reward = jnp.where(correct, params.correct_reward, params.wrong_reward)
+        return self._observation(state, window, params), state, reward, correct, {}
+
+    def _window_mask(self, top_left, side):
+        h, w = self.image_shape[:2]
+        rows = jnp.arange(h)[:, None]
+        cols = jnp.arange(w)[None, :]
+        row0, col0 = top_left[0], top_left[1]
+        return (rows >= row0) & (rows < row0 + side) & (cols >= col0) & (cols < col0 + side)
+
+    def _observation(self, state: ClassifyState, window, params: ClassifyParams):
+        image = params.images[state.image_index]
+        revealed = state.revealed[..., None]
+        return jnp.concatenate(
+            [
+                jnp.where(revealed, image, jnp.uint8(0)),
+                revealed.astype(jnp.uint8) * jnp.uint8(255),
+                window[..., None].astype(jnp.uint8) * jnp.uint8(255),
+            ],
+            axis=-1,
+        )
+
+
+def _check_window(side: int, image_shape) -> None:
+    h, w = image_shape[:2]
+    if not 1 <= side <= min(h, w):
+        raise ValueError(f"window w={side} must be in [1, {min(h, w)}] for {h}x{w} images")
+
+
+def _resize(images: np.ndarray, image_size) -> np.ndarray:
+    import cv2
+
+    h, w = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+    out = np.stack([cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA) for im in images])
+    return out.reshape(len(images), h, w, images.shape[-1])
