@@ -98,7 +98,7 @@ def _load_entry_point(env_spec: EnvSpec) -> Callable[..., Any]:
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as err:
-        if err.name and not err.name.startswith("jaxnat"):
+        if err.name and err.name.partition(".")[0] != "jaxnat":  # else: a bug, not a missing extra
             fix = (
                 f"pip install 'jaxnat[{env_spec.extra}]'"
                 if env_spec.extra

@@ -1,0 +1,189 @@
+"""Classification env throughput: `jit(vmap(step))` under `lax.scan`, 1 ... 65,536 envs.
+
+Measures, in one run on the default JAX backend:
+- env steps/s and observation bytes written/s of the raw env and of the autoresetting env
+  (what `jaxnat.make` returns), random actions, observations carried through the scan so every
+  step's observation is written to memory;
+- the device's copy bandwidth (bytes read + written per second by a large elementwise op), and
+  the observation bandwidth as a fraction of it (target on one H100: >= 50% at 65,536 envs);
+- a plain NumPy single-env implementation of the same task stepped in a Python loop (the
+  authors' style), and the speed-up over it.
+
+    python bench/classify_throughput.py [--env-id Classify/FashionMNIST-v0] [--max-envs 65536]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+import jaxnat  # noqa: E402
+
+
+def copy_bandwidth(num_bytes: int) -> float:
+    """Bytes read + written per second by `x ^ 1` over a uint8 array of `num_bytes`."""
+    x = jnp.zeros((num_bytes,), jnp.uint8)
+    flip = jax.jit(lambda x: x ^ jnp.uint8(1))
+    jax.block_until_ready(flip(x))
+    seconds = common.median_seconds(lambda: jax.block_until_ready(flip(x)), repeats=10)
+    return 2 * num_bytes / seconds
+
+
+def scan_rollout(env, params, num_envs: int, num_steps: int):
+    """A jitted scan of `num_steps` vmapped steps with uniformly random actions."""
+    nvec = jnp.asarray(env.action_space(params).nvec)
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+
+    def run(key):
+        obs, state = reset(jax.random.split(key, num_envs), params)
+
+        def body(carry, key):
+            obs, state = carry
+            key_act, key_step = jax.random.split(key)
+            actions = jax.random.randint(key_act, (num_envs, 2), 0, nvec)
+            obs, state, reward, *_ = step(jax.random.split(key_step, num_envs), state, actions, params)
+            return (obs, state), None
+
+        (obs, state), _ = jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
+        return obs, state
+
+    return jax.jit(run)
+
+
+class NumpyClassify:
+    """The same task for one env in NumPy, stepped from Python (the authors' style)."""
+
+    def __init__(self, images, labels, window=5, max_steps=20, seed=0):
+        self.images, self.labels, self.w, self.max_steps = images, labels, window, max_steps
+        self.rng = np.random.default_rng(seed)
+        self.h, self.width = images.shape[1:3]
+
+    def reset(self):
+        self.index = self.rng.integers(len(self.images))
+        self.pos = self.rng.integers(0, [self.h - self.w + 1, self.width - self.w + 1])
+        self.revealed = np.zeros((self.h, self.width), bool)
+        self.t = 0
+        return self._reveal()
+
+    def _reveal(self):
+        window = np.zeros_like(self.revealed)
+        r, c = self.pos
+        window[r : r + self.w, c : c + self.w] = True
+        self.revealed |= window
+        image = self.images[self.index]
+        return np.concatenate(
+            [np.where(self.revealed[..., None], image, 0), self.revealed[..., None] * 255,
+             window[..., None] * 255], axis=-1).astype(np.uint8)
+
+    def step(self, move, label):
+        delta = ((-1, 0), (1, 0), (0, -1), (0, 1))[move]
+        self.pos = np.clip(self.pos + np.array(delta) * self.w, 0,
+                           [self.h - self.w, self.width - self.w])
+        obs = self._reveal()
+        self.t += 1
+        correct = label == self.labels[self.index]
+        return obs, (1.0 if correct else -0.1), correct, (self.t >= self.max_steps) and not correct
+
+
+def numpy_steps_per_second(images, labels, num_classes, seconds: float = 3.0) -> float:
+    env = NumpyClassify(images, labels)
+    rng = np.random.default_rng(1)
+    env.reset()
+    steps, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(1000):
+            _, _, terminated, truncated = env.step(rng.integers(4), rng.integers(num_classes))
+            if terminated or truncated:
+                env.reset()
+        steps += 1000
+    return steps / (time.perf_counter() - t0)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env-id", default=None, help="default: FashionMNIST, else Digits")
+    parser.add_argument("--max-envs", type=int, default=65536)
+    parser.add_argument("--step-budget", type=float, default=None,
+                        help="env steps per timed scan (default: 2^25 on GPU, 2^22 on CPU)")
+    parser.add_argument("--no-record", action="store_true")
+    args = parser.parse_args(argv)
+
+    info = common.machine()
+    on_gpu = info["backend"] != "cpu"
+    budget = args.step_budget or (2**25 if on_gpu else 2**22)
+    env_id = args.env_id
+    if env_id is None:
+        from jaxnat import datasets
+
+        try:
+            datasets.load("fashion_mnist", "train")
+            env_id = "Classify/FashionMNIST-v0"
+        except datasets.DatasetNotFoundError:
+            env_id = "Classify/Digits-v0"
+    raw, params = jaxnat.make(env_id, autoreset=False)
+    auto, _ = jaxnat.make(env_id)
+    obs_bytes = int(np.prod(raw.observation_space(params).shape))
+    print(f"{env_id}: {params.images.shape[0]} images, observation {obs_bytes} bytes; {info['device']}")
+
+    bandwidth = copy_bandwidth(2**30 if on_gpu else 2**28)
+    rows = []
+    sizes = [4**i for i in range(9) if 4**i <= args.max_envs]
+    if args.max_envs not in sizes:
+        sizes.append(args.max_envs)
+    for num_envs in sizes:
+        num_steps = int(np.clip(budget // num_envs, 16, 2000))
+        row = {"envs": num_envs, "steps": num_steps}
+        for label, env in [("raw", raw), ("auto", auto)]:
+            run = scan_rollout(env, params, num_envs, num_steps)
+            key = jax.random.key(0)
+            t0 = time.perf_counter()
+            jax.block_until_ready(run(key))
+            row[f"{label}_compile_s"] = time.perf_counter() - t0
+            seconds = common.median_seconds(lambda: jax.block_until_ready(run(key)), repeats=5)
+            row[f"{label}_sps"] = num_envs * num_steps / seconds
+            row[f"{label}_obs_GBps"] = row[f"{label}_sps"] * obs_bytes / 1e9
+            row[f"{label}_bw_frac"] = row[f"{label}_sps"] * obs_bytes / bandwidth
+        rows.append(row)
+        print(f"  {num_envs:>6} envs: raw {row['raw_sps']:.3e} steps/s, auto {row['auto_sps']:.3e}", flush=True)
+
+    images = np.asarray(params.images)
+    labels = np.asarray(params.labels)
+    numpy_sps = numpy_steps_per_second(images, labels, raw.num_classes)
+    best = max(rows, key=lambda r: r["raw_sps"])
+    largest = rows[-1]
+    table = common.markdown_table(rows, [
+        ("envs", "envs", ","), ("steps", "scan steps", ","),
+        ("raw_sps", "raw steps/s", ".3e"), ("raw_obs_GBps", "raw obs GB/s", ".1f"),
+        ("raw_bw_frac", "raw / copy BW", ".1%"),
+        ("auto_sps", "autoreset steps/s", ".3e"), ("auto_obs_GBps", "autoreset obs GB/s", ".1f"),
+        ("auto_bw_frac", "autoreset / copy BW", ".1%"), ("raw_compile_s", "compile s", ".2f"),
+    ])
+    summary = {
+        "env": env_id,
+        "observation bytes": obs_bytes,
+        "copy bandwidth (read+write)": f"{bandwidth / 1e9:.1f} GB/s",
+        f"obs bytes written / copy bandwidth at {largest['envs']:,} envs (raw, autoreset)":
+            f"{largest['raw_bw_frac']:.1%}, {largest['auto_bw_frac']:.1%} (target on one H100: >= 50%)",
+        "NumPy single env, Python loop": f"{numpy_sps:,.0f} steps/s",
+        "best jaxnat / NumPy loop (raw, autoreset at that size)":
+            f"{best['raw_sps'] / numpy_sps:,.0f}x, {best['auto_sps'] / numpy_sps:,.0f}x "
+            f"(at {best['envs']:,} envs)",
+    }
+    if args.no_record:
+        print(table)
+        print(summary)
+    else:
+        common.record("classify_throughput", info | {"env": env_id}, table, summary, rows)
+
+
+if __name__ == "__main__":
+    main()

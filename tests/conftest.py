@@ -1,0 +1,25 @@
+"""Shared test set-up: CPU JAX, and a small hand-built image dataset."""
+
+import os
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def toy_dataset():
+    """Three 12x10 grayscale images, labels 0, 1, 2; pixel (r, c) of image i is 1 + i*120 + r*10 + c
+    so every pixel value is distinct and non-zero (0 in an observation means unrevealed)."""
+    from jaxnat.datasets import ImageDataset
+
+    r, c = np.meshgrid(np.arange(12), np.arange(10), indexing="ij")
+    images = np.stack([1 + i * 120 + r * 10 + c for i in range(3)]).astype(np.uint8)[..., None]
+    return ImageDataset(
+        name="toy",
+        split="train",
+        images=images,
+        labels=np.array([0, 1, 2], dtype=np.int32),
+        class_names=("zero", "one", "two"),
+    )

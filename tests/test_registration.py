@@ -1,0 +1,77 @@
+"""Registry: make, close-match errors, kwargs routing, lazy optional dependencies."""
+
+import jax
+import pytest
+
+import jaxnat
+from jaxnat.registration import MissingDependencyError, UnknownEnvError
+from jaxnat.wrappers import AutoResetWrapper, VmapWrapper
+
+CLASSIFY_IDS = {
+    f"Classify/{n}-v0" for n in ["MNIST", "FashionMNIST", "Digits", "CIFAR10", "CIFAR100", "ImageFolder"]
+}
+
+
+def test_classify_ids_registered():
+    assert CLASSIFY_IDS <= set(jaxnat.registered_envs())
+
+
+def test_unknown_id_lists_close_matches():
+    with pytest.raises(UnknownEnvError) as err:
+        jaxnat.make("Classify/MNSIT-v0")
+    assert "Classify/MNIST-v0" in str(err.value)
+    with pytest.raises(UnknownEnvError, match="Classify/CIFAR10-v0"):
+        jaxnat.make("classify/cifar10-v0")
+
+
+def test_bad_id_format_rejected():
+    with pytest.raises(ValueError, match="Namespace/Name-v0"):
+        jaxnat.register("NoNamespace", "x:y")
+
+
+@pytest.fixture
+def toy_registered(toy_dataset):
+    jaxnat.register("Test/Toy-v0", "jaxnat.vision_envs.classify:Classify", dataset=toy_dataset)
+    yield "Test/Toy-v0"
+
+
+def test_kwargs_go_to_constructor_or_params(toy_registered):
+    env, params = jaxnat.make(toy_registered, start="center", w=2, max_steps_in_episode=7)
+    assert isinstance(env, AutoResetWrapper)
+    assert env.unwrapped.start == "center"
+    assert int(params.window) == 2 and int(params.max_steps_in_episode) == 7
+    raw, _ = jaxnat.make(toy_registered, autoreset=False)
+    assert not isinstance(raw, AutoResetWrapper)
+
+
+def test_unknown_kwarg_is_named(toy_registered):
+    with pytest.raises(TypeError, match=r"\['windw'\].*window"):
+        jaxnat.make(toy_registered, windw=3)
+
+
+def test_make_vec(toy_registered):
+    env, params = jaxnat.make_vec(toy_registered, 6)
+    assert isinstance(env, VmapWrapper)
+    obs, state = env.reset(jax.random.key(0), params)
+    assert obs.shape == (6, 12, 10, 3)
+
+
+def test_missing_optional_dependency_names_the_fix(tmp_path, monkeypatch):
+    (tmp_path / "env_with_missing_dep.py").write_text("import no_such_dependency_xyz\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    jaxnat.register("Test/NeedsMissing-v0", "env_with_missing_dep:Env", extra="atari")
+    with pytest.raises(MissingDependencyError, match=r"pip install 'jaxnat\[atari\]'"):
+        jaxnat.make("Test/NeedsMissing-v0")
+
+
+def test_import_stays_light():
+    """`import jaxnat` must not pull in optional or heavy modules."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, jaxnat; heavy = [m for m in ('optax', 'gymnasium', 'mujoco', 'ale_py', "
+        "'cv2', 'jaxnat.vision_envs.classify') if m in sys.modules]; print(heavy)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

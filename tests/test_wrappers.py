@@ -1,0 +1,126 @@
+"""Wrappers: autoreset, logging, vmap, frame stacking, noise observations, legacy API."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxnat.testing import check_env
+from jaxnat.vision_envs.classify import RIGHT, Classify
+from jaxnat.wrappers import (
+    AutoResetWrapper,
+    FrameStackWrapper,
+    LegacyStepAPIWrapper,
+    LogWrapper,
+    NoiseObservationWrapper,
+    VmapWrapper,
+)
+
+
+@pytest.fixture
+def env(toy_dataset):
+    return Classify(toy_dataset, w=3, M=3)
+
+
+def wrong(state):
+    return jnp.array([RIGHT, (state.label + 1) % 3], jnp.int32)
+
+
+def right(state):
+    return jnp.array([RIGHT, state.label], jnp.int32)
+
+
+def test_autoreset_on_truncation_keeps_final_observation(env):
+    wrapped = AutoResetWrapper(env)
+    params = env.default_params
+    obs, state = wrapped.reset(jax.random.key(0), params)
+    for t in range(3):
+        obs, next_state, reward, terminated, truncated, info = wrapped.step(
+            jax.random.key(t + 1), state, wrong(state), params
+        )
+        if t < 2:
+            state = next_state
+    assert bool(truncated) and not bool(terminated)
+    assert int(next_state.time) == 0, "a fresh episode starts at time 0"
+    assert (np.asarray(obs[..., 1]) == 255).sum() == 9, "new episode reveals one window"
+    final = np.asarray(info["final_observation"])
+    assert (final[..., 1] == 255).sum() > 9, "final observation shows the whole episode's reveals"
+
+
+def test_autoreset_keeps_state_when_not_done(env):
+    wrapped = AutoResetWrapper(env)
+    params = env.default_params
+    _, state = wrapped.reset(jax.random.key(0), params)
+    obs, state2, _, terminated, truncated, info = wrapped.step(jax.random.key(1), state, wrong(state), params)
+    assert not bool(terminated | truncated)
+    assert int(state2.time) == 1
+    np.testing.assert_array_equal(np.asarray(obs), np.asarray(info["final_observation"]))
+
+
+def test_autoreset_contract(env):
+    check_env(AutoResetWrapper(env), env.default_params, num_steps=12)
+
+
+def test_log_wrapper_reports_returns_and_lengths(env):
+    wrapped = LogWrapper(AutoResetWrapper(env))
+    params = env.default_params
+    _, state = wrapped.reset(jax.random.key(0), params)
+    # Episode 1: wrong, wrong, right -> return -0.2 + 1 = 0.8, length 3 (M=3, terminated wins).
+    infos = []
+    for t, policy in enumerate([wrong, wrong, right, wrong]):
+        _, state, _, _, _, info = wrapped.step(jax.random.key(t), state, policy(state.env_state), params)
+        infos.append(info)
+    assert [bool(i["returned_episode"]) for i in infos] == [False, False, True, False]
+    assert float(infos[2]["returned_episode_returns"]) == pytest.approx(0.8)
+    assert int(infos[2]["returned_episode_lengths"]) == 3
+    assert float(infos[3]["returned_episode_returns"]) == pytest.approx(0.8), "held until next end"
+    assert int(infos[3]["timestep"]) == 4
+
+
+def test_vmap_wrapper(env):
+    wrapped = VmapWrapper(AutoResetWrapper(env), 5)
+    params = env.default_params
+    obs, state = wrapped.reset(jax.random.key(0), params)
+    assert obs.shape == (5, 12, 10, 3)
+    actions = jnp.zeros((5, 2), jnp.int32)
+    obs, state, reward, terminated, truncated, _ = jax.jit(wrapped.step)(jax.random.key(1), state, actions, params)
+    assert reward.shape == terminated.shape == truncated.shape == (5,)
+
+
+def test_frame_stack(env):
+    wrapped = FrameStackWrapper(AutoResetWrapper(env), num_frames=3)
+    params = env.default_params
+    assert wrapped.observation_space(params).shape == (12, 10, 9)
+    obs, state = wrapped.reset(jax.random.key(0), params)
+    np.testing.assert_array_equal(np.asarray(obs[..., 0:3]), np.asarray(obs[..., 6:9]))
+    obs1, state, *_ = wrapped.step(jax.random.key(1), state, wrong(state.env_state), params)
+    np.testing.assert_array_equal(np.asarray(obs1[..., 3:6]), np.asarray(obs[..., 6:9]))
+    # End the episode: the stack refills with the new episode's first frame.
+    obs2, state, _, terminated, *_ = wrapped.step(jax.random.key(2), state, right(state.env_state), params)
+    assert bool(terminated)
+    np.testing.assert_array_equal(np.asarray(obs2[..., 0:3]), np.asarray(obs2[..., 6:9]))
+    check_env(wrapped, params, num_steps=8)
+
+
+def test_noise_observation_replaces_pixels(env):
+    wrapped = NoiseObservationWrapper(env)
+    params = env.default_params
+    obs, state = wrapped.reset(jax.random.key(0), params)
+    real, _ = env.reset(jax.random.split(jax.random.key(0))[0], params)
+    assert obs.shape == real.shape and obs.dtype == jnp.uint8
+    assert not np.array_equal(np.asarray(obs), np.asarray(real))
+    big = VmapWrapper(wrapped, 64).reset(jax.random.key(1), params)[0].astype(jnp.float32)
+    assert abs(float(big.mean()) - 127.5) < 3 and abs(float(big.std()) - 50) < 3
+    obs2, *_ = wrapped.step(jax.random.key(2), state, wrong(state), params)
+    assert not np.array_equal(np.asarray(obs), np.asarray(obs2)), "fresh noise every step"
+    check_env(wrapped, params, num_steps=5)
+
+
+def test_legacy_step_api(env):
+    wrapped = LegacyStepAPIWrapper(env)
+    params = env.default_params
+    _, state = wrapped.reset(jax.random.key(0), params)
+    out = wrapped.step(jax.random.key(1), state, right(state), params)
+    assert len(out) == 5
+    _, _, reward, done, info = out
+    assert bool(done) and bool(info["terminated"]) and not bool(info["truncated"])
