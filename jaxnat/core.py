@@ -62,6 +62,11 @@ class Environment(Generic[TState, TParams]):
     def name(self) -> str:
         return type(self).__name__
 
+    @property
+    def unwrapped(self) -> "Environment":
+        """The innermost env (itself here; wrappers return what they wrap, all the way in)."""
+        return self
+
     def reset_env(self, key: jax.Array, params: TParams) -> tuple[Any, TState]:
         """Return `(obs, state)` with `state.time == 0`."""
         raise NotImplementedError

@@ -44,6 +44,7 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState
+from jaxnat.vision_envs.observation import masked_image_observation
 
 __all__ = [
     "Classify", "ClassifyState", "ClassifyParams", "pack_mask", "unpack_mask",
@@ -124,6 +125,8 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         self.class_names = tuple(dataset.class_names)
         self.num_classes = len(self.class_names)
         self.start = start
+        # The observation writer; benchmarks swap in the byte-wise reference to compare.
+        self._render = masked_image_observation
         self.image_shape = images.shape[1:]
         self._window = 5 if w is None else int(w)
         self._max_steps = 20 if M is None else int(M)
@@ -186,17 +189,9 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
     def get_obs(self, state: ClassifyState, params: ClassifyParams) -> jax.Array:
         """uint8 `[H, W, C+2]`: image where revealed (else 0), revealed mask, window."""
         h, w = self.image_shape[:2]
-        image = params.images[state.image_index]
-        revealed = unpack_mask(state.revealed, w)[..., None]
-        window = _window_mask(state.top_left, params.window, h, w)[..., None]
-        return jnp.concatenate(
-            [
-                jnp.where(revealed, image, jnp.uint8(0)),
-                revealed.astype(jnp.uint8) * jnp.uint8(255),
-                window.astype(jnp.uint8) * jnp.uint8(255),
-            ],
-            axis=-1,
-        )
+        revealed = unpack_mask(state.revealed, w)
+        window = _window_mask(state.top_left, params.window, h, w)
+        return self._render(params.images, state.image_index, revealed, [revealed, window])
 
     def _window_bits(self, top_left, side) -> jax.Array:
         h, w = self.image_shape[:2]
