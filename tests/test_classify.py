@@ -185,3 +185,18 @@ def test_pack_unpack_round_trip(width):
     bits = pack_mask(mask)
     assert bits.dtype == jnp.uint32 and bits.shape == (5, -(-width // 32))
     np.testing.assert_array_equal(np.asarray(unpack_mask(bits, width)), np.asarray(mask))
+
+
+@pytest.mark.parametrize("width", [10, 32, 40, 70])
+def test_window_bits_equal_packed_window_mask(width):
+    from jaxnat.datasets import ImageDataset
+    from jaxnat.vision_envs.classify import _window_mask
+
+    images = np.zeros((1, 9, width, 1), np.uint8)
+    env = Classify(ImageDataset("blank", "train", images, np.zeros(1, np.int32), ("a",)))
+    for side in [1, 3, 9]:
+        for row in range(0, 9 - side + 1, 2):
+            for col in range(0, width - side + 1, 3):
+                top_left = jnp.array([row, col])
+                want = pack_mask(_window_mask(top_left, side, 9, width))
+                np.testing.assert_array_equal(np.asarray(env._window_bits(top_left, side)), np.asarray(want))

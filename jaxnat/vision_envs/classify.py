@@ -194,8 +194,20 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         return self._render(params.images, state.image_index, revealed, [revealed, window])
 
     def _window_bits(self, top_left, side) -> jax.Array:
+        """`pack_mask(_window_mask(...))`, computed word by word without a reduction."""
         h, w = self.image_shape[:2]
-        return pack_mask(_window_mask(top_left, side, h, w))
+        word_start = 32 * jnp.arange(-(-w // 32))
+        low = jnp.clip(top_left[1] - word_start, 0, 32).astype(jnp.uint32)
+        high = jnp.clip(top_left[1] + side - word_start, 0, 32).astype(jnp.uint32)
+        columns = _low_bits(high) & ~_low_bits(low)
+        rows = jnp.arange(h)
+        in_rows = (rows >= top_left[0]) & (rows < top_left[0] + side)
+        return jnp.where(in_rows[:, None], columns[None, :], jnp.uint32(0))
+
+
+def _low_bits(n):
+    """uint32 with the lowest n bits set, n in 0..32 (XLA shifts by >= 32 give 0, so 32 works)."""
+    return jnp.left_shift(jnp.uint32(1), n) - jnp.uint32(1)
 
 
 def _window_mask(top_left, side, height: int, width: int) -> jax.Array:

@@ -63,12 +63,9 @@ def _wordwise_observation(images, index, image_mask, planes) -> jax.Array:
         byte(4 * k) | byte(4 * k + 1) << 8 | byte(4 * k + 2) << 16 | byte(4 * k + 3) << 24
         for k in range(p)
     ]
-    # Assemble the P words with a select on an iota: an elementwise kernel, unlike a concatenate.
-    which = jax.lax.broadcasted_iota(jnp.int32, (h, w // 4, p), 2)
-    out = group[-1][..., None]
-    for k in range(p - 2, -1, -1):
-        out = jnp.where(which == k, group[k][..., None], out)
-    return jax.lax.bitcast_convert_type(out, jnp.uint8).reshape(h, w, p)
+    # Stacking computes each word once (a select over an iota computed all P per word, and
+    # measured 1.4x slower on an H200).
+    return jax.lax.bitcast_convert_type(jnp.stack(group, -1), jnp.uint8).reshape(h, w, p)
 
 
 def masked_image_observation_reference(images, index, image_mask, planes) -> jax.Array:
