@@ -2,9 +2,9 @@
 
 Measures, in one run on the default JAX backend:
 - env steps/s and observation bytes written/s of the raw env and of the autoresetting env
-  (what `jaxnat.make` returns), random actions, every step's observation stored in the scan's
-  trajectory output (so every observation is written to memory), with the scan unrolled 1x and
-  (on GPUs) 8x;
+  (what `jaxnat.make` returns), random actions, every step's observation in the scan carry
+  (the next policy input: written every step) and, separately, also stored as a trajectory
+  output (a rollout buffer);
 - the same env with the straightforward byte-wise observation writer (GPU), side by side;
 - the device's copy bandwidth (bytes read + written per second by a large elementwise op), and
   the observation bandwidth as a fraction of it (target on one H100: >= 50% at 65,536 envs);
@@ -31,9 +31,6 @@ import jaxnat  # noqa: E402
 from jaxnat.vision_envs.observation import masked_image_observation_reference  # noqa: E402
 
 
-UNROLL = 8
-
-
 def copy_bandwidths(num_bytes: int) -> dict[str, float]:
     """Bytes read + written per second when XLA copies `num_bytes` on the device, two ways:
     an elementwise kernel (`x ^ 1` on uint32) and a plain copy (`jnp.copy`, a device memcpy).
@@ -48,11 +45,13 @@ def copy_bandwidths(num_bytes: int) -> dict[str, float]:
     return result
 
 
-def scan_rollout(env, params, num_envs: int, num_steps: int, unroll: int = 1):
+def scan_rollout(env, params, num_envs: int, num_steps: int, trajectory: bool):
     """A jitted `run(key, params)`: `num_steps` vmapped steps with uniformly random actions.
 
-    Every step's observation is an output of the scan (a trajectory buffer, as a learner keeps),
-    so each one is written to memory: nothing can be optimised away, unrolled or not.
+    `trajectory=False`: each step's observation is the scan carry (the next policy input), so
+    every step writes it to the carry buffer: the env-step metric. `trajectory=True`: every
+    observation is also a scan output (a rollout buffer, as a learner keeps). The scan is not
+    unrolled: unrolled, XLA may drop observations that no later step reads.
     """
     nvec = jnp.asarray(env.action_space(params).nvec)
     step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
@@ -61,14 +60,14 @@ def scan_rollout(env, params, num_envs: int, num_steps: int, unroll: int = 1):
     def run(key, params):
         obs, state = reset(jax.random.split(key, num_envs), params)
 
-        def body(state, key):
+        def body(carry, key):
+            obs, state = carry
             key_act, key_step = jax.random.split(key)
             actions = jax.random.randint(key_act, (num_envs, 2), 0, nvec)
             obs, state, reward, *_ = step(jax.random.split(key_step, num_envs), state, actions, params)
-            return state, (obs, reward)
+            return (obs, state), ((obs, reward) if trajectory else reward)
 
-        state, trajectory = jax.lax.scan(body, state, jax.random.split(key, num_steps), unroll=unroll)
-        return trajectory, state
+        return jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
 
     return jax.jit(run)
 
@@ -158,19 +157,18 @@ def main(argv=None):
     sizes = [4**i for i in range(9) if 4**i <= args.max_envs]
     if args.max_envs not in sizes:
         sizes.append(args.max_envs)
-    # (label, env, scan unroll). An unrolled scan amortises the while loop's per-iteration cost
-    # on GPUs; on CPUs it is slower, and the byte-wise writer is what the CPU runs anyway.
-    variants = [("raw", raw, 1), ("auto", auto, 1)]
-    if on_gpu:
-        variants += [("raw8", raw, UNROLL), ("auto8", auto, UNROLL), ("bytewise8", bytewise, UNROLL)]
-    unroll_max = max(u for *_, u in variants)
+    # (label, env, observations also stored as a trajectory?)
+    variants = [("raw", raw, False), ("auto", auto, False), ("rawtraj", raw, True),
+                ("autotraj", auto, True)]
+    if on_gpu:  # CPUs run the byte-wise writer anyway
+        variants.append(("bytewise", bytewise, False))
     for num_envs in sizes:
         # Bounded by the trajectory buffer (at most `max_buffer` bytes of observations).
         num_steps = min(budget // num_envs, max_buffer // (num_envs * obs_bytes), 2000)
-        num_steps = max(int(num_steps) // unroll_max * unroll_max, unroll_max)
+        num_steps = max(int(num_steps), 8)
         row = {"envs": num_envs, "steps": num_steps}
-        for label, env, unroll in variants:
-            run = scan_rollout(env, params, num_envs, num_steps, unroll)
+        for label, env, trajectory in variants:
+            run = scan_rollout(env, params, num_envs, num_steps, trajectory)
             key = jax.random.key(0)
             t0 = time.perf_counter()
             jax.block_until_ready(run(key, params))
@@ -185,8 +183,8 @@ def main(argv=None):
     images = np.asarray(params.images)
     labels = np.asarray(params.labels)
     numpy_sps = numpy_steps_per_second(images, labels, raw.num_classes)
-    names = {"raw": "raw", "auto": "autoreset", "raw8": f"raw, unroll {UNROLL}",
-             "auto8": f"autoreset, unroll {UNROLL}", "bytewise8": f"byte-wise writer, unroll {UNROLL}"}
+    names = {"raw": "raw", "auto": "autoreset", "rawtraj": "raw + trajectory",
+             "autotraj": "autoreset + trajectory", "bytewise": "raw, byte-wise writer"}
     columns = [("envs", "envs", ","), ("steps", "scan steps", ",")]
     for label, *_ in variants:
         columns += [(f"{label}_sps", f"{names[label]} steps/s", ".3e"),
@@ -195,26 +193,24 @@ def main(argv=None):
     table = common.markdown_table(rows, columns)
     largest = rows[-1]
 
-    def best_of(prefix):
-        label = max((lab for lab, *_ in variants if lab.startswith(prefix)), key=lambda lab: largest[f"{lab}_sps"])
-        return label, largest[f"{label}_sps"]
-
-    (raw_label, raw_sps), (auto_label, auto_sps) = best_of("raw"), best_of("auto")
+    (raw_label, raw_sps), (auto_label, auto_sps) = ("raw", largest["raw_sps"]), ("auto", largest["auto_sps"])
     summary = {
         "env": env_id,
         "observation bytes": obs_bytes,
         "copy bandwidth (read+write; xor kernel, memcpy)":
             ", ".join(f"{k} {v / 1e9:.0f} GB/s" for k, v in bandwidths.items()),
-        f"obs bytes written / copy bandwidth at {largest['envs']:,} envs (best variant)":
+        f"obs bytes written / copy bandwidth at {largest['envs']:,} envs (obs in the carry)":
             f"raw {raw_sps * obs_bytes / bandwidth:.1%} ({names[raw_label]}), autoreset "
             f"{auto_sps * obs_bytes / bandwidth:.1%} ({names[auto_label]}); target on one H100: >= 50%",
         "NumPy single env, Python loop": f"{numpy_sps:,.0f} steps/s",
         f"jaxnat at {largest['envs']:,} envs / NumPy loop (raw, autoreset)":
             f"{raw_sps / numpy_sps:,.0f}x, {auto_sps / numpy_sps:,.0f}x",
+        f"with a trajectory buffer at {largest['envs']:,} envs (raw, autoreset)":
+            f"{largest['rawtraj_sps']:.3e}, {largest['autotraj_sps']:.3e} steps/s",
     }
     if on_gpu:
         summary[f"word-wise / byte-wise observation writer at {largest['envs']:,} envs"] = (
-            f"{largest['raw8_sps'] / largest['bytewise8_sps']:.2f}x")
+            f"{largest['raw_sps'] / largest['bytewise_sps']:.2f}x")
     if args.no_record:
         print(table)
         print(summary)
