@@ -163,18 +163,19 @@ def main(argv=None):
     if on_gpu:  # CPUs run the byte-wise writer anyway
         variants.append(("bytewise", bytewise, False))
     for num_envs in sizes:
-        # Bounded by the trajectory buffer (at most `max_buffer` bytes of observations).
-        num_steps = min(budget // num_envs, max_buffer // (num_envs * obs_bytes), 2000)
-        num_steps = max(int(num_steps), 8)
-        row = {"envs": num_envs, "steps": num_steps}
+        # Trajectory runs are bounded by their buffer (at most `max_buffer` bytes of observations).
+        num_steps = int(np.clip(budget // num_envs, 8, 2000))
+        traj_steps = int(np.clip(max_buffer // (num_envs * obs_bytes), 8, num_steps))
+        row = {"envs": num_envs, "steps": num_steps, "traj_steps": traj_steps}
         for label, env, trajectory in variants:
-            run = scan_rollout(env, params, num_envs, num_steps, trajectory)
+            steps = traj_steps if trajectory else num_steps
+            run = scan_rollout(env, params, num_envs, steps, trajectory)
             key = jax.random.key(0)
             t0 = time.perf_counter()
             jax.block_until_ready(run(key, params))
             row[f"{label}_compile_s"] = time.perf_counter() - t0
             seconds = common.median_seconds(lambda: jax.block_until_ready(run(key, params)), repeats=5)
-            row[f"{label}_sps"] = num_envs * num_steps / seconds
+            row[f"{label}_sps"] = num_envs * steps / seconds
             row[f"{label}_bw_frac"] = row[f"{label}_sps"] * obs_bytes / bandwidth
         rows.append(row)
         print("  " + ", ".join(f"{label} {row[label + '_sps']:.3e}" for label, *_ in variants)
@@ -185,7 +186,8 @@ def main(argv=None):
     numpy_sps = numpy_steps_per_second(images, labels, raw.num_classes)
     names = {"raw": "raw", "auto": "autoreset", "rawtraj": "raw + trajectory",
              "autotraj": "autoreset + trajectory", "bytewise": "raw, byte-wise writer"}
-    columns = [("envs", "envs", ","), ("steps", "scan steps", ",")]
+    columns = [("envs", "envs", ","), ("steps", "scan steps", ","),
+               ("traj_steps", "trajectory steps", ",")]
     for label, *_ in variants:
         columns += [(f"{label}_sps", f"{names[label]} steps/s", ".3e"),
                     (f"{label}_bw_frac", "obs / copy BW", ".1%")]

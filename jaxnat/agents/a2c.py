@@ -1,0 +1,64 @@
+"""A2C (synchronous advantage actor-critic), PureJaxRL-shaped like `ppo.py`.
+
+Defaults are the authors' settings (`shared/spec/environments.md` section 5): RMSprop lr 7e-4,
+eps 1e-5, alpha 0.99, 5 steps per env, value coef 0.5, entropy 0.01, gamma 0.99, n-step
+returns (GAE lambda 1.0), max grad norm 0.5, 16 envs.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from jaxnat.agents import distributions
+from jaxnat.agents.on_policy import Learner, clipped_optimizer, make_learner
+
+__all__ = ["A2CConfig", "make_train", "make_a2c"]
+
+static = lambda default: struct.field(pytree_node=False, default=default)  # noqa: E731
+
+
+@struct.dataclass
+class A2CConfig:
+    total_timesteps: int = static(1_000_000)
+    num_envs: int = static(16)
+    num_steps: int = static(5)
+    trunk: str | None = static(None)
+    lr: float = 7e-4
+    rms_eps: float = 1e-5
+    rms_alpha: float = 0.99
+    gamma: float = 0.99
+    gae_lambda: float = 1.0
+    vf_coef: float = 0.5
+    ent_coef: float = 0.01
+    max_grad_norm: float = 0.5
+
+
+def _optimizer(config: A2CConfig, num_updates: int):
+    return clipped_optimizer(
+        config.max_grad_norm, optax.rmsprop(config.lr, decay=config.rms_alpha, eps=config.rms_eps)
+    )
+
+
+def _update(config: A2CConfig, network, train_state, transitions, advantages, targets, key):
+    def loss_fn(params):
+        logits, value = network.apply(params, transitions.obs)
+        log_prob = distributions.log_prob(logits, transitions.action)
+        policy_loss = -(jax.lax.stop_gradient(advantages) * log_prob).mean()
+        value_loss = 0.5 * ((targets - value) ** 2).mean()
+        entropy = distributions.entropy(logits).mean()
+        loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
+        return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy}
+
+    grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params)
+    return train_state.apply_gradients(grads=grads), losses
+
+
+def make_a2c(config: A2CConfig, env, env_params) -> Learner:
+    return make_learner(config, env, env_params, make_optimizer=_optimizer, update_step=_update)
+
+
+def make_train(config: A2CConfig, env, env_params):
+    return make_a2c(config, env, env_params).train

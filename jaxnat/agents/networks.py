@@ -1,0 +1,222 @@
+"""Actor-critic networks: the paper's trunks and a ResNet-18, channels-last, uint8 in.
+
+Trunks (the paper's appendix, `shared/spec/environments.md` section 5); every conv is VALID and
+followed by ReLU, then a ReLU dense layer of 512:
+
+| trunk        | layers                                   | meant for                  |
+|--------------|------------------------------------------|----------------------------|
+| `mnist`      | conv 10@5x5/2, 20@5x5, 10@5x5            | 28x28 classification       |
+| `cifar`      | conv 6@5x5/2, 16@5x5, 6@5x5              | 32x32 classification       |
+| `cityscapes` | conv 32@8x8/7, 64@4x4/4, 32@3x3          | 256x256 localization       |
+| `atari`      | conv 32@8x8/4, 64@4x4/2, 32@3x3          | 84x84 Atari and MuJoCo     |
+| `resnet18`   | 3x3 stem, BasicBlocks [2,2,2,2], no pool | any of the above           |
+| `mlp`        | dense 64, 64 (tanh)                      | vector observations        |
+
+uint8 pixels are scaled to [0, 1] inside the network. Dict observations (`{"pixels", "goal"}`)
+embed the integer goal and concatenate it to the trunk's features. Heads: one categorical per
+action factor (e.g. move and label) and a scalar value, on the shared trunk, as the authors did.
+The ResNet uses GroupNorm rather than BatchNorm: running batch statistics are mutable state that
+does not fit a pure, vmapped on-policy learner.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxnat import spaces
+
+__all__ = ["TRUNKS", "ActorCritic", "make_actor_critic", "default_trunk", "action_dims", "init_params"]
+
+# (features, kernel, stride) per conv layer.
+_PAPER_CNNS = {
+    "mnist": [(10, 5, 2), (20, 5, 1), (10, 5, 1)],
+    "cifar": [(6, 5, 2), (16, 5, 1), (6, 5, 1)],
+    "cityscapes": [(32, 8, 7), (64, 4, 4), (32, 3, 1)],
+    "atari": [(32, 8, 4), (64, 4, 2), (32, 3, 1)],
+}
+TRUNKS = (*_PAPER_CNNS, "resnet18", "mlp")
+
+
+def _dense(features: int, scale: float = np.sqrt(2)) -> nn.Dense:
+    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(scale))
+
+
+def _conv_lax(x, kernel, stride: int):
+    return jax.lax.conv_general_dilated(
+        x, kernel, (stride, stride), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC")
+    )
+
+
+def _conv_im2col(x, kernel, stride: int):
+    """The same VALID convolution as strided slices and one matmul. XLA:CPU runs the gradient
+    of its own convolution up to 16x slower inside a training loop (non-canonical layouts in
+    loop bodies, jax-ml/jax#12868); slices and a dot differentiate into fast code."""
+    kh, kw, cin, cout = kernel.shape
+    oh = (x.shape[-3] - kh) // stride + 1
+    ow = (x.shape[-2] - kw) // stride + 1
+    patches = jnp.concatenate(
+        [x[..., i : i + stride * (oh - 1) + 1 : stride, j : j + stride * (ow - 1) + 1 : stride, :]
+         for i in range(kh) for j in range(kw)],
+        axis=-1,
+    )
+    return patches @ kernel.reshape(kh * kw * cin, cout)
+
+
+class ValidConv(nn.Module):
+    """A VALID, strided 2-D convolution (HWIO kernel, as `nn.Conv`) that lowers to im2col on CPUs
+    and to XLA's convolution elsewhere."""
+
+    features: int
+    kernel: int
+    stride: int
+
+    @nn.compact
+    def __call__(self, x):
+        kernel = self.param("kernel", nn.initializers.orthogonal(np.sqrt(2)),
+                            (self.kernel, self.kernel, x.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        lead = x.shape[:-3]
+        x = x.reshape(-1, *x.shape[-3:])
+        y = jax.lax.platform_dependent(
+            x, kernel, cpu=lambda x, k: _conv_im2col(x, k, self.stride),
+            default=lambda x, k: _conv_lax(x, k, self.stride),
+        )
+        return (y + bias).reshape(*lead, *y.shape[1:])
+
+
+class PaperCNN(nn.Module):
+    layers: Sequence[tuple[int, int, int]]
+    dense: int = 512
+
+    @nn.compact
+    def __call__(self, x):
+        for features, kernel, stride in self.layers:
+            x = nn.relu(ValidConv(features, kernel, stride)(x))
+        x = x.reshape(*x.shape[:-3], -1)
+        return nn.relu(_dense(self.dense)(x))
+
+
+class BasicBlock(nn.Module):
+    features: int
+    stride: int
+
+    @nn.compact
+    def __call__(self, x):
+        residual = x
+        y = nn.Conv(self.features, (3, 3), self.stride, padding="SAME", use_bias=False)(x)
+        y = nn.relu(nn.GroupNorm(num_groups=8)(y))
+        y = nn.Conv(self.features, (3, 3), padding="SAME", use_bias=False)(y)
+        y = nn.GroupNorm(num_groups=8)(y)
+        if residual.shape != y.shape:
+            residual = nn.Conv(self.features, (1, 1), self.stride, use_bias=False)(residual)
+            residual = nn.GroupNorm(num_groups=8)(residual)
+        return nn.relu(y + residual)
+
+
+class ResNet18(nn.Module):
+    dense: int = 512
+
+    @nn.compact
+    def __call__(self, x):
+        x = nn.relu(nn.GroupNorm(num_groups=8)(nn.Conv(64, (3, 3), padding="SAME", use_bias=False)(x)))
+        for i, features in enumerate([64, 128, 256, 512]):
+            for j in range(2):
+                x = BasicBlock(features, stride=2 if i > 0 and j == 0 else 1)(x)
+        x = jnp.mean(x, axis=(-3, -2))
+        return nn.relu(_dense(self.dense)(x))
+
+
+class MLP(nn.Module):
+    @nn.compact
+    def __call__(self, x):
+        for _ in range(2):
+            x = nn.tanh(_dense(64)(x))
+        return x
+
+
+class ActorCritic(nn.Module):
+    """`(obs) -> (tuple of logits, one per action factor; value)` on a shared trunk."""
+
+    action_dims: Sequence[int]
+    trunk: str = "mnist"
+    num_goals: int = 0  # > 0 for dict observations with an integer "goal"
+
+    @nn.compact
+    def __call__(self, obs):
+        pixels = obs["pixels"] if isinstance(obs, dict) else obs
+        x = pixels.astype(jnp.float32)
+        if pixels.dtype == jnp.uint8:
+            x = x / 255.0
+        if self.trunk == "mlp":
+            features = MLP()(x)
+        elif self.trunk == "resnet18":
+            features = ResNet18()(x)
+        else:
+            features = PaperCNN(_PAPER_CNNS[self.trunk])(x)
+        if self.num_goals:
+            goal = nn.Embed(self.num_goals, 32)(obs["goal"])
+            features = nn.relu(_dense(512)(jnp.concatenate([features, goal], axis=-1)))
+        logits = tuple(_dense(n, 0.01)(features) for n in self.action_dims)
+        value = _dense(1, 1.0)(features)[..., 0]
+        return logits, value
+
+
+def action_dims(action_space: spaces.Space) -> tuple[int, ...]:
+    """Category counts per factor: Discrete(n) -> (n,), MultiDiscrete([a, b]) -> (a, b)."""
+    if isinstance(action_space, spaces.Discrete):
+        return (action_space.n,)
+    if isinstance(action_space, spaces.MultiDiscrete):
+        return tuple(int(n) for n in action_space.nvec)
+    raise TypeError(
+        f"The agents handle Discrete and MultiDiscrete actions; this env's space is "
+        f"{action_space}. Continuous (Box) actions are not supported yet."
+    )
+
+
+def default_trunk(observation_space: spaces.Space) -> str:
+    """The paper's trunk for an observation shape: 28 -> mnist, 32 -> cifar, 256 -> cityscapes,
+    84 -> atari, 1-D -> mlp; other image sizes get the atari trunk if it fits, else resnet18."""
+    pixels = observation_space.spaces["pixels"] if isinstance(observation_space, spaces.Dict) else observation_space
+    shape = tuple(pixels.shape)
+    if len(shape) == 1:
+        return "mlp"
+    side = min(shape[:2])
+    by_size = {28: "mnist", 32: "cifar", 256: "cityscapes", 84: "atari"}
+    return by_size.get(side, "atari" if side >= 36 else "resnet18")
+
+
+def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None) -> ActorCritic:
+    """An `ActorCritic` for these spaces; checks that the trunk fits the observation."""
+    trunk = trunk or default_trunk(observation_space)
+    if trunk not in TRUNKS:
+        raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
+    num_goals = 0
+    pixels = observation_space
+    if isinstance(observation_space, spaces.Dict):
+        pixels = observation_space.spaces["pixels"]
+        num_goals = int(observation_space.spaces["goal"].n)
+    if trunk in _PAPER_CNNS:
+        if len(pixels.shape) != 3:
+            raise ValueError(f"The {trunk!r} trunk needs [H, W, C] images; observations are {pixels.shape}. Use trunk='mlp'.")
+        side = min(pixels.shape[:2])
+        for _, kernel, stride in _PAPER_CNNS[trunk]:
+            side = (side - kernel) // stride + 1
+        if side < 1:
+            raise ValueError(
+                f"The {trunk!r} trunk does not fit {pixels.shape[0]}x{pixels.shape[1]} observations "
+                f"(its convolutions shrink them below 1 pixel). Try trunk={default_trunk(observation_space)!r} "
+                f"or 'resnet18'."
+            )
+    if trunk == "mlp" and len(pixels.shape) != 1:
+        raise ValueError(f"trunk='mlp' needs vector observations; these are {pixels.shape}")
+    return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals)
+
+
+def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):
+    dummy = jax.tree_util.tree_map(jnp.zeros_like, observation_space.sample(jax.random.key(0)))
+    return network.init(key, dummy)

@@ -1,0 +1,187 @@
+"""What PPO and A2C share: the vmapped rollout, GAE with correct time limits, the training loop.
+
+A learner is pure: `init(key, config) -> RunnerState` and `run(runner, config) -> (runner,
+metrics)` run `num_updates` updates in one `lax.scan`, so `jax.jit(jax.vmap(train))(keys)` trains
+many seeds at once. Config fields that change shapes (env count, rollout length, epochs,
+minibatches, trunk) are static; the rest are traced and may be vmapped too.
+
+Time limits: the value target bootstraps from the final observation of a truncated episode
+(`info["final_observation"]`, from `AutoResetWrapper`) and not from a terminated one:
+`next_value_t = (1 - terminated_t) * V(final_obs_t)`; the GAE trace is cut at every episode end.
+Envs with the five-value step API of gymnax 0.x / PureJaxRL (`done` only) are supported; there
+`done` counts as termination, as those libraries do.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax.training.train_state import TrainState
+
+from jaxnat import spaces
+from jaxnat.agents import distributions
+from jaxnat.agents.networks import init_params, make_actor_critic
+from jaxnat.wrappers import LogWrapper
+
+
+class Transition(NamedTuple):
+    obs: Any
+    action: jax.Array  # [F] int32, one entry per action factor
+    log_prob: jax.Array
+    value: jax.Array
+    reward: jax.Array
+    done: jax.Array  # the episode ended (terminated or truncated): cuts the GAE trace
+    next_value: jax.Array  # (1 - terminated) * V(final observation)
+    info: dict
+
+
+class RunnerState(NamedTuple):
+    train_state: TrainState
+    env_state: Any
+    obs: Any
+    key: jax.Array
+    update: jax.Array  # updates done so far (int32)
+
+
+class Learner(NamedTuple):
+    """`train(key, config=config) -> (runner, metrics)`; `init`/`run` split it for chunked runs."""
+
+    init: Callable
+    run: Callable
+    train: Callable
+    network: Any
+    num_updates: int
+
+
+def gae(transitions: Transition, gamma, gae_lambda) -> tuple[jax.Array, jax.Array]:
+    """Advantages and value targets over a `[T, ...]` rollout (time-major)."""
+
+    def backward(carry, t: Transition):
+        delta = t.reward + gamma * t.next_value - t.value
+        advantage = delta + gamma * gae_lambda * (1.0 - t.done) * carry
+        return advantage, advantage
+
+    _, advantages = jax.lax.scan(
+        backward, jnp.zeros_like(transitions.value[0]), transitions, reverse=True
+    )
+    return advantages, advantages + transitions.value
+
+
+def _env_step(env, key, state, action, params):
+    """Either step API -> (obs, state, reward, terminated, done, final_obs, info)."""
+    out = env.step(key, state, action, params)
+    if len(out) == 6:
+        obs, state, reward, terminated, truncated, info = out
+        final_obs = info.get("final_observation", obs)
+        return obs, state, reward, terminated, terminated | truncated, final_obs, info
+    obs, state, reward, done, info = out  # gymnax 0.x / PureJaxRL: no truncation signal
+    return obs, state, reward, done, done, obs, info
+
+
+def make_learner(config, env, env_params, *, make_optimizer: Callable, update_step: Callable) -> Learner:
+    """Build the shared training loop around an algorithm's optimizer and update.
+
+    Args:
+        config: the algorithm's config (static fields: num_envs, num_steps, total_timesteps,
+            trunk, ...; traced: learning rate, gamma, ...).
+        env, env_params: any env with the jaxnat/gymnax API; it should reset itself when an
+            episode ends (`jaxnat.make` envs do).
+        make_optimizer: `(config, num_updates) -> optax.GradientTransformation`.
+        update_step: `(config, network, train_state, transitions, advantages, targets, key)
+            -> (train_state, loss_metrics)`.
+    """
+    num_updates = config.total_timesteps // (config.num_envs * config.num_steps)
+    if num_updates < 1:
+        raise ValueError(
+            f"total_timesteps={config.total_timesteps} is less than one rollout "
+            f"(num_envs * num_steps = {config.num_envs * config.num_steps})"
+        )
+    observation_space = env.observation_space(env_params)
+    action_space = env.action_space(env_params)
+    network = make_actor_critic(observation_space, action_space, config.trunk)
+    scalar_action = isinstance(action_space, spaces.Discrete)
+
+    env = LogWrapper(env)
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    step = jax.vmap(lambda k, s, a, p: _env_step(env, k, s, a, p), in_axes=(0, 0, 0, None))
+
+    def init(key, config=config) -> RunnerState:
+        key, key_net, key_env = jax.random.split(key, 3)
+        train_state = TrainState.create(
+            apply_fn=network.apply,
+            params=init_params(network, observation_space, key_net),
+            tx=make_optimizer(config, num_updates),
+        )
+        obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
+        return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32))
+
+    def rollout_step(runner: RunnerState, _):
+        train_state, env_state, obs, key, update = runner
+        key, key_act, key_env = jax.random.split(key, 3)
+        logits, value = network.apply(train_state.params, obs)
+        action = distributions.sample(key_act, logits)
+        log_prob = distributions.log_prob(logits, action)
+        env_action = action[..., 0] if scalar_action else action
+        keys = jax.random.split(key_env, config.num_envs)
+        next_obs, env_state, reward, terminated, done, final_obs, info = step(
+            keys, env_state, env_action, env_params
+        )
+        _, final_value = network.apply(train_state.params, final_obs)
+        next_value = jnp.where(terminated, 0.0, final_value)
+        metrics = {
+            "returned_episode": info["returned_episode"],
+            "returned_episode_returns": info["returned_episode_returns"],
+            "returned_episode_lengths": info["returned_episode_lengths"],
+            "terminated": terminated,
+        }
+        transition = Transition(obs, action, log_prob, value, reward, done.astype(jnp.float32),
+                                next_value, metrics)
+        return RunnerState(train_state, env_state, next_obs, key, update), transition
+
+    def update(runner: RunnerState, config):
+        runner, transitions = jax.lax.scan(rollout_step, runner, None, config.num_steps)
+        advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
+        key, key_update = jax.random.split(runner.key)
+        train_state, losses = update_step(
+            config, network, runner.train_state, transitions, advantages, targets, key_update
+        )
+        runner = runner._replace(train_state=train_state, key=key, update=runner.update + 1)
+        return runner, {**episode_metrics(transitions.info), **losses}
+
+    def run(runner: RunnerState, config=config, num_updates: int = num_updates, callback=None):
+        def body(runner, _):
+            runner, metrics = update(runner, config)
+            if callback is not None:
+                jax.debug.callback(callback, runner.update, metrics)
+            return runner, metrics
+
+        return jax.lax.scan(body, runner, None, num_updates)
+
+    def train(key, config=config):
+        return run(init(key, config), config)
+
+    return Learner(init, run, train, network, num_updates)
+
+
+def episode_metrics(info: dict) -> dict:
+    """Means over the episodes that ended in this rollout (NaN when none did)."""
+    ended = info["returned_episode"]
+    count = jnp.sum(ended)
+
+    def mean(x):
+        return jnp.where(count > 0, jnp.sum(jnp.where(ended, x, 0.0)) / jnp.maximum(count, 1), jnp.nan)
+
+    # A terminated episode ended by the env's own rule (classification: the right label).
+    return {
+        "episode_return": mean(info["returned_episode_returns"]),
+        "episode_length": mean(info["returned_episode_lengths"].astype(jnp.float32)),
+        "terminated_fraction": mean(info["terminated"].astype(jnp.float32)),
+        "episodes": count,
+    }
+
+
+def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):
+    return optax.chain(optax.clip_by_global_norm(max_grad_norm), optimizer)

@@ -1,0 +1,102 @@
+"""PPO (clipped surrogate), PureJaxRL-shaped: `make_train(config, env, params) -> train(key)`.
+
+    import jax, jaxnat
+    from jaxnat.agents import ppo
+    env, params = jaxnat.make("Classify/Digits-v0")
+    train = ppo.make_train(ppo.PPOConfig(total_timesteps=1_000_000, num_envs=64), env, params)
+    runner, metrics = jax.jit(jax.vmap(train))(jax.random.split(jax.random.key(0), 5))
+
+Defaults are the authors' settings (`shared/spec/environments.md` section 5): Adam lr 2.5e-4
+(linearly annealed), clip 0.1, value coef 1.0, entropy 0.01, gamma 0.99, GAE lambda 0.95,
+128 steps per env, 4 minibatches, 4 epochs, max grad norm 0.5, 8 envs.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from jaxnat.agents import distributions
+from jaxnat.agents.on_policy import Learner, clipped_optimizer, make_learner
+
+__all__ = ["PPOConfig", "make_train", "make_ppo"]
+
+static = lambda default: struct.field(pytree_node=False, default=default)  # noqa: E731
+
+
+@struct.dataclass
+class PPOConfig:
+    # Static: they set shapes and loop lengths.
+    total_timesteps: int = static(1_000_000)
+    num_envs: int = static(8)
+    num_steps: int = static(128)
+    update_epochs: int = static(4)
+    num_minibatches: int = static(4)
+    anneal_lr: bool = static(True)
+    trunk: str | None = static(None)  # None: the paper's trunk for the observation size
+    # Traced: may be vmapped.
+    lr: float = 2.5e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.1
+    vf_coef: float = 1.0
+    ent_coef: float = 0.01
+    max_grad_norm: float = 0.5
+
+
+def _optimizer(config: PPOConfig, num_updates: int):
+    steps_per_update = config.update_epochs * config.num_minibatches
+
+    def schedule(count):
+        done = (count // steps_per_update) / num_updates
+        return config.lr * (1.0 - done if config.anneal_lr else 1.0)
+
+    return clipped_optimizer(config.max_grad_norm, optax.adam(schedule, eps=1e-5))
+
+
+def _update(config: PPOConfig, network, train_state, transitions, advantages, targets, key):
+    batch = config.num_envs * config.num_steps
+    if batch % config.num_minibatches:
+        raise ValueError(f"num_envs * num_steps = {batch} is not divisible by num_minibatches={config.num_minibatches}")
+    data = (transitions.obs, transitions.action, transitions.log_prob, transitions.value, advantages, targets)
+    data = jax.tree_util.tree_map(lambda x: x.reshape(batch, *x.shape[2:]), data)
+
+    def loss_fn(params, obs, action, old_log_prob, old_value, advantage, target):
+        logits, value = network.apply(params, obs)
+        log_prob = distributions.log_prob(logits, action)
+        value_clipped = old_value + jnp.clip(value - old_value, -config.clip_eps, config.clip_eps)
+        value_loss = 0.5 * jnp.maximum((value - target) ** 2, (value_clipped - target) ** 2).mean()
+        advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+        ratio = jnp.exp(log_prob - old_log_prob)
+        policy_loss = -jnp.minimum(
+            ratio * advantage, jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps) * advantage
+        ).mean()
+        entropy = distributions.entropy(logits).mean()
+        loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
+        return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy}
+
+    def minibatch_step(train_state, minibatch):
+        grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params, *minibatch)
+        return train_state.apply_gradients(grads=grads), losses
+
+    def epoch(train_state, key):
+        order = jax.random.permutation(key, batch)
+        shuffled = jax.tree_util.tree_map(
+            lambda x: x[order].reshape(config.num_minibatches, -1, *x.shape[1:]), data
+        )
+        return jax.lax.scan(minibatch_step, train_state, shuffled)
+
+    train_state, losses = jax.lax.scan(epoch, train_state, jax.random.split(key, config.update_epochs))
+    return train_state, jax.tree_util.tree_map(jnp.mean, losses)
+
+
+def make_ppo(config: PPOConfig, env, env_params) -> Learner:
+    """The PPO learner (`init`, `run`, `train`, `network`, `num_updates`)."""
+    return make_learner(config, env, env_params, make_optimizer=_optimizer, update_step=_update)
+
+
+def make_train(config: PPOConfig, env, env_params):
+    """`train(key, config=config) -> (runner, metrics)`, pure and jittable."""
+    return make_ppo(config, env, env_params).train
