@@ -1,0 +1,105 @@
+"""PPO end to end on a classification env: env steps/s with seeds vmapped, and learning speed.
+
+One jitted program trains `--seeds` seeds at once (`jit(vmap(run))`), in chunks of updates;
+after each chunk every seed is evaluated greedily on the test split. Reports steps/s (compile
+excluded), and the wall time until the mean test return over seeds first reaches 0.9.
+
+    python bench/train_throughput.py [--env-id Classify/FashionMNIST-v0] [--seconds 120]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import time
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+import jaxnat  # noqa: E402
+from jaxnat.agents import ppo  # noqa: E402
+from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env-id", default="Classify/Digits-v0")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--num-envs", type=int, default=None, help="default: 2048 on GPU, 32 on CPU")
+    parser.add_argument("--num-steps", type=int, default=32)
+    parser.add_argument("--chunk", type=int, default=10, help="updates between evaluations")
+    parser.add_argument("--seconds", type=float, default=120.0, help="training wall-time budget")
+    parser.add_argument("--lr", type=float, default=2.5e-4)
+    parser.add_argument("--no-record", action="store_true")
+    args = parser.parse_args(argv)
+
+    info = common.machine()
+    num_envs = args.num_envs or (2048 if info["backend"] != "cpu" else 32)
+    env, params = jaxnat.make(args.env_id)
+    test_env, test_params = jaxnat.make(args.env_id, split="test", autoreset=False)
+    per_update = num_envs * args.num_steps
+    config = ppo.PPOConfig(total_timesteps=per_update * 10**6, num_envs=num_envs,
+                           num_steps=args.num_steps, num_minibatches=4, lr=args.lr, anneal_lr=False)
+    learner = ppo.make_ppo(config, env, params)
+    evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, 1000)))
+    run = jax.jit(jax.vmap(functools.partial(learner.run, num_updates=args.chunk)))
+    keys = jax.random.split(jax.random.key(0), args.seeds)
+
+    t0 = time.perf_counter()
+    runner = jax.jit(jax.vmap(learner.init))(keys)
+    run = run.lower(runner).compile()
+    evaluate = evaluate.lower(runner.train_state.params, keys).compile()
+    compile_s = time.perf_counter() - t0
+
+    rows, train_s, reached = [], 0.0, None
+    while train_s < args.seconds:
+        t0 = time.perf_counter()
+        runner, metrics = jax.block_until_ready(run(runner))
+        train_s += time.perf_counter() - t0
+        scores = jax.device_get(evaluate(runner.train_state.params, keys))
+        updates = int(runner.update[0])
+        row = {
+            "updates": updates,
+            "env_steps_per_seed": updates * per_update,
+            "train_s": train_s,
+            "steps_per_s": args.seeds * updates * per_update / train_s,
+            "train_return": float(np.nanmean(np.asarray(metrics["episode_return"])[:, -1])),
+            "test_return": float(np.mean(scores["greedy_return"])),
+            "test_return_std": float(np.std(scores["greedy_return"])),
+            "test_accuracy": float(np.mean(scores["greedy_terminated_fraction"])),
+        }
+        rows.append(row)
+        print(f"  {updates:5d} updates, {row['env_steps_per_seed']:>10,} steps/seed, {train_s:6.1f}s: "
+              f"{row['steps_per_s']:.3e} steps/s, test return {row['test_return']:+.3f}, "
+              f"accuracy {row['test_accuracy']:.1%}", flush=True)
+        if reached is None and row["test_return"] >= 0.9:
+            reached = row
+    table = common.markdown_table(rows, [
+        ("updates", "updates", ","), ("env_steps_per_seed", "env steps per seed", ","),
+        ("train_s", "train s", ".1f"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
+        ("train_return", "train return", "+.3f"), ("test_return", "test return (greedy)", "+.3f"),
+        ("test_return_std", "std over seeds", ".3f"), ("test_accuracy", "test accuracy", ".1%"),
+    ])
+    summary = {
+        "env": args.env_id,
+        "setup": f"PPO, {args.seeds} seeds vmapped, {num_envs} envs x {args.num_steps} steps per update, "
+                 f"4 epochs x 4 minibatches, lr {args.lr}",
+        "compile s": f"{compile_s:.1f}",
+        "env steps/s end to end (all seeds, compile excluded)": f"{rows[-1]['steps_per_s']:.3e} (target on one H100: >= 1e6)",
+        "time to mean test return >= 0.9": (f"{reached['train_s']:.1f} s ({reached['env_steps_per_seed']:,} steps per seed)"
+                                            if reached else f"not reached in {train_s:.0f} s (target: <= 60 s)"),
+        "final test return / accuracy (greedy)": f"{rows[-1]['test_return']:+.3f} / {rows[-1]['test_accuracy']:.1%}",
+    }
+    if args.no_record:
+        print(table)
+        print(summary)
+    else:
+        common.record("train_throughput", info, table, summary, rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,203 @@
+"""Probe environments for debugging RL agents (Andy Jones' probes, bsuite-style).
+
+Each probe isolates one thing a learner must get right, in one or two steps, with float32 vector
+observations (use `trunk="mlp"`). If an agent fails a probe, the broken piece is named:
+
+| probe                 | episode | what is learned                          | fails when                   |
+|-----------------------|---------|------------------------------------------|------------------------------|
+| `ConstantRewardProbe` | 1 step  | `V(obs) = params.reward`                 | value loss / targets broken  |
+| `SignProbe`           | 1 step  | `argmax pi([c]) = (c > 0)`, c = +-1      | policy gradient broken       |
+| `TwoStepProbe`        | 2 steps | step-1 action from the step-2 reward     | credit through time broken   |
+| `FactoredProbe`       | 1 step  | both factors of `MultiDiscrete([2, 3])`  | factored heads broken        |
+| `EndlessProbe`        | never   | `V = 1 / (1 - gamma)` despite time limit | truncation treated as a stop |
+
+All are jaxnat `Environment`s with `get_obs`; wrap them in `AutoResetWrapper` (or use
+`make_probe`) before giving them to a learner. Optimal returns: 1.0 per episode for the
+one- and two-step probes; `EndlessProbe` earns 1.0 per step.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxnat import spaces
+from jaxnat.core import Environment, EnvParams, EnvState
+from jaxnat.wrappers import AutoResetWrapper
+
+__all__ = [
+    "ProbeState",
+    "ProbeParams",
+    "ConstantRewardProbe",
+    "SignProbe",
+    "TwoStepProbe",
+    "FactoredProbe",
+    "EndlessProbe",
+    "PROBES",
+    "make_probe",
+]
+
+
+@struct.dataclass
+class ProbeState(EnvState):
+    """`cue`: what the observation shows (int32 `[2]`; probes use what they need);
+    `first_action`: the action taken at step 1 (`TwoStepProbe`)."""
+
+    cue: jax.Array
+    first_action: jax.Array
+
+
+@struct.dataclass
+class ProbeParams(EnvParams):
+    """`reward`: the reward of `ConstantRewardProbe` (traced). The one- and two-step probes end
+    by termination long before the default time limit; `EndlessProbe` sets a short one."""
+
+    max_steps_in_episode: int = 100
+    reward: float = 1.0
+
+
+def _state(time, cue, first_action=0) -> ProbeState:
+    return ProbeState(
+        time=jnp.asarray(time, jnp.int32),
+        cue=jnp.asarray(cue, jnp.int32),
+        first_action=jnp.asarray(first_action, jnp.int32),
+    )
+
+
+class _Probe(Environment):
+    obs_size = 1
+
+    @property
+    def default_params(self) -> ProbeParams:
+        return ProbeParams()
+
+    def observation_space(self, params) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (self.obs_size,), jnp.float32)
+
+    def action_space(self, params) -> spaces.Space:
+        return spaces.Discrete(2)
+
+    def reset_env(self, key, params):
+        state = self._initial_state(key)
+        return self.get_obs(state, params), state
+
+    def _initial_state(self, key) -> ProbeState:
+        return _state(0, jnp.zeros(2, jnp.int32))
+
+
+class ConstantRewardProbe(_Probe):
+    """Constant observation `[1.0]`, one action, reward `params.reward`, one-step episodes.
+
+    The critic must output `params.reward` (no bootstrapping: the step terminates)."""
+
+    def action_space(self, params) -> spaces.Discrete:
+        return spaces.Discrete(1)
+
+    def get_obs(self, state, params):
+        return jnp.ones((1,), jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        return self.get_obs(state, params), state, jnp.float32(params.reward), jnp.bool_(True), {}
+
+
+class SignProbe(_Probe):
+    """Observation `[c]`, `c = +1` or `-1` at random; `Discrete(2)`; reward 1 if
+    `action == (c > 0)`, else 0; one-step episodes. The policy must read the observation."""
+
+    def _initial_state(self, key):
+        return _state(0, jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
+
+    def get_obs(self, state, params):
+        return (2.0 * state.cue[:1] - 1.0).astype(jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        reward = (action == state.cue[0]).astype(jnp.float32)
+        return self.get_obs(state, params), state, reward, jnp.bool_(True), {}
+
+
+class TwoStepProbe(_Probe):
+    """Two-step episodes. Step 1 shows `[c, 0]`, `c = +-1` at random; step 2 shows `[0, 1]`
+    whatever happened (so the step-2 value cannot tell good from bad first actions). Reward is 0
+    at step 1 and, at step 2, 1 if the step-1 action was `(c > 0)`, else 0. The step-2 action
+    does not matter. Only a return that carries the step-2 reward back to step 1 (GAE with
+    lambda > 0 over the non-terminal step) teaches the step-1 policy."""
+
+    obs_size = 2
+
+    def _initial_state(self, key):
+        return _state(0, jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
+
+    def get_obs(self, state, params):
+        first = state.time == 0
+        cue = 2.0 * state.cue[0] - 1.0
+        return jnp.stack([jnp.where(first, cue, 0.0), jnp.where(first, 0.0, 1.0)]).astype(jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        first = state.time == 0
+        reward = jnp.where(first, 0.0, (state.first_action == state.cue[0]).astype(jnp.float32))
+        next_state = state.replace(first_action=jnp.where(first, action, state.first_action))
+        # `Environment.step` advances `time` after this; the observation is of the next step.
+        obs = self.get_obs(next_state.replace(time=state.time + 1), params)
+        return obs, next_state, reward, ~first, {}
+
+
+class FactoredProbe(_Probe):
+    """`MultiDiscrete([2, 3])` actions. The observation one-hot encodes a random target
+    `(t0, t1)`, `t0 in {0, 1}`, `t1 in {0, 1, 2}` (5 floats); reward 1 only if the action equals
+    the target in both factors, else 0; one-step episodes."""
+
+    obs_size = 5
+
+    def action_space(self, params) -> spaces.MultiDiscrete:
+        return spaces.MultiDiscrete([2, 3])
+
+    def _initial_state(self, key):
+        k0, k1 = jax.random.split(key)
+        cue = jnp.stack([jax.random.randint(k0, (), 0, 2), jax.random.randint(k1, (), 0, 3)])
+        return _state(0, cue)
+
+    def get_obs(self, state, params):
+        return jnp.concatenate(
+            [jax.nn.one_hot(state.cue[0], 2), jax.nn.one_hot(state.cue[1], 3)]
+        ).astype(jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        reward = jnp.all(action == state.cue).astype(jnp.float32)
+        return self.get_obs(state, params), state, reward, jnp.bool_(True), {}
+
+
+class EndlessProbe(_Probe):
+    """Constant observation `[1.0]`, one action, reward 1 every step, never terminates; episodes
+    are truncated after `params.max_steps_in_episode` (default 5) steps. With discount gamma the
+    true value is `1 / (1 - gamma)`: the time limit is not part of the task (and the observation
+    does not show the time), so a learner must bootstrap through truncation. Treating it as
+    termination instead gives about the mean finite-horizon return, far lower."""
+
+    @property
+    def default_params(self) -> ProbeParams:
+        return ProbeParams(max_steps_in_episode=5)
+
+    def action_space(self, params) -> spaces.Discrete:
+        return spaces.Discrete(1)
+
+    def get_obs(self, state, params):
+        return jnp.ones((1,), jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        return self.get_obs(state, params), state, jnp.float32(1.0), jnp.bool_(False), {}
+
+
+PROBES = {
+    "constant_reward": ConstantRewardProbe,
+    "sign": SignProbe,
+    "two_step": TwoStepProbe,
+    "factored": FactoredProbe,
+    "endless": EndlessProbe,
+}
+
+
+def make_probe(name: str, **params) -> tuple[AutoResetWrapper, ProbeParams]:
+    """`(AutoResetWrapper(probe), params)`; keyword arguments replace fields of the params."""
+    env = PROBES[name]()
+    return AutoResetWrapper(env), env.default_params.replace(**params)
