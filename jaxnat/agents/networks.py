@@ -157,12 +157,13 @@ class ActorCritic(nn.Module):
         return logits, value
 
 
-def action_dims(action_space: spaces.Space) -> tuple[int, ...]:
-    """Category counts per factor: Discrete(n) -> (n,), MultiDiscrete([a, b]) -> (a, b)."""
-    if isinstance(action_space, spaces.Discrete):
-        return (action_space.n,)
-    if isinstance(action_space, spaces.MultiDiscrete):
+def action_dims(action_space) -> tuple[int, ...]:
+    """Category counts per factor: Discrete(n) -> (n,), MultiDiscrete([a, b]) -> (a, b).
+    Duck-typed (`nvec` or `n`), so gymnax's spaces work too."""
+    if hasattr(action_space, "nvec"):
         return tuple(int(n) for n in action_space.nvec)
+    if hasattr(action_space, "n") and not hasattr(action_space, "spaces"):
+        return (int(action_space.n),)
     raise TypeError(
         f"The agents handle Discrete and MultiDiscrete actions; this env's space is "
         f"{action_space}. Continuous (Box) actions are not supported yet."

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import optax
 from flax.training.train_state import TrainState
 
-from jaxnat import spaces
 from jaxnat.agents import distributions
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.wrappers import LogWrapper
@@ -71,14 +70,11 @@ def gae(transitions: Transition, gamma, gae_lambda) -> tuple[jax.Array, jax.Arra
 
 
 def _env_step(env, key, state, action, params):
-    """Either step API -> (obs, state, reward, terminated, done, final_obs, info)."""
-    out = env.step(key, state, action, params)
-    if len(out) == 6:
-        obs, state, reward, terminated, truncated, info = out
-        final_obs = info.get("final_observation", obs)
-        return obs, state, reward, terminated, terminated | truncated, final_obs, info
-    obs, state, reward, done, info = out  # gymnax 0.x / PureJaxRL: no truncation signal
-    return obs, state, reward, done, done, obs, info
+    """-> (obs, state, reward, terminated, done, final_obs, info); `env` is a `LogWrapper`, which
+    turns the five-value API into six values (without `final_observation`: done = terminated)."""
+    obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+    final_obs = info.get("final_observation", obs)
+    return obs, state, reward, terminated, terminated | truncated, final_obs, info
 
 
 def make_learner(config, env, env_params, *, make_optimizer: Callable, update_step: Callable) -> Learner:
@@ -93,8 +89,8 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         update_step: `(config, network, train_state, transitions, advantages, targets, key)
             -> (train_state, loss_metrics)`.
     """
-    num_updates = config.total_timesteps // (config.num_envs * config.num_steps)
-    if num_updates < 1:
+    total_updates = config.total_timesteps // (config.num_envs * config.num_steps)
+    if total_updates < 1:
         raise ValueError(
             f"total_timesteps={config.total_timesteps} is less than one rollout "
             f"(num_envs * num_steps = {config.num_envs * config.num_steps})"
@@ -102,7 +98,7 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)
     network = make_actor_critic(observation_space, action_space, config.trunk)
-    scalar_action = isinstance(action_space, spaces.Discrete)
+    scalar_action = not hasattr(action_space, "nvec")  # Discrete (jaxnat's or gymnax's)
 
     env = LogWrapper(env)
     reset = jax.vmap(env.reset, in_axes=(0, None))
@@ -113,7 +109,7 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         train_state = TrainState.create(
             apply_fn=network.apply,
             params=init_params(network, observation_space, key_net),
-            tx=make_optimizer(config, num_updates),
+            tx=make_optimizer(config, total_updates),
         )
         obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
         return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32))
@@ -151,7 +147,12 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         runner = runner._replace(train_state=train_state, key=key, update=runner.update + 1)
         return runner, {**episode_metrics(transitions.info), **losses}
 
-    def run(runner: RunnerState, config=config, num_updates: int = num_updates, callback=None):
+    def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
+        # The optimizer closes over traced hyperparameters: rebuild it from this call's config,
+        # so chunked runs (init and run jitted separately) use their own, live values.
+        train_state = runner.train_state.replace(tx=make_optimizer(config, total_updates))
+        runner = runner._replace(train_state=train_state)
+
         def body(runner, _):
             runner, metrics = update(runner, config)
             if callback is not None:
@@ -163,7 +164,7 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
     def train(key, config=config):
         return run(init(key, config), config)
 
-    return Learner(init, run, train, network, num_updates)
+    return Learner(init, run, train, network, total_updates)
 
 
 def episode_metrics(info: dict) -> dict:

@@ -10,6 +10,7 @@ observations (use `trunk="mlp"`). If an agent fails a probe, the broken piece is
 | `TwoStepProbe`        | 2 steps | step-1 action from the step-2 reward     | credit through time broken   |
 | `FactoredProbe`       | 1 step  | both factors of `MultiDiscrete([2, 3])`  | factored heads broken        |
 | `EndlessProbe`        | never   | `V = 1 / (1 - gamma)` despite time limit | truncation treated as a stop |
+| `CostlyStartProbe`    | never   | as above, first step differs             | bootstrap from the reset obs |
 
 All are jaxnat `Environment`s with `get_obs`; wrap them in `AutoResetWrapper` (or use
 `make_probe`) before giving them to a learner. Optimal returns: 1.0 per episode for the
@@ -34,6 +35,7 @@ __all__ = [
     "TwoStepProbe",
     "FactoredProbe",
     "EndlessProbe",
+    "CostlyStartProbe",
     "PROBES",
     "make_probe",
 ]
@@ -188,12 +190,42 @@ class EndlessProbe(_Probe):
         return self.get_obs(state, params), state, jnp.float32(1.0), jnp.bool_(False), {}
 
 
+class CostlyStartProbe(_Probe):
+    """Like `EndlessProbe`, but the first step of an episode is different: it shows `[1, 0]`
+    and pays -10; every later step shows `[0, 1]` and pays 1. Never terminates; truncated after
+    `params.max_steps_in_episode` (default 5) steps. With discount gamma the true values are
+    `V([0, 1]) = 1 / (1 - gamma)` and `V([1, 0]) = -10 + gamma / (1 - gamma)` (10 and -1 at
+    gamma 0.9). The last observation of an episode (`[0, 1]`) is worth far more than the first
+    observation of the next one (`[1, 0]`), so bootstrapping a truncated step from the wrong one
+    (the reset observation instead of `info["final_observation"]`) pulls `V([0, 1])` far down
+    (to about -10 at gamma 0.9; treating truncation as termination gives about 3)."""
+
+    obs_size = 2
+
+    @property
+    def default_params(self) -> ProbeParams:
+        return ProbeParams(max_steps_in_episode=5)
+
+    def action_space(self, params) -> spaces.Discrete:
+        return spaces.Discrete(1)
+
+    def get_obs(self, state, params):
+        first = state.time == 0
+        return jnp.stack([first, ~first]).astype(jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        reward = jnp.where(state.time == 0, -10.0, 1.0)
+        obs = self.get_obs(state.replace(time=state.time + 1), params)
+        return obs, state, reward, jnp.bool_(False), {}
+
+
 PROBES = {
     "constant_reward": ConstantRewardProbe,
     "sign": SignProbe,
     "two_step": TwoStepProbe,
     "factored": FactoredProbe,
     "endless": EndlessProbe,
+    "costly_start": CostlyStartProbe,
 }
 
 

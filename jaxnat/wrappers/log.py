@@ -28,6 +28,8 @@ class LogWrapper(Wrapper):
     - `timestep`: steps taken since `reset`.
 
     Put it outside `AutoResetWrapper` (as `jaxnat.make` builds envs), so it sees episode ends.
+    It also wraps envs with the five-value step of gymnax 0.x (`done` counts as termination)
+    and returns the six-value form.
     """
 
     def reset(self, key, params=None):
@@ -36,9 +38,12 @@ class LogWrapper(Wrapper):
         return obs, LogState(env_state, zero_f, zero_i, zero_f, zero_i, zero_i)
 
     def step(self, key, state, action, params=None):
-        obs, env_state, reward, terminated, truncated, info = self._env.step(
-            key, state.env_state, action, params
-        )
+        out = self._env.step(key, state.env_state, action, params)
+        if len(out) == 5:  # gymnax 0.x / PureJaxRL five-value step: `done` only
+            obs, env_state, reward, terminated, info = out
+            truncated = jnp.zeros_like(terminated)
+        else:
+            obs, env_state, reward, terminated, truncated, info = out
         done = terminated | truncated
         episode_return = state.episode_return + reward
         episode_length = state.episode_length + 1
