@@ -149,7 +149,10 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
 
     def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
         # The optimizer closes over traced hyperparameters: rebuild it from this call's config,
-        # so chunked runs (init and run jitted separately) use their own, live values.
+        # so chunked runs (init and run jitted separately) use their own, live values. The
+        # runner handed back keeps the caller's optimizer object (a static pytree field), so
+        # its structure matches the input and a compiled `run` can be fed its own output.
+        caller_tx = runner.train_state.tx
         train_state = runner.train_state.replace(tx=make_optimizer(config, total_updates))
         runner = runner._replace(train_state=train_state)
 
@@ -159,7 +162,8 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
                 jax.debug.callback(callback, runner.update, metrics)
             return runner, metrics
 
-        return jax.lax.scan(body, runner, None, num_updates)
+        runner, metrics = jax.lax.scan(body, runner, None, num_updates)
+        return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
 
     def train(key, config=config):
         return run(init(key, config), config)

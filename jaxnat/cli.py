@@ -1,0 +1,54 @@
+"""The `jaxnat` command: `jaxnat <command> [args]`, one module per command.
+
+    jaxnat train --env-id Classify/Digits-v0 --algo ppo --seeds 5
+    jaxnat train --help
+
+Commands are imported only when run, so `jaxnat --help` starts without importing JAX.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import sys
+
+# name -> (module with `main(argv) -> int | None`, one-line description)
+COMMANDS = {
+    "train": ("jaxnat.train", "train PPO or A2C over several seeds; metrics, curves, checkpoints"),
+    "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),
+}
+
+
+def _usage() -> str:
+    width = max(map(len, COMMANDS))
+    lines = ["usage: jaxnat <command> [args]", "", "commands:"]
+    lines += [f"  {name:<{width}}  {description}" for name, (_, description) in COMMANDS.items()]
+    lines += ["", "Run `jaxnat <command> --help` for a command's arguments."]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    """Dispatch `argv` (default: sys.argv[1:]) to a command; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(_usage(), file=sys.stdout if argv else sys.stderr)
+        return 0 if argv else 2
+    if argv[0] == "--version":
+        from jaxnat import __version__
+
+        print(f"jaxnat {__version__}")
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        close = difflib.get_close_matches(name, COMMANDS, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        print(f"jaxnat: error: unknown command {name!r}{hint}; commands: {', '.join(COMMANDS)}",
+              file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[name][0])
+    status = module.main(rest)
+    return 0 if status is None else int(status)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

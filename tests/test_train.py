@@ -1,0 +1,154 @@
+"""`jaxnat train`: the run directory, exact resume, and one-line errors.
+
+The runs are tiny (Classify/Digits-v0, 2 seeds x 8 envs x 16 steps, 4 updates in 2 chunks, 16
+test episodes). Programs compile with XLA's backend optimisation off, which
+compiles about 3x faster on CPU; compiled programs are reused within the process, so the
+interrupted and resumed runs of the resume test do not compile again.
+"""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from jaxnat import cli, train
+
+FAST = {"xla_backend_optimization_level": 0}
+TINY = ["--env-id", "Classify/Digits-v0", "--algo", "ppo", "--seeds", "2", "--num-envs", "8",
+        "--num-steps", "16", "--total-timesteps", "512", "--eval-every", "2",
+        "--eval-episodes", "16", "--trunk", "mnist"]
+
+
+def _digits_available() -> bool:
+    from jaxnat.datasets import DatasetNotFoundError, load
+
+    try:
+        load("digits", "test")
+    except DatasetNotFoundError:
+        return False
+    return True
+
+
+needs_digits = pytest.mark.skipif(not _digits_available(), reason="Classify/Digits-v0 data not installed")
+
+
+def _lines(path):
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def _error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert err.startswith("jaxnat train: error: "), err
+    return err
+
+
+def _check_run_dir(run_dir):
+    config = json.loads((run_dir / "config.json").read_text())
+    spec = config["spec"]
+    assert spec["env_id"] == "Classify/Digits-v0" and spec["algo"] == "ppo"
+    assert set(spec["config"]) == {f.name for f in train.dataclasses.fields(train.ALGORITHMS["ppo"][0])}
+    assert spec["config"]["trunk"] == "mnist" and spec["config"]["num_steps"] == 16
+    assert "trunk" in spec["static_fields"] and "lr" not in spec["static_fields"]
+    assert spec["num_updates"] == 4 and spec["seed_values"] == [0, 1]
+    assert {"jax", "jaxnat"} <= set(config["versions"])
+
+    metrics = _lines(run_dir / "metrics.jsonl")
+    assert [(m["update"], m["seed"]) for m in metrics] == [(u, s) for u in range(1, 5) for s in (0, 1)]
+    assert metrics[-1]["env_steps"] == 512
+    assert {"episode_return", "terminated_fraction", "policy_loss", "value_loss", "entropy"} <= set(metrics[0])
+
+    evals = _lines(run_dir / "eval.jsonl")  # the untrained policy, then after each chunk
+    assert [(e["update"], e["seed"]) for e in evals] == [(u, s) for u in (0, 2, 4) for s in (0, 1)]
+    assert {"greedy_return", "greedy_terminated_fraction", "sampled_return"} <= set(evals[0])
+
+    assert (run_dir / "curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["complete"] and summary["env_steps_per_seed"] == 512
+    for name in ("train_return", "test_greedy_return", "test_greedy_accuracy", "test_sampled_return"):
+        assert len(summary["metrics"][name]["per_seed"]) == 2
+    assert summary["metrics"]["test_greedy_return"]["per_seed"] == [e["greedy_return"] for e in evals[-2:]]
+    steps = sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
+    assert steps == [2, 4]  # one per chunk, step = update
+
+
+@needs_digits
+def test_run_and_exact_resume(tmp_path, capsys):
+    """One test, so that its three runs share one compilation even under pytest-xdist."""
+    full, resumed = tmp_path / "full", tmp_path / "resumed"
+    assert train.main([*TINY, "--run-dir", str(full)], compiler_options=FAST) == 0
+    _check_run_dir(full)
+
+    # Stop after the first of two chunks, then resume: bit-for-bit the uninterrupted run.
+    assert train.main([*TINY, "--run-dir", str(resumed)], compiler_options=FAST, stop_after_chunks=1) == 0
+    assert json.loads((resumed / "summary.json").read_text())["complete"] is False
+    assert train.main(["--resume", str(resumed)], compiler_options=FAST) == 0
+    _check_run_dir(resumed)
+    (expected, _), (actual, meta) = (train.load_checkpoint(d, compiler_options=FAST) for d in (full, resumed))
+    assert meta["update"] == 4 and meta["chunk"] == 2
+    leaves = jax.tree.leaves(expected.train_state.params)
+    assert len(leaves) > 0
+    for a, b in zip(leaves, jax.tree.leaves(actual.train_state.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    for a, b in zip(jax.tree.leaves(train._to_saveable(expected)),
+                    jax.tree.leaves(train._to_saveable(actual)), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # optimizer, env state, keys
+    assert (resumed / "metrics.jsonl").read_text() == (full / "metrics.jsonl").read_text()
+    timing = ("chunk_seconds", "steps_per_second")
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in timing} for r in rows]  # noqa: E731
+    assert strip(_lines(resumed / "eval.jsonl")) == strip(_lines(full / "eval.jsonl"))
+
+    # Arguments that contradict the run's config are refused.
+    capsys.readouterr()
+    assert train.main(["--resume", str(full), "--lr", "0.1"], compiler_options=FAST) == 2
+    assert "--lr" in _error(capsys)
+
+
+def test_unknown_env_id_names_close_match(tmp_path, capsys):
+    assert train.main(["--env-id", "Classify/Digit-v0", "--run-dir", str(tmp_path / "r")]) == 2
+    err = _error(capsys)
+    assert "Classify/Digits-v0" in err and err.count("\n") == 1
+    assert not (tmp_path / "r").exists()
+
+
+def test_unknown_algo(tmp_path, capsys):
+    assert train.main(["--algo", "ppo2", "--run-dir", str(tmp_path / "r")]) == 2
+    assert "'ppo'" in _error(capsys)
+
+
+@needs_digits
+@pytest.mark.parametrize("argv, message", [
+    (["--env-kwargs", "bogus=1"], "bogus"),
+    (["--env-kwargs", "split=test"], "split"),
+    (["--trunk", "atari"], "atari"),
+    (["--algo", "a2c", "--clip-eps", "0.2"], "--clip-eps"),
+])
+def test_setup_errors(argv, message, tmp_path, capsys):
+    assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
+    assert message in _error(capsys)
+
+
+def test_parse_env_kwargs():
+    assert train.parse_env_kwargs(["w=3", "correct_reward=0.5", "start=center", "flag=true", "x=none"]) == {
+        "w": 3, "correct_reward": 0.5, "start": "center", "flag": True, "x": None}
+    with pytest.raises(train.TrainError):
+        train.parse_env_kwargs(["w"])
+
+
+def test_auto_eval_every():
+    assert train._auto_eval_every(976) == 61  # PPO defaults: a divisor near 976 / 20
+    assert train._auto_eval_every(977) == 49  # prime: one shorter last chunk
+    assert train._auto_eval_every(7) == 1
+
+
+def test_cli_dispatch(capsys):
+    assert cli.main(["--help"]) == 0
+    assert "train" in capsys.readouterr().out
+    assert cli.main(["trian"]) == 2
+    assert "'train'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["train", "--help"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert "--env-id" in out and "--resume" in out and "--clip-eps" in out
