@@ -274,7 +274,10 @@ def _accepts(env_id: str, name: str) -> bool:
     entry = jaxnat.spec(env_id).entry_point
     if isinstance(entry, str):
         module, _, attr = entry.partition(":")
-        entry = getattr(importlib.import_module(module), attr)
+        try:
+            entry = getattr(importlib.import_module(module), attr)
+        except ImportError:  # jaxnat.make says which dependency is missing
+            return False
     target = entry.__init__ if inspect.isclass(entry) else entry
     try:
         return name in inspect.signature(target).parameters
