@@ -13,12 +13,9 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, clipped_optimizer, make_learner
+from jaxnat.agents.on_policy import Learner, clipped_optimizer, make_learner, static
 
 __all__ = ["A2CConfig", "make_train", "make_a2c"]
-
-static = lambda default: struct.field(pytree_node=False, default=default)  # noqa: E731
-
 
 @struct.dataclass
 class A2CConfig:

@@ -19,11 +19,17 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 import optax
+from flax import struct
 from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.wrappers import LogWrapper
+
+
+def static(default):
+    """A config field that sets shapes or loop lengths: static under jit, not vmappable."""
+    return struct.field(pytree_node=False, default=default)
 
 
 class Transition(NamedTuple):
