@@ -333,12 +333,7 @@ class _Program:
             raise TrainError(str(err)) from None
         evaluate = make_evaluate(self.learner.network, test_env, test_params, spec.eval_episodes)
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
-        # Seeds are initialised one after another (lax.map), not vmapped: jaxlib 0.10's CPU
-        # LAPACK kernels split a batched QR (the orthogonal initialiser's) into tasks on XLA's
-        # intra-op pool and block waiting for them, which deadlocks when several such calls
-        # run at once on a small pool (seen on 2 cores). One matrix at a time runs inline.
-        # The result is the same RunnerState, stacked over seeds.
-        init = jax.jit(functools.partial(jax.lax.map, self.learner.init))
+        init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
         self.runner_shape = jax.eval_shape(init, keys)
         self.init = self._compile(init, keys)
         self.evaluate = self._compile(jax.jit(jax.vmap(evaluate)),
