@@ -921,7 +921,7 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
         console.print(f"{why} at update {update}/{spec.num_updates}; continue with: "
                       f"jaxnat train --resume {run_dir}")
     else:
-        console.print(f"run directory: {run_dir}")
+        console.print(f"run directory: {run_dir}\nlearning curve: {run_dir / 'curve.png'}")
     if interrupted:
         raise KeyboardInterrupt
     return TrainResult(run_dir, runner, summary, complete)
