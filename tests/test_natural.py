@@ -11,6 +11,7 @@ from __future__ import annotations
 import gzip
 import hashlib
 import shutil
+import sys
 import warnings
 from pathlib import Path
 
@@ -157,6 +158,30 @@ def test_no_decodable_video_is_a_clear_error(tmp_path):
     with pytest.warns(natural.VideoDecodeWarning), \
             pytest.raises(DatasetFormatError, match=r"none of the 2 source file\(s\)"):
         load(bad)
+
+
+def test_pyav_decodes_what_opencv_cannot(videos, monkeypatch):
+    pytest.importorskip("av")
+    opened = []
+
+    def opencv_fails(path):
+        opened.append(path)
+        return 0, iter(())
+
+    monkeypatch.setattr(decode, "READERS", (opencv_fails, decode._pyav_reader))
+    bank = load(videos[3:4], cache=False)
+    assert opened and bank.names == ("clip3.avi",)
+    np.testing.assert_array_equal(bank.frames, expected_frames(3, 6))
+    assert load(videos[3:4], cache=False, max_frames=2).num_frames == 2
+
+
+def test_without_pyav_the_warning_says_how_to_get_it(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "av", None)  # import av -> ImportError
+    bad = tmp_path / "odd.mkv"
+    bad.write_bytes(b"\x1a\x45\xdf\xa3 not really matroska" * 50)
+    with pytest.warns(natural.VideoDecodeWarning, match=r"odd\.mkv.*pip install av"), \
+            pytest.raises(DatasetFormatError):
+        load([bad])
 
 
 # ----------------------------------------------------------------------------- sources

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import gzip
+import itertools
 import os
 import shutil
 import tempfile
@@ -72,41 +73,48 @@ def _plain_file(path: Path) -> Iterator[Path]:
         Path(tmp).unlink(missing_ok=True)
 
 
-def _opencv_frames(path: Path, max_frames: int | None) -> tuple[list[np.ndarray], int]:
-    """(BGR frames, frame count the container claims)."""
+def _opencv_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
+    """(frame count the container claims, BGR frames as they decode)."""
     capture = cv2.VideoCapture(str(path))
-    try:
-        if not capture.isOpened():
-            return [], 0
-        claimed = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-        frames = []
-        while max_frames is None or len(frames) < max_frames:
-            ok, frame = capture.read()
-            if not ok:
-                break
-            frames.append(frame)
-        return frames, claimed
-    finally:
+    if not capture.isOpened():
         capture.release()
+        return 0, iter(())
+
+    def frames():
+        try:
+            while True:
+                ok, frame = capture.read()
+                if not ok:
+                    return
+                yield frame
+        finally:
+            capture.release()
+
+    return int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), frames()
 
 
-def _pyav_frames(path: Path, max_frames: int | None) -> tuple[list[np.ndarray], int]:
-    """(BGR frames, claimed frame count) through PyAV; ([], 0) when PyAV is not installed."""
+def _pyav_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
+    """As `_opencv_reader`, through PyAV; nothing when PyAV is not installed. A decoding error
+    mid-stream ends the frames (those before it are kept)."""
     try:
         import av
     except ImportError:
-        return [], 0
-    frames = []
+        return 0, iter(())
     try:
-        with av.open(str(path)) as container:
-            stream = container.streams.video[0]
-            for frame in container.decode(stream):
-                frames.append(frame.to_ndarray(format="bgr24"))
-                if max_frames is not None and len(frames) >= max_frames:
-                    break
-            return frames, int(stream.frames or 0)
+        container = av.open(str(path))
+        stream = container.streams.video[0]
     except (av.FFmpegError, IndexError, ValueError, OSError):
-        return frames, 0
+        return 0, iter(())
+
+    def frames():
+        with container:
+            try:
+                for frame in container.decode(stream):
+                    yield frame.to_ndarray(format="bgr24")
+            except (av.FFmpegError, ValueError, OSError):
+                return
+
+    return int(stream.frames or 0), frames()
 
 
 def _pyav_available() -> bool:
@@ -117,15 +125,35 @@ def _pyav_available() -> bool:
     return True
 
 
+# Tried in order; the first that decodes at least one frame wins.
+READERS = (_opencv_reader, _pyav_reader)
+
+
+def _decode_resized(plain: Path, shape: tuple[int, int], grayscale: bool,
+                    max_frames: int | None) -> tuple[list[np.ndarray], int]:
+    """(resized frames, claimed count) from the first reader that decodes a frame. Each frame is
+    resized as it arrives, so memory holds at most one full-size frame (a long HD video would
+    not fit otherwise)."""
+    for reader in READERS:
+        claimed, frames = reader(plain)
+        try:
+            clip = [resize_frame(f, shape, grayscale)
+                    for f in itertools.islice(frames, max_frames)]
+        finally:
+            if hasattr(frames, "close"):
+                frames.close()  # releases the decoder when max_frames stopped early
+        if clip:
+            return clip, claimed
+    return [], 0
+
+
 def decode_video(path: Path, shape: tuple[int, int], grayscale: bool,
                  max_frames: int | None = None) -> np.ndarray | None:
     """Frames uint8 [n, H, W, C] of the video at `path` (at most `max_frames`), or None, with a
     `VideoDecodeWarning` naming the file, when neither OpenCV nor PyAV decodes a frame."""
     try:
         with _plain_file(path) as plain:
-            frames, claimed = _opencv_frames(plain, max_frames)
-            if not frames:
-                frames, claimed = _pyav_frames(plain, max_frames)
+            frames, claimed = _decode_resized(plain, shape, grayscale, max_frames)
     except (OSError, EOFError, gzip.BadGzipFile) as e:
         warnings.warn(f"skipping video {path}: cannot read it ({e})", VideoDecodeWarning,
                       stacklevel=3)
@@ -143,7 +171,7 @@ def decode_video(path: Path, shape: tuple[int, int], grayscale: bool,
         _REPORTED_SHORT.add(str(path))
         warnings.warn(f"video {path} claims {claimed} frames but only {len(frames)} decode; "
                       f"using those {len(frames)}", VideoDecodeWarning, stacklevel=3)
-    return np.stack([resize_frame(f, shape, grayscale) for f in frames])
+    return np.stack(frames)
 
 
 def decode_image(path: Path, shape: tuple[int, int], grayscale: bool) -> np.ndarray | None:
