@@ -325,6 +325,31 @@ def test_cache_false_writes_nothing_and_corrupt_entries_are_rewritten(videos, tm
     np.testing.assert_array_equal(load(videos).frames, expected.frames)  # rewritten, readable
 
 
+def test_inconsistent_cache_entry_is_rewritten(videos, tmp_path):
+    expected = load(videos)
+    (entry,) = (tmp_path / "cache").glob("natural-videos-*.npz")
+    with np.load(entry) as arrays:
+        broken = dict(arrays)
+    broken["lengths"] = broken["lengths"] + 1  # no longer tiles the frames
+    with open(entry, "wb") as f:
+        np.savez(f, **broken)
+    with pytest.warns(UserWarning, match="inconsistent natural-frames cache entry"):
+        again = load(videos)
+    np.testing.assert_array_equal(again.lengths, expected.lengths)
+    np.testing.assert_array_equal(again.frames, expected.frames)
+
+
+def test_banks_concatenate_in_order(videos):
+    a, b = load(videos[:2]), load(videos[2:3])
+    both = natural.FrameBank.concatenate([a, b.to_device()])
+    assert both.names == a.names + b.names
+    np.testing.assert_array_equal(both.frames, np.concatenate([a.frames, b.frames]))
+    assert both.lengths.tolist() == a.lengths.tolist() + b.lengths.tolist()
+    assert both.starts.tolist() == [0, int(a.lengths[0]), a.num_frames]
+    with pytest.raises(ValueError, match="different frame shapes"):
+        natural.FrameBank.concatenate([a, load(videos[2:3], shape=(6, 8))])
+
+
 # ----------------------------------------------------------------------------- images
 
 

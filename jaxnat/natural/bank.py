@@ -17,6 +17,7 @@ import hashlib
 import json
 import logging
 import os
+import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -82,6 +83,18 @@ class FrameBank:
     def to_host(self) -> FrameBank:
         return jax.tree.map(np.asarray, self)
 
+    @staticmethod
+    def concatenate(banks: Iterable[FrameBank]) -> FrameBank:
+        """One host bank holding the videos of `banks` in order (e.g. videos and photos as one
+        pool of backgrounds); their frames must share one shape."""
+        banks = [b.to_host() for b in banks]
+        shapes = {b.frame_shape for b in banks}
+        if len(shapes) != 1:
+            raise ValueError(f"cannot concatenate banks with different frame shapes: "
+                             f"{sorted(shapes)}; load them with the same shape and grayscale")
+        clips = [b.frames[s:s + n] for b in banks for s, n in zip(b.starts, b.lengths)]
+        return _from_clips(clips, [name for b in banks for name in b.names])
+
     def describe(self) -> str:
         """One line: videos, frames, shape and memory."""
         h, w, c = self.frame_shape
@@ -124,12 +137,28 @@ def _cache_path(kind: str, split: str, digests: list[str], extra: dict) -> Path:
     return _cache.cache_dir() / f"natural-{kind}-{split}-{digest}.npz"
 
 
+def _consistent(bank: FrameBank) -> bool:
+    """Whether the arrays describe a bank: uint8 frames [N, H, W, 1 or 3], int32 index [V]
+    of positive lengths tiling the frames in order."""
+    frames, starts, lengths = bank.frames, bank.starts, bank.lengths
+    return (frames.dtype == np.uint8 and frames.ndim == 4 and frames.shape[-1] in (1, 3)
+            and starts.dtype == lengths.dtype == np.int32 and starts.ndim == lengths.ndim == 1
+            and len(starts) == len(lengths) == len(bank.names) >= 1 and bool(np.all(lengths > 0))
+            and np.array_equal(starts, np.cumsum(lengths) - lengths)
+            and int(lengths.sum()) == frames.shape[0])
+
+
 def _read_cached(path: Path) -> FrameBank | None:
     arrays = _cache.read_arrays(path, ("frames", "starts", "lengths", "names"))
     if arrays is None:
         return None
-    return FrameBank(frames=arrays["frames"], starts=arrays["starts"], lengths=arrays["lengths"],
+    bank = FrameBank(frames=arrays["frames"], starts=arrays["starts"], lengths=arrays["lengths"],
                      names=tuple(str(n) for n in arrays["names"]))
+    if not _consistent(bank):
+        warnings.warn(f"ignoring inconsistent natural-frames cache entry {path}; rewriting it",
+                      stacklevel=4)
+        return None
+    return bank
 
 
 def _write_cached(path: Path, bank: FrameBank) -> None:
