@@ -230,7 +230,7 @@ def test_missing_opencv_doc_says_how_to_install_it(monkeypatch, tmp_path):
 # ----------------------------------------------------------------------------- split
 
 
-def test_split_is_disjoint_deterministic_and_follows_content(videos, tmp_path):
+def test_split_is_disjoint_deterministic_and_follows_content(videos, tmp_path, monkeypatch):
     train = load(videos, split="train", test_fraction=0.4)
     test = load(videos, split="test", test_fraction=0.4)
     assert set(train.names).isdisjoint(test.names)
@@ -245,6 +245,9 @@ def test_split_is_disjoint_deterministic_and_follows_content(videos, tmp_path):
                  cache=False)
     assert again.names == tuple(f"renamed_{videos.index(p)}.avi" for p in ranked[:2])
     np.testing.assert_array_equal(again.frames, test.frames)
+    monkeypatch.setattr(decode, "decode_video", None)  # a cache hit must not decode
+    cached = load([Path(p) for p in moved], split="test", test_fraction=0.4)
+    assert cached.names == again.names  # named by today's files
 
 
 def test_split_keeps_one_video_each_side_and_all_uses_everything(videos):

@@ -148,50 +148,56 @@ def _consistent(bank: FrameBank) -> bool:
             and int(lengths.sum()) == frames.shape[0])
 
 
-def _read_cached(path: Path) -> FrameBank | None:
-    arrays = _cache.read_arrays(path, ("frames", "starts", "lengths", "names"))
+def _read_cached(path: Path, names_by_digest: dict[str, str]) -> FrameBank | None:
+    """The cached bank at `path`, its videos named by today's file names (a renamed file keeps
+    its entry: the key is its content)."""
+    arrays = _cache.read_arrays(path, ("frames", "starts", "lengths", "digests"))
     if arrays is None:
         return None
+    digests = [str(d) for d in arrays["digests"]]
     bank = FrameBank(frames=arrays["frames"], starts=arrays["starts"], lengths=arrays["lengths"],
-                     names=tuple(str(n) for n in arrays["names"]))
-    if not _consistent(bank):
+                     names=tuple(names_by_digest.get(d, "?") for d in digests))
+    if not _consistent(bank) or "?" in bank.names:
         warnings.warn(f"ignoring inconsistent natural-frames cache entry {path}; rewriting it",
                       stacklevel=4)
         return None
     return bank
 
 
-def _write_cached(path: Path, bank: FrameBank) -> None:
+def _write_cached(path: Path, bank: FrameBank, digests: list[str]) -> None:
     _cache.write_arrays(path, {"frames": bank.frames, "starts": bank.starts,
-                               "lengths": bank.lengths, "names": np.array(bank.names, dtype=str)})
+                               "lengths": bank.lengths, "digests": np.array(digests, dtype=str)})
 
 
 def _load(kind: str, files: list[Path], split: str, test_fraction: float, shape, grayscale: bool,
           max_frames: int | None, cache: bool,
           decode_one: Callable[[Path, int | None], np.ndarray | None]) -> FrameBank:
     chosen = _sources.split_files(files, split, test_fraction)
+    # Whether PyAV is installed is in the key: a file skipped without it may decode with it.
     path = _cache_path(kind, split, [d for _, d in chosen],
-                       {"shape": list(shape), "grayscale": grayscale, "max_frames": max_frames})
-    bank = _read_cached(path) if cache else None
+                       {"shape": list(shape), "grayscale": grayscale, "max_frames": max_frames,
+                        "pyav": decode.pyav_available()})
+    bank = _read_cached(path, {d: f.name for f, d in chosen}) if cache else None
     if bank is None:
-        clips, names = [], []
-        for file, _ in chosen:
+        clips, names, digests = [], [], []
+        for file, digest in chosen:
             clip = decode_one(file, max_frames)
             if clip is not None:
                 clips.append(clip)
                 names.append(file.name)
+                digests.append(digest)
         if not clips:
             raise DatasetFormatError(
                 f"none of the {len(chosen)} source file(s) of split {split!r} could be decoded "
                 f"({', '.join(str(f) for f, _ in chosen)}); see the warnings above for each file")
         if max_frames is not None:
             # More videos than the budget has frames: keep the first ones (content-hash order).
-            clips, names = clips[:max_frames], names[:max_frames]
+            clips, names, digests = clips[:max_frames], names[:max_frames], digests[:max_frames]
             cap = _per_video_cap([len(c) for c in clips], max_frames)
             clips = [c[:cap] for c in clips]
         bank = _from_clips(clips, names)
         if cache:
-            _write_cached(path, bank)
+            _write_cached(path, bank, digests)
     logger.info("natural %s (%s): %s", kind, split, bank.describe())
     return bank
 
