@@ -336,7 +336,7 @@ def test_inconsistent_cache_entry_is_rewritten(videos, tmp_path):
     broken["lengths"] = broken["lengths"] + 1  # no longer tiles the frames
     with open(entry, "wb") as f:
         np.savez(f, **broken)
-    with pytest.warns(UserWarning, match="inconsistent natural-frames cache entry"):
+    with pytest.warns(UserWarning, match="unreadable dataset cache entry .*inconsistent"):
         again = load(videos)
     np.testing.assert_array_equal(again.lengths, expected.lengths)
     np.testing.assert_array_equal(again.frames, expected.frames)

@@ -17,7 +17,6 @@ import hashlib
 import json
 import logging
 import os
-import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -137,31 +136,31 @@ def _cache_path(kind: str, split: str, digests: list[str], extra: dict) -> Path:
     return _cache.cache_dir() / f"natural-{kind}-{split}-{digest}.npz"
 
 
-def _consistent(bank: FrameBank) -> bool:
-    """Whether the arrays describe a bank: uint8 frames [N, H, W, 1 or 3], int32 index [V]
-    of positive lengths tiling the frames in order."""
+def _check_consistent(bank: FrameBank) -> FrameBank:
+    """`bank`, or ValueError when its arrays do not describe a bank: uint8 frames
+    [N, H, W, 1 or 3], int32 index [V] of positive lengths tiling the frames in order."""
     frames, starts, lengths = bank.frames, bank.starts, bank.lengths
-    return (frames.dtype == np.uint8 and frames.ndim == 4 and frames.shape[-1] in (1, 3)
+    if not (frames.dtype == np.uint8 and frames.ndim == 4 and frames.shape[-1] in (1, 3)
             and starts.dtype == lengths.dtype == np.int32 and starts.ndim == lengths.ndim == 1
-            and len(starts) == len(lengths) == len(bank.names) >= 1 and bool(np.all(lengths > 0))
-            and np.array_equal(starts, np.cumsum(lengths) - lengths)
-            and int(lengths.sum()) == frames.shape[0])
+            and len(starts) == len(lengths) == len(bank.names) >= 1
+            and bool(np.all(lengths > 0)) and np.array_equal(starts, np.cumsum(lengths) - lengths)
+            and int(lengths.sum()) == frames.shape[0]):
+        raise ValueError("inconsistent frame bank arrays")
+    return bank
 
 
 def _read_cached(path: Path, names_by_digest: dict[str, str]) -> FrameBank | None:
     """The cached bank at `path`, its videos named by today's file names (a renamed file keeps
     its entry: the key is its content)."""
-    arrays = _cache.read_arrays(path, ("frames", "starts", "lengths", "digests"))
-    if arrays is None:
-        return None
-    digests = [str(d) for d in arrays["digests"]]
-    bank = FrameBank(frames=arrays["frames"], starts=arrays["starts"], lengths=arrays["lengths"],
-                     names=tuple(names_by_digest.get(d, "?") for d in digests))
-    if not _consistent(bank) or "?" in bank.names:
-        warnings.warn(f"ignoring inconsistent natural-frames cache entry {path}; rewriting it",
-                      stacklevel=4)
-        return None
-    return bank
+
+    def build(frames, starts, lengths, digests):
+        names = tuple(names_by_digest.get(str(d), "") for d in digests)
+        if "" in names:
+            raise ValueError("the entry's videos are not the requested files")
+        return _check_consistent(FrameBank(frames=frames, starts=starts, lengths=lengths,
+                                           names=names))
+
+    return _cache.read_arrays(path, ("frames", "starts", "lengths", "digests"), build)
 
 
 def _write_cached(path: Path, bank: FrameBank, digests: list[str]) -> None:
