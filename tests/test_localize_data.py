@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from jaxnat import natural
 from jaxnat.datasets import DatasetNotFoundError, cityscapes, locate
 from jaxnat.datasets.segmentation import VOID, SegmentationDataset
 from jaxnat.testing import check_env
@@ -187,6 +188,7 @@ def _require_embedded_data():
     try:
         locate.find("digits", "train")
         locate.find("fashion_mnist", "train")
+        clutter.background_files()
     except DatasetNotFoundError as err:
         pytest.skip(f"embedded data not present: {str(err).splitlines()[0]}")
 
@@ -201,15 +203,16 @@ def _digest(array):
     return hashlib.sha256(np.ascontiguousarray(array).tobytes()).hexdigest()
 
 
-def test_clutter_backgrounds_are_disjoint_by_scene():
+def test_clutter_backgrounds_are_disjoint_natural_photos_and_videos():
     _require_embedded_data()
-    train, test = clutter.background_files("train"), clutter.background_files("test")
-    assert train and test and not set(train) & set(test)
-    scene_of = {name: s for s, names in clutter.PHOTO_SCENES.items() for name in names}
-    assert not {scene_of[f.name] for f in train} & {scene_of[f.name] for f in test}
-    assert len(train) + len(test) == sum(map(len, clutter.PHOTO_SCENES.values()))
-    frames = {s: clutter.background_frames(s, (32, 32)) for s in ("train", "test")}
-    assert not {_digest(f) for f in frames["train"]} & {_digest(f) for f in frames["test"]}
+    banks = {s: clutter.background_frames(s, (32, 32)) for s in ("train", "test")}
+    names = {s: set(b.names) for s, b in banks.items()}
+    assert names["train"] and names["test"] and not names["train"] & names["test"]
+    for bank in banks.values():  # photos (one frame) and videos (many) in each split
+        lengths = np.asarray(bank.lengths)
+        assert (lengths == 1).any() and (lengths > 1).any()
+    assert not ({_digest(f) for f in banks["train"].frames}
+                & {_digest(f) for f in banks["test"].frames})
 
 
 def test_clutter_objects_are_disjoint_between_splits():
@@ -247,7 +250,8 @@ def test_clutter_mask_is_exactly_the_pasted_pixels():
     _require_embedded_data()
     items, classes = clutter._objects("test")
     by_class = [np.flatnonzero(classes == c) for c in range(20)]
-    black = np.zeros((1, 64, 64, 3), np.uint8)
+    black = natural.FrameBank(np.zeros((1, 64, 64, 3), np.uint8), np.array([0], np.int32),
+                              np.array([1], np.int32), ("black",))
     rng = np.random.default_rng(0)
     for _ in range(20):
         image, class_map = clutter._scene(rng, black, items, classes, by_class, (3, 5))

@@ -1,4 +1,4 @@
-"""Clutter scenes: real objects pasted with exact masks on natural photos (`Localize/Clutter-v0`).
+"""Clutter scenes: real objects pasted with exact masks on natural photos and video frames.
 
 The embedded default of the localization task: it needs no licence, only Debian's `opencv-doc`
 and `dataset-fashion-mnist` (`scripts/install_data.sh`).
@@ -6,9 +6,9 @@ and `dataset-fashion-mnist` (`scripts/install_data.sh`).
 How a scene of split `split` is built (all draws from one NumPy generator seeded with
 `(seed, split)`, so a scene set is a pure function of the seed, the settings and the files):
 
-1. **Background**: one of the split's natural backgrounds (`background_frames`), mirrored left
-   to right with probability 1/2, then a random square-ish crop of 60-100% of its side resized
-   back to `shape` (OpenCV `INTER_AREA`).
+1. **Background**: a natural source of the split drawn uniformly (a photo or a video of
+   `opencv-doc`), a random frame of it, mirrored left to right with probability 1/2, then a
+   random crop of 60-100% of its side resized back to `shape` (OpenCV `INTER_AREA`).
 2. **Objects**: 2 to 5 (`objects=`) of distinct classes, drawn uniformly among 20 classes:
    **0-9 the handwritten digits** of OpenCV's `digits.png` (`jaxnat.datasets.digits`) and
    **10-19 the Fashion-MNIST items** (T-shirt/top ... Ankle boot, class = 10 + label). Each is
@@ -24,112 +24,49 @@ How a scene of split `split` is built (all draws from one NumPy generator seeded
    until its mask, grown by one pixel, touches no earlier object; an object that finds no place
    is left out. So every pasted mask is entirely visible.
 
-Backgrounds: the natural colour and grey photos shipped by `opencv-doc`, grouped by scene
-(stereo pairs, sequences and the two views of one graffiti count as one scene) and split by
-scene: a fixed quarter of the scenes, chosen by a hash of the scene's name, is test, so no
-photographed scene is in both splits. (Frames of the `opencv-doc` videos join them when
-`jaxnat.natural` lands: one line in `background_frames`.)
+Backgrounds (`background_frames`): the natural photos and videos of `opencv-doc` as
+`jaxnat.natural` loads them (photos: one of each stereo or sequence pair; videos: at most 600
+frames per split), split by whole files by content hash, so no photo or video is in both
+splits.
 
 Built scenes are cached on disk like the decoded datasets.
 """
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from jaxnat import natural
 from jaxnat.datasets import digits, locate
-from jaxnat.datasets.base import DatasetNotFoundError
 from jaxnat.datasets.idx import CLASS_NAMES as _IDX_CLASS_NAMES
 from jaxnat.datasets.segmentation import VOID, SegmentationDataset, cached
 
-__all__ = ["load", "background_frames", "background_files", "CLASS_NAMES", "THRESHOLD",
-           "DEFAULT_NUM_IMAGES", "PHOTO_SCENES"]
+__all__ = ["load", "build", "background_frames", "background_files", "CLASS_NAMES", "THRESHOLD",
+           "DEFAULT_NUM_IMAGES"]
 
 CLASS_NAMES = tuple(f"digit {d}" for d in digits.CLASS_NAMES) + _IDX_CLASS_NAMES["fashion_mnist"]
 THRESHOLD = 48  # object pixels: resized intensity > THRESHOLD (0..255)
 DEFAULT_NUM_IMAGES = {"train": 1024, "test": 256}
 _SPLITS = ("train", "test")
-_TEST_FRACTION = 0.25
-_ATTEMPTS = 50
-
-# Natural photos of opencv-doc's examples/data, by photographed scene (a scene's files always
-# share a split). Left out: drawings, renders, logos, text, calibration boards, test patterns.
-PHOTO_SCENES: dict[str, tuple[str, ...]] = {
-    "aero": ("aero1.jpg", "aero3.jpg"),
-    "aloe": ("aloeL.jpg", "aloeR.jpg"),
-    "apple": ("apple.jpg",),
-    "baboon": ("baboon.jpg",),
-    "basketball": ("basketball1.png", "basketball2.png"),
-    "board": ("board.jpg",),
-    "box_in_scene": ("box_in_scene.png",),
-    "building": ("building.jpg",),
-    "butterfly": ("butterfly.jpg",),
-    "ela": ("ela_original.jpg",),
-    "fruits": ("fruits.jpg",),
-    "graffiti": ("graf1.png", "graf3.png"),
-    "home": ("home.jpg",),
-    "stereo": ("left.jpg", "right.jpg"),
-    "leuven": ("leuvenA.jpg", "leuvenB.jpg"),
-    "licenseplate": ("licenseplate_motion.jpg",),
-    "messi": ("messi5.jpg",),
-    "orange": ("orange.jpg",),
-    "rubberwhale": ("rubberwhale1.png", "rubberwhale2.png"),
-    "smarties": ("smarties.png",),
-    "squirrel": ("squirrel_cls.jpg",),
-    "stuff": ("stuff.jpg",),
-}
+_ATTEMPTS = 50  # placements tried per object
+_MAX_VIDEO_FRAMES = 600  # per split: bounds the memory the build holds (256x256: 112 MiB)
 
 
-def _photo_dir() -> Path:
-    # The digits sheet sits in the same opencv-doc folder as the photos; find it the same way.
-    return locate.find("digits", "train").files[0].parent
+def background_files() -> list[Path]:
+    """Every file the backgrounds of either split may come from (for the cache key)."""
+    return [*natural.default_image_paths(), *natural.default_video_paths()]
 
 
-def _scene_split(scene: str) -> str:
-    """'test' for a fixed quarter of the scenes, chosen by a hash of the name."""
-    ranked = sorted(PHOTO_SCENES, key=lambda s: hashlib.sha256(s.encode()).hexdigest())
-    return "test" if ranked.index(scene) < round(_TEST_FRACTION * len(ranked)) else "train"
-
-
-def background_files(split: str) -> list[Path]:
-    """The photo files of `split`'s backgrounds, in a fixed order."""
-    folder = _photo_dir()
-    files = [folder / name for scene in sorted(PHOTO_SCENES) if _scene_split(scene) == split
-             for name in PHOTO_SCENES[scene]]
-    missing = [f for f in files if not f.is_file()]
-    if missing:
-        raise DatasetNotFoundError(
-            f"natural background photos missing from {folder}: "
-            f"{', '.join(f.name for f in missing)}; reinstall the Debian package: "
-            "sudo apt-get install --reinstall opencv-doc")
-    return files
-
-
-def background_frames(split: str, shape: tuple[int, int]) -> np.ndarray:
-    """uint8 `[N, H, W, 3]` RGB: the split's natural backgrounds, centre-cropped to the aspect of
-    `shape` and resized to it. The one place backgrounds come from."""
-    return np.stack([_fit(_read_rgb(f), shape) for f in background_files(split)])
-
-
-def _read_rgb(path: Path) -> np.ndarray:
-    image = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_COLOR)  # grey -> 3 channels
-    if image is None:
-        raise DatasetNotFoundError(f"{path}: cannot decode; reinstall opencv-doc")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-
-
-def _fit(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Centre crop to the aspect ratio of `shape`, then area-resize to it."""
-    h, w = image.shape[:2]
-    th, tw = shape
-    scale = min(h / th, w / tw)
-    ch, cw = int(round(th * scale)), int(round(tw * scale))
-    top, left = (h - ch) // 2, (w - cw) // 2
-    return cv2.resize(image[top:top + ch, left:left + cw], (tw, th), interpolation=cv2.INTER_AREA)
+def background_frames(split: str, shape: tuple[int, int]) -> natural.FrameBank:
+    """The split's natural backgrounds at `shape`: opencv-doc's photos (one-frame videos) and the
+    frames of its videos, split by whole files (`jaxnat.natural`). The one place they come from."""
+    return natural.FrameBank.concatenate([
+        natural.load_images(shape=shape, split=split),
+        natural.load_videos(shape=shape, split=split, max_frames=_MAX_VIDEO_FRAMES),
+    ])
 
 
 def _objects(split: str):
@@ -148,8 +85,11 @@ def _random_colour(rng: np.random.Generator) -> np.ndarray:
     return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32)
 
 
-def _background(rng, frames: np.ndarray) -> np.ndarray:
-    frame = frames[rng.integers(len(frames))]
+def _background(rng, bank: natural.FrameBank) -> np.ndarray:
+    """A random frame of a random source (photo or video, equally likely), mirrored with
+    probability 1/2, and a random crop of 60-100% of its side resized back."""
+    source = rng.integers(bank.num_videos)
+    frame = bank.frames[bank.starts[source] + rng.integers(bank.lengths[source])]
     if rng.random() < 0.5:
         frame = frame[:, ::-1]
     h, w = frame.shape[:2]
@@ -160,8 +100,8 @@ def _background(rng, frames: np.ndarray) -> np.ndarray:
                       interpolation=cv2.INTER_AREA)
 
 
-def _scene(rng, frames, items, classes, by_class, objects):
-    image = _background(rng, frames)
+def _scene(rng, bank, items, classes, by_class, objects):
+    image = _background(rng, bank)
     h, w = image.shape[:2]
     class_map = np.full((h, w), VOID, np.uint8)
     taken = np.zeros((h, w), bool)
@@ -202,14 +142,14 @@ def build(split: str, *, shape=(256, 256), num_images: int | None = None, object
     num_images = DEFAULT_NUM_IMAGES[split] if num_images is None else int(num_images)
     if num_images < 1:
         raise ValueError(f"num_images must be >= 1, got {num_images}")
-    frames = background_frames(split, (h, w))
+    bank = background_frames(split, (h, w))
     items, classes = _objects(split)
     by_class = [np.flatnonzero(classes == c) for c in range(len(CLASS_NAMES))]
     rng = np.random.default_rng([seed, _SPLITS.index(split)])
     images = np.empty((num_images, h, w, 3), np.uint8)
     maps = np.empty((num_images, h, w), np.uint8)
     for n in range(num_images):
-        images[n], maps[n] = _scene(rng, frames, items, classes, by_class, (lo, hi))
+        images[n], maps[n] = _scene(rng, bank, items, classes, by_class, (lo, hi))
     return SegmentationDataset("clutter", split, images, maps, CLASS_NAMES)
 
 
@@ -224,9 +164,9 @@ def load(split: str = "train", *, shape=(256, 256), num_images: int | None = Non
 
     if not cache or split not in _SPLITS:
         return decode()
-    files = [*background_files(split), *locate.find("digits", split).files,
+    files = [*background_files(), *locate.find("digits", split).files,
              *locate.find("fashion_mnist", split).files]
     count = DEFAULT_NUM_IMAGES[split] if num_images is None else num_images
     settings = [f"{shape[0]}x{shape[1]}", f"n={count}", f"objects={objects}", f"seed={seed}",
-                f"threshold={THRESHOLD}", "v1"]
+                f"threshold={THRESHOLD}", f"video_frames={_MAX_VIDEO_FRAMES}", "v2"]
     return cached("clutter", split, files, decode, extra=settings)
