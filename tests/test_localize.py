@@ -211,6 +211,10 @@ def test_wrong_action_fails_at_trace_time(env):
 def test_bad_constructor_arguments(dataset):
     with pytest.raises(ValueError, match="footprint"):
         Localize(dataset, w=21)
+    with pytest.raises(ValueError, match="image_size applies to the named datasets"):
+        Localize(dataset, image_size=32)
+    with pytest.raises(TypeError, match="SegmentationDataset"):
+        Localize(np.zeros((1, 4, 4, 3), np.uint8))
     with pytest.raises(ValueError, match="unknown localization dataset"):
         Localize("kitti")
     with pytest.raises(ValueError, match="options of the clutter"):

@@ -94,7 +94,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         classes: optional subset of goal classes (names or ids); others are never asked for.
         root: Cityscapes: the folder holding `leftImg8bit/` and `gtFine/` (else
             `$JAXNAT_DATA_DIR/cityscapes`).
-        image_size: int or `(H, W)` of the photos (default 256x256).
+        image_size: int or `(H, W)` of the photos of a named dataset (default 256x256).
         labels: Cityscapes only: "train" (19 training classes, the default) or "all" (30).
         num_images, objects, seed: Clutter only: how many scenes to build for the split
             (default 1024 train, 256 test), (min, max) objects per scene (default (2, 5)), and
@@ -111,18 +111,22 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         M: int | None = None,
         classes: Sequence[str | int] | None = None,
         root: str | os.PathLike | None = None,
-        image_size: int | tuple[int, int] = 256,
+        image_size: int | tuple[int, int] | None = None,
         labels: str | None = None,
         num_images: int | None = None,
         objects: tuple[int, int] | None = None,
         seed: int | None = None,
     ):
         if isinstance(dataset, str):
+            image_size = 256 if image_size is None else image_size
             dataset = _load(dataset, split, root=root, image_size=image_size, labels=labels,
                             num_images=num_images, objects=objects, seed=seed)
-        if not isinstance(dataset, SegmentationDataset):
+        elif not isinstance(dataset, SegmentationDataset):
             raise TypeError(f"dataset must be one of {DATASETS} or a SegmentationDataset, got "
                             f"{type(dataset).__name__}")
+        elif image_size is not None:
+            raise ValueError("image_size applies to the named datasets; a SegmentationDataset is "
+                             "used at its own size")
         h, width = dataset.images.shape[1:3]
         self.footprint = int(w)
         if not 1 <= self.footprint <= min(h, width):
