@@ -12,7 +12,7 @@ Measures, in one run:
 Frame shapes: 84x84x1 (an Atari observation), 84x84x3 (a PixelMuJoCo floor texture) and
 210x160x3 (Atari's RGB screen, where natural Atari composites).
 
-    python bench/natural_sources.py [--envs 4096] [--quick] [--no-record]
+    python bench/natural_sources.py [--envs 4096] [--quick] [--sources DIR] [--no-record]
 """
 
 from __future__ import annotations
@@ -34,13 +34,20 @@ import common  # noqa: E402
 
 from jaxnat import natural  # noqa: E402
 from jaxnat.natural import decode  # noqa: E402
+from jaxnat.natural.sources import VIDEO_EXTENSIONS, resolve  # noqa: E402
 
 SHAPES = [((84, 84), True), ((84, 84), False), ((210, 160), False)]
 
 
-def decode_rates(shape: tuple[int, int], grayscale: bool) -> list[dict]:
+def video_paths(sources) -> list[Path]:
+    if sources is None:
+        return natural.default_video_paths()
+    return resolve(sources, VIDEO_EXTENSIONS)
+
+
+def decode_rates(sources, shape: tuple[int, int], grayscale: bool) -> list[dict]:
     rows = []
-    for path in natural.default_video_paths():
+    for path in video_paths(sources):
         t0 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", natural.VideoDecodeWarning)
@@ -51,16 +58,16 @@ def decode_rates(shape: tuple[int, int], grayscale: bool) -> list[dict]:
     return rows
 
 
-def second_start_seconds() -> float:
+def second_start_seconds(sources) -> float:
     """Seconds to load the 84x84 RGB bank of all default videos from a warm disk cache."""
     previous = os.environ.get("JAXNAT_CACHE_DIR")
     with tempfile.TemporaryDirectory() as cache, warnings.catch_warnings():
         warnings.simplefilter("ignore", natural.VideoDecodeWarning)
         os.environ["JAXNAT_CACHE_DIR"] = cache
         try:
-            natural.load_videos(split="all")
+            natural.load_videos(sources, split="all")
             t0 = time.perf_counter()
-            natural.load_videos(split="all")
+            natural.load_videos(sources, split="all")
             return time.perf_counter() - t0
         finally:
             if previous is None:
@@ -123,6 +130,9 @@ def main(argv=None):
     parser.add_argument("--noise", action=argparse.BooleanOptionalAction, default=None,
                         help="also time Gaussian noise (default: on GPU only; on a CPU it takes "
                              "seconds per step at 4,096 envs)")
+    parser.add_argument("--sources", default=None,
+                        help="videos to use (folder or glob; default: opencv-doc's five, which "
+                             "must be installed)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
@@ -131,20 +141,21 @@ def main(argv=None):
     num_steps = args.steps or (200 if on_gpu else 20)
     noise = on_gpu if args.noise is None else args.noise
 
-    decode_rows = decode_rates((84, 84), False)
+    decode_rows = decode_rates(args.sources, (84, 84), False)
     total = sum(r["frames"] for r in decode_rows)
     decode_seconds = sum(r["seconds"] for r in decode_rows)
-    cached_seconds = second_start_seconds()
+    cached_seconds = second_start_seconds(args.sources)
     gray_rate = None
     if not args.quick:
-        gray = decode_rates((84, 84), True)
+        gray = decode_rates(args.sources, (84, 84), True)
         gray_rate = sum(r["frames"] for r in gray) / sum(r["seconds"] for r in gray)
 
     rows = []
     for shape, grayscale in SHAPES:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", natural.VideoDecodeWarning)
-            bank = natural.load_videos(shape=shape, grayscale=grayscale, split="all")
+            bank = natural.load_videos(args.sources, shape=shape, grayscale=grayscale,
+                                       split="all")
         row = {"frame": "x".join(map(str, bank.frame_shape)), "envs": args.envs,
                "steps": num_steps, "bank_mib": bank.nbytes / 2**20}
         row |= step_costs(bank, args.envs, num_steps, noise)
@@ -159,17 +170,17 @@ def main(argv=None):
         ("seconds", "decode s", ".2f"), ("fps", "frames/s", ",.0f")])
     step_table = common.markdown_table(rows, [
         ("frame", "frame", "s"), ("envs", "envs", ","), ("steps", "scan steps", ","),
-        ("bank_mib", "bank MiB (all 5 videos)", ".1f"),
+        ("bank_mib", "bank MiB (all videos)", ".1f"),
         ("video_us", "video frame: cursor step + fetch, us/step", ".1f"),
         ("write_us", "constant frame (write only), us/step", ".1f"),
         ("fetch_us", "fetch cost over write, us/step", ".1f"),
         ("noise_us", "Gaussian noise, us/step", ".1f"),
         ("host_us", "host sampler step (numpy), us/step", ".1f")])
     summary = {
-        "decode (OpenCV, resize to 84x84 RGB), all default videos":
+        "decode (OpenCV, resize to 84x84 RGB), all videos":
             f"{total:,} frames in {decode_seconds:.2f} s = {total / decode_seconds:,.0f} frames/s",
         "decode to 84x84 gray": f"{gray_rate:,.0f} frames/s" if gray_rate else "not run (--quick)",
-        "second start (bank of all 5 videos at 84x84 RGB from the disk cache)":
+        "second start (bank of all videos at 84x84 RGB from the disk cache)":
             f"{cached_seconds:.3f} s",
         f"per-step video frame cost at {args.envs:,} envs (84x84x3)":
             f"{rows[1]['video_us']:.1f} us per step ({rows[1]['video_us'] / args.envs * 1e3:.2f} "
