@@ -65,6 +65,9 @@ def main(argv=None):
     parser.add_argument("--eval-episodes", type=int, default=500)
     parser.add_argument("--quick", action="store_true",
                         help="CPU smoke run: 64x64 scenes, 64 of them, 1 seed, 8 envs, 60 s")
+    parser.add_argument("--backgrounds", default=None,
+                        help="Clutter's photos/videos folder where opencv-doc is not installed "
+                             "(scripts/stage_localize_data.py)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     env_kwargs = {}
@@ -72,6 +75,8 @@ def main(argv=None):
         env_kwargs = {"image_size": 64, "num_images": 64}
         args.seeds, args.num_envs, args.num_steps, args.chunk = 1, 8, 32, 4
         args.seconds, args.eval_episodes = min(args.seconds, 60.0), 64
+    if args.backgrounds:
+        env_kwargs["backgrounds"] = args.backgrounds
 
     info = common.machine()
     baseline = random_policy_success(env_kwargs, args.eval_episodes)
@@ -89,7 +94,7 @@ def main(argv=None):
     ])
     last = rows[-1]
     summary = {
-        "env": ENV_ID + (f" {env_kwargs}" if env_kwargs else " (256x256, w=10, M=200)"),
+        "env": ENV_ID + (f" {env_kwargs}" if args.quick else " (256x256, w=10, M=200)"),
         "setup": f"PPO, the paper's trunk for the size (cityscapes at 256x256) + goal embedding, {args.seeds} seeds vmapped, "
                  f"{args.num_envs} envs x {args.num_steps} steps per update, 4 epochs x 4 "
                  f"minibatches, lr {args.lr}; {args.eval_episodes} test episodes per seed",

@@ -41,6 +41,9 @@ def main(argv=None):
     parser.add_argument("--max-envs", type=int, default=None, help="default: 16384 on GPU, 256 on CPU")
     parser.add_argument("--step-budget", type=float, default=None,
                         help="env steps per timed scan (default: 2^22 on GPU, 2^13 on CPU)")
+    parser.add_argument("--backgrounds", default=None,
+                        help="Clutter's photos/videos folder where opencv-doc is not installed "
+                             "(scripts/stage_localize_data.py)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
@@ -48,11 +51,12 @@ def main(argv=None):
     on_gpu = info["backend"] != "cpu"
     max_envs = args.max_envs or (16384 if on_gpu else 256)
     budget = int(args.step_budget or (2**22 if on_gpu else 2**13))
-    raw, params = jaxnat.make(args.env_id, autoreset=False)
-    auto, _ = jaxnat.make(args.env_id)
+    kwargs = {"backgrounds": args.backgrounds} if args.backgrounds else {}
+    raw, params = jaxnat.make(args.env_id, autoreset=False, **kwargs)
+    auto, _ = jaxnat.make(args.env_id, **kwargs)
     variants = [("raw", raw), ("auto", auto)]
     if on_gpu:  # CPUs run the byte-wise writer anyway
-        bytewise, _ = jaxnat.make(args.env_id, autoreset=False)
+        bytewise, _ = jaxnat.make(args.env_id, autoreset=False, **kwargs)
         bytewise.unwrapped._render = masked_image_observation_reference
         variants.append(("bytewise", bytewise))
     obs_bytes = observation_bytes(raw.observation_space(params))

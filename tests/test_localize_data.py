@@ -215,6 +215,23 @@ def test_clutter_backgrounds_are_disjoint_natural_photos_and_videos():
                 & {_digest(f) for f in banks["test"].frames})
 
 
+def test_clutter_backgrounds_from_your_own_files(tmp_path):
+    """`backgrounds=` replaces opencv-doc's photos and videos (here: four of its photos, copied)."""
+    _require_embedded_data()
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    for path in natural.default_image_paths()[:4]:
+        (folder / path.name).write_bytes(path.read_bytes())
+    banks = {s: clutter.background_frames(s, (32, 32), folder) for s in ("train", "test")}
+    names = [set(b.names) for b in banks.values()]
+    assert names[0] | names[1] == {p.name for p in folder.iterdir()} and not names[0] & names[1]
+    scenes = clutter.load("test", shape=(32, 32), num_images=3, backgrounds=folder)
+    assert scenes.images.shape == (3, 32, 32, 3)
+    with pytest.raises(DatasetNotFoundError, match="empty"):
+        (tmp_path / "empty").mkdir()
+        clutter.background_frames("train", (32, 32), tmp_path / "empty")
+
+
 def test_clutter_objects_are_disjoint_between_splits():
     _require_embedded_data()
     (train_items, train_classes), (test_items, test_classes) = (

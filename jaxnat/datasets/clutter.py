@@ -27,7 +27,8 @@ How a scene of split `split` is built (all draws from one NumPy generator seeded
 Backgrounds (`background_frames`): the natural photos and videos of `opencv-doc` as
 `jaxnat.natural` loads them (photos: one of each stereo or sequence pair; videos: at most 600
 frames per split), split by whole files by content hash, so no photo or video is in both
-splits.
+splits. `backgrounds=` (a folder, glob or list of photos and/or videos) replaces them, e.g. a
+copy of those files on a machine without opencv-doc, or your own clips.
 
 Built scenes are cached on disk like the decoded datasets.
 """
@@ -40,7 +41,9 @@ import cv2
 import numpy as np
 
 from jaxnat import natural
+from jaxnat.natural import sources as _natural_sources
 from jaxnat.datasets import digits, locate
+from jaxnat.datasets.base import DatasetNotFoundError
 from jaxnat.datasets.idx import CLASS_NAMES as _IDX_CLASS_NAMES
 from jaxnat.datasets.segmentation import VOID, SegmentationDataset, cached
 
@@ -55,18 +58,31 @@ _ATTEMPTS = 50  # placements tried per object
 _MAX_VIDEO_FRAMES = 600  # per split: bounds the memory the build holds (256x256: 112 MiB)
 
 
-def background_files() -> list[Path]:
+def background_files(sources=None) -> list[Path]:
     """Every file the backgrounds of either split may come from (for the cache key)."""
-    return [*natural.default_image_paths(), *natural.default_video_paths()]
+    if sources is None:
+        return [*natural.default_image_paths(), *natural.default_video_paths()]
+    return _natural_sources.resolve(
+        sources, _natural_sources.IMAGE_EXTENSIONS + _natural_sources.VIDEO_EXTENSIONS)
 
 
-def background_frames(split: str, shape: tuple[int, int]) -> natural.FrameBank:
-    """The split's natural backgrounds at `shape`: opencv-doc's photos (one-frame videos) and the
-    frames of its videos, split by whole files (`jaxnat.natural`). The one place they come from."""
-    return natural.FrameBank.concatenate([
-        natural.load_images(shape=shape, split=split),
-        natural.load_videos(shape=shape, split=split, max_frames=_MAX_VIDEO_FRAMES),
-    ])
+def background_frames(split: str, shape: tuple[int, int], sources=None) -> natural.FrameBank:
+    """The split's natural backgrounds at `shape`: photos (one-frame videos) and the frames of
+    videos, split by whole files by content hash (`jaxnat.natural`). The one place they come
+    from. `sources` (a folder, glob or list of files) replaces opencv-doc's photos and videos;
+    it may hold photos, videos or both."""
+    banks = []
+    for load, extra in [(natural.load_images, {}),
+                        (natural.load_videos, {"max_frames": _MAX_VIDEO_FRAMES})]:
+        try:
+            banks.append(load(sources, shape=shape, split=split, **extra))
+        except DatasetNotFoundError:
+            if sources is None:  # opencv-doc's photos and videos are both expected
+                raise
+    if not banks:
+        raise DatasetNotFoundError(f"no background photos or videos of split {split!r} in "
+                                   f"{sources!r}")
+    return natural.FrameBank.concatenate(banks)
 
 
 def _objects(split: str):
@@ -128,7 +144,7 @@ def _scene(rng, bank, items, classes, by_class, objects):
 
 
 def build(split: str, *, shape=(256, 256), num_images: int | None = None, objects=(2, 5),
-          seed: int = 0) -> SegmentationDataset:
+          seed: int = 0, backgrounds=None) -> SegmentationDataset:
     """Build the scenes of `split` (see the module docstring); `load` caches this."""
     if split not in _SPLITS:
         raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(_SPLITS)}")
@@ -142,7 +158,7 @@ def build(split: str, *, shape=(256, 256), num_images: int | None = None, object
     num_images = DEFAULT_NUM_IMAGES[split] if num_images is None else int(num_images)
     if num_images < 1:
         raise ValueError(f"num_images must be >= 1, got {num_images}")
-    bank = background_frames(split, (h, w))
+    bank = background_frames(split, (h, w), backgrounds)
     items, classes = _objects(split)
     by_class = [np.flatnonzero(classes == c) for c in range(len(CLASS_NAMES))]
     rng = np.random.default_rng([seed, _SPLITS.index(split)])
@@ -154,17 +170,19 @@ def build(split: str, *, shape=(256, 256), num_images: int | None = None, object
 
 
 def load(split: str = "train", *, shape=(256, 256), num_images: int | None = None,
-         objects=(2, 5), seed: int = 0, cache: bool = True) -> SegmentationDataset:
-    """The clutter scenes of `split`, built once and then read from the disk cache."""
+         objects=(2, 5), seed: int = 0, backgrounds=None, cache: bool = True) -> SegmentationDataset:
+    """The clutter scenes of `split`, built once and then read from the disk cache.
+    `backgrounds`: photos/videos to use instead of opencv-doc's (see `background_frames`)."""
     shape = tuple(int(s) for s in shape)
     objects = tuple(int(o) for o in objects)
 
     def decode():
-        return build(split, shape=shape, num_images=num_images, objects=objects, seed=seed)
+        return build(split, shape=shape, num_images=num_images, objects=objects, seed=seed,
+                     backgrounds=backgrounds)
 
     if not cache or split not in _SPLITS:
         return decode()
-    files = [*background_files(), *locate.find("digits", split).files,
+    files = [*background_files(backgrounds), *locate.find("digits", split).files,
              *locate.find("fashion_mnist", split).files]
     count = DEFAULT_NUM_IMAGES[split] if num_images is None else num_images
     settings = [f"{shape[0]}x{shape[1]}", f"n={count}", f"objects={objects}", f"seed={seed}",

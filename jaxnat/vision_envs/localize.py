@@ -99,6 +99,8 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         num_images, objects, seed: Clutter only: how many scenes to build for the split
             (default 1024 train, 256 test), (min, max) objects per scene (default (2, 5)), and
             the seed they are built from.
+        backgrounds: Clutter only: photos and/or videos (a folder, glob or list) to paste the
+            objects on, instead of opencv-doc's.
     """
 
     params_type = LocalizeParams
@@ -116,11 +118,13 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         num_images: int | None = None,
         objects: tuple[int, int] | None = None,
         seed: int | None = None,
+        backgrounds: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
     ):
         if isinstance(dataset, str):
             image_size = 256 if image_size is None else image_size
             dataset = _load(dataset, split, root=root, image_size=image_size, labels=labels,
-                            num_images=num_images, objects=objects, seed=seed)
+                            num_images=num_images, objects=objects, seed=seed,
+                            backgrounds=backgrounds)
         elif not isinstance(dataset, SegmentationDataset):
             raise TypeError(f"dataset must be one of {DATASETS} or a SegmentationDataset, got "
                             f"{type(dataset).__name__}")
@@ -232,15 +236,16 @@ def _class_subset(classes, dataset: SegmentationDataset) -> np.ndarray | None:
     return subset
 
 
-def _load(name: str, split: str, *, root, image_size, labels, num_images, objects, seed) -> SegmentationDataset:
+def _load(name: str, split: str, *, root, image_size, labels, num_images, objects, seed,
+          backgrounds) -> SegmentationDataset:
     if name not in DATASETS:
         raise ValueError(f"unknown localization dataset {name!r}; choose one of {DATASETS} or "
                          "pass a SegmentationDataset")
     size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
     if name == "cityscapes":
-        if num_images is not None or objects is not None or seed is not None:
-            raise ValueError("num_images, objects and seed are options of the clutter dataset; Cityscapes "
-                             "is a fixed release")
+        if any(x is not None for x in (num_images, objects, seed, backgrounds)):
+            raise ValueError("num_images, objects, seed and backgrounds are options of the clutter "
+                             "dataset; Cityscapes is a fixed release")
         from jaxnat.datasets import cityscapes
 
         return cityscapes.load(split, root=root, shape=size, labels=labels or "train")
@@ -249,7 +254,7 @@ def _load(name: str, split: str, *, root, image_size, labels, num_images, object
                          "from the embedded opencv-doc and Fashion-MNIST data")
     from jaxnat.datasets import clutter
 
-    options = {k: v for k, v in [("num_images", num_images), ("objects", objects), ("seed", seed)]
-               if v is not None}
+    options = {k: v for k, v in [("num_images", num_images), ("objects", objects), ("seed", seed),
+                                 ("backgrounds", backgrounds)] if v is not None}
     return clutter.load(split, shape=size, **options)
 
