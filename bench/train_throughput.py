@@ -27,7 +27,8 @@ from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
 
 def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int, chunk: int,
                        seconds: float, lr: float, env_kwargs: dict | None = None,
-                       eval_episodes: int = 1000, target: float = 0.9):
+                       eval_episodes: int = 1000, target: float = 0.9, update_epochs: int = 4,
+                       num_minibatches: int = 4):
     """Train PPO on `env_id` with `seeds` seeds vmapped, in chunks of `chunk` updates, for about
     `seconds` of training; after each chunk evaluate every seed greedily on the test split.
 
@@ -38,7 +39,8 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
     test_env, test_params = jaxnat.make(env_id, split="test", autoreset=False, **env_kwargs)
     per_update = num_envs * num_steps
     config = ppo.PPOConfig(total_timesteps=per_update * 10**6, num_envs=num_envs,
-                           num_steps=num_steps, num_minibatches=4, lr=lr, anneal_lr=False)
+                           num_steps=num_steps, update_epochs=update_epochs,
+                           num_minibatches=num_minibatches, lr=lr, anneal_lr=False)
     learner = ppo.make_ppo(config, env, params)
     evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, eval_episodes)))
     run = jax.jit(jax.vmap(functools.partial(learner.run, num_updates=chunk)))
@@ -83,27 +85,36 @@ def main(argv=None):
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--num-envs", type=int, default=None, help="default: 2048 on GPU, 32 on CPU")
     parser.add_argument("--num-steps", type=int, default=32)
+    parser.add_argument("--update-epochs", type=int, default=4)
+    parser.add_argument("--num-minibatches", type=int, default=None, help="default: 4 on GPU, 8 on CPU")
     parser.add_argument("--chunk", type=int, default=10, help="updates between evaluations")
     parser.add_argument("--seconds", type=float, default=120.0, help="training wall-time budget")
-    parser.add_argument("--lr", type=float, default=2.5e-4)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--eval-episodes", type=int, default=1000)
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
     info = common.machine()
-    num_envs = args.num_envs or (2048 if info["backend"] != "cpu" else 32)
+    on_cpu = info["backend"] == "cpu"
+    # On a CPU the main job's settings (make run; bench/results/ppo_sweep.md), on a GPU big batches.
+    num_envs = args.num_envs or (32 if on_cpu else 2048)
+    minibatches = args.num_minibatches or (8 if on_cpu else 4)
     rows, compile_s, train_s, reached = train_and_evaluate(
         args.env_id, seeds=args.seeds, num_envs=num_envs, num_steps=args.num_steps,
-        chunk=args.chunk, seconds=args.seconds, lr=args.lr)
+        chunk=args.chunk, seconds=args.seconds, lr=args.lr, eval_episodes=args.eval_episodes,
+        update_epochs=args.update_epochs, num_minibatches=minibatches)
     table = common.markdown_table(rows, [
         ("updates", "updates", ","), ("env_steps_per_seed", "env steps per seed", ","),
         ("train_s", "train s", ".1f"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
         ("train_return", "train return", "+.3f"), ("test_return", "test return (greedy)", "+.3f"),
         ("test_return_std", "std over seeds", ".3f"), ("test_accuracy", "test accuracy", ".1%"),
+        ("test_sampled_accuracy", "test accuracy (sampled)", ".1%"),
     ])
     summary = {
         "env": args.env_id,
         "setup": f"PPO, {args.seeds} seeds vmapped, {num_envs} envs x {args.num_steps} steps per update, "
-                 f"4 epochs x 4 minibatches, lr {args.lr}",
+                 f"{args.update_epochs} epochs x {minibatches} minibatches, lr {args.lr}, "
+                 f"{args.eval_episodes} test episodes per seed per evaluation",
         "compile s": f"{compile_s:.1f}",
         "env steps/s end to end (all seeds, compile excluded)": f"{rows[-1]['steps_per_s']:.3e} (target on one H100: >= 1e6)",
         "time to mean test return >= 0.9": (f"{reached['train_s']:.1f} s ({reached['env_steps_per_seed']:,} steps per seed)"
