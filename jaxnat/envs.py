@@ -12,3 +12,15 @@ for _name, _dataset in [
     ("ImageFolder", "image_folder"),
 ]:
     register(f"Classify/{_name}-v0", _CLASSIFY, dataset=_dataset)
+
+# Natural Atari: every game ALE ships, emulated in batches on the host (jaxnat.make_vec only).
+from jaxnat.atari.games import GAMES as _ATARI_GAMES  # noqa: E402  (plain data, no ale-py)
+
+for _game in _ATARI_GAMES:
+    register(
+        f"NaturalAtari/{_game}-v0",
+        "jaxnat.atari.env:NaturalAtariVecEnv",
+        extra="atari",
+        batched=True,
+        game=_game,
+    )

@@ -1,0 +1,116 @@
+"""Background sources for the compositor: one background frame per env per agent step.
+
+`make_background(kind, num_envs, ...)` gives an object with
+
+- `reset(envs=None)`: envs (a bool mask, or all) start a new background: a new random video at
+  a random offset (video), a new random photo (image); nothing for noise and none;
+- `frames()`: this step's background of every env, `uint8[B, H, W]` gray (`gray=True`: already
+  through the compositor's grayscale, composited in gray) or `uint8[B, H, W, 3]` RGB;
+- `advance()`: move every env's video on by one frame (called once per agent step).
+
+Videos and images come from the natural-sources module (`jaxnat.natural`), resized to the
+emulator's 210x160 and split into train and test by whole files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from jaxnat.atari.compositor import NoiseSampler, grayscale
+
+__all__ = ["BACKGROUNDS", "make_background"]
+
+BACKGROUNDS = ("none", "noise", "video", "image")
+
+
+class NoBackground:
+    """Black, the baseline: the compositor leaves frames as they are."""
+
+    gray = True
+
+    def reset(self, envs=None) -> None:
+        pass
+
+    def frames(self) -> None:
+        return None
+
+    def advance(self) -> None:
+        pass
+
+
+class NoiseBackground:
+    """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame (RGB)."""
+
+    gray = False
+
+    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0):
+        self._shape = (num_envs, *shape, 3)
+        self._sampler = NoiseSampler(np.random.default_rng(seed), scale)
+        self._current = None
+
+    def reset(self, envs=None) -> None:
+        pass
+
+    def frames(self) -> np.ndarray:
+        if self._current is None:
+            self._current = self._sampler.sample(self._shape)
+        return self._current
+
+    def advance(self) -> None:
+        self._current = None  # drawn lazily, so a step that needs no background draws none
+
+
+class BankBackground:
+    """Consecutive frames of natural videos (or still photos), gray, from a `FrameBank`."""
+
+    gray = True
+
+    def __init__(self, bank, num_envs: int, seed: int):
+        from jaxnat.natural import HostVideoSampler
+
+        # Gray once, with the compositor's law, so compositing in gray equals compositing in RGB.
+        frames = np.asarray(bank.frames)
+        gray_frames = np.concatenate(
+            [grayscale(frames[i : i + 256]) for i in range(0, len(frames), 256)]
+        )[..., None]
+        self.bank = dataclasses.replace(bank, frames=gray_frames)
+        self._sampler = HostVideoSampler(self.bank, num_envs, seed)
+        self._current = None
+
+    def reset(self, envs=None) -> None:
+        self._sampler.reset(envs)
+        self._current = None
+
+    def frames(self) -> np.ndarray:
+        if self._current is None:
+            self._current = np.asarray(self._sampler.step())[..., 0]
+        return self._current
+
+    def advance(self) -> None:
+        self._current = None
+
+
+def make_background(
+    kind: str,
+    num_envs: int,
+    shape: tuple[int, int],
+    *,
+    split: str = "train",
+    sources=None,
+    seed: int = 0,
+    noise_scale: float = 50.0,
+):
+    """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`."""
+    if kind == "none":
+        return NoBackground()
+    if kind == "noise":
+        return NoiseBackground(num_envs, shape, seed, noise_scale)
+    if kind in ("video", "image"):
+        from jaxnat import natural
+
+        load = natural.load_videos if kind == "video" else natural.load_images
+        bank = load(sources, shape=shape, grayscale=False, split=split)
+        return BankBackground(bank, num_envs, seed)
+    raise ValueError(f"background must be one of {BACKGROUNDS}, got {kind!r}")
