@@ -14,8 +14,6 @@ emulator's 210x160 and split into train and test by whole files.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from jaxnat.atari.compositor import NoiseSampler, grayscale
@@ -63,11 +61,12 @@ class NoiseBackground:
 
 
 class BankBackground:
-    """Consecutive frames of natural videos (or still photos), gray, from a `FrameBank`."""
+    """Consecutive frames of natural videos, or one still photo per episode (`still`), gray,
+    from a `FrameBank` through `jaxnat.natural.HostVideoSampler`."""
 
     gray = True
 
-    def __init__(self, bank, num_envs: int, seed: int):
+    def __init__(self, bank, num_envs: int, seed: int, still: bool = False):
         from jaxnat.natural import HostVideoSampler
 
         # Gray once, with the compositor's law, so compositing in gray equals compositing in RGB.
@@ -75,21 +74,20 @@ class BankBackground:
         gray_frames = np.concatenate(
             [grayscale(frames[i : i + 256]) for i in range(0, len(frames), 256)]
         )[..., None]
-        self.bank = dataclasses.replace(bank, frames=gray_frames)
+        self.bank = bank.replace(frames=gray_frames)
+        self.still = still  # photos: one per episode, not a new one every step
         self._sampler = HostVideoSampler(self.bank, num_envs, seed)
-        self._current = None
+        self._current = self._sampler.frames()[..., 0]
 
     def reset(self, envs=None) -> None:
-        self._sampler.reset(envs)
-        self._current = None
+        self._current = self._sampler.reset(envs)[..., 0]
 
     def frames(self) -> np.ndarray:
-        if self._current is None:
-            self._current = np.asarray(self._sampler.step())[..., 0]
         return self._current
 
     def advance(self) -> None:
-        self._current = None
+        if not self.still:
+            self._current = self._sampler.step()[..., 0]
 
 
 def make_background(
@@ -112,5 +110,5 @@ def make_background(
 
         load = natural.load_videos if kind == "video" else natural.load_images
         bank = load(sources, shape=shape, grayscale=False, split=split)
-        return BankBackground(bank, num_envs, seed)
+        return BankBackground(bank, num_envs, seed, still=kind == "image")
     raise ValueError(f"background must be one of {BACKGROUNDS}, got {kind!r}")

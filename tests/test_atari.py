@@ -1,0 +1,358 @@
+"""Natural Atari: compositor semantics, agreement with ale-py's own preprocessing, backgrounds,
+resets, splits, errors, and the adapters.
+
+Background videos for the video tests are written here (lossless FFV1, uniform frames whose
+gray level says which video and frame they are), so the tests do not need opencv-doc.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+ale_py = pytest.importorskip("ale_py")
+
+import jaxnat  # noqa: E402
+from jaxnat.atari import AUTHORS_GAMES, GAMES, RomNotFoundError  # noqa: E402
+from jaxnat.atari.compositor import (  # noqa: E402
+    FrameStack,
+    NoiseSampler,
+    background_mask,
+    composite,
+    composite_gray,
+    grayscale,
+    resize_area,
+)
+from jaxnat.atari.env import NaturalAtariVecEnv  # noqa: E402
+from jaxnat.atari.games import ROM_IDS  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def isolated_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXNAT_CACHE_DIR", str(tmp_path / "cache"))
+
+
+# -- compositor ----------------------------------------------------------------------------
+def test_mask_is_all_three_channels_zero():
+    frames = np.zeros((2, 3, 4, 3), np.uint8)
+    frames[0, 0, 0] = (200, 0, 0)  # the authors' per-channel test replaced two of its channels
+    frames[0, 0, 1] = (0, 200, 0)
+    frames[0, 0, 2] = (0, 0, 1)
+    frames[1, 2, 3] = (1, 1, 1)
+    expected = np.ones((2, 3, 4), bool)
+    expected[0, 0, :3] = False
+    expected[1, 2, 3] = False
+    np.testing.assert_array_equal(background_mask(frames), expected)
+    backgrounds = np.full_like(frames, 77)
+    out = composite(frames, backgrounds)
+    np.testing.assert_array_equal(out[0, 0, 0], (200, 0, 0))  # never replaced
+    np.testing.assert_array_equal(out[0, 0, 1], (0, 200, 0))
+    np.testing.assert_array_equal(out[0, 0, 2], (0, 0, 1))
+    np.testing.assert_array_equal(out[expected], 77)
+
+
+def test_compositing_is_exact_in_rgb_and_gray():
+    rng = np.random.default_rng(0)
+    # Sparse random colours (half the pixels black, some with only one channel set).
+    frames = rng.integers(0, 256, (3, 210, 160, 3), dtype=np.uint8)
+    frames[rng.random((3, 210, 160)) < 0.5] = 0
+    frames[rng.random((3, 210, 160, 3)) < 0.3] = 0
+    backgrounds = rng.integers(0, 256, frames.shape, dtype=np.uint8)
+    mask = (frames == 0).all(axis=-1)
+    by_hand = np.where(mask[..., None], backgrounds, frames)
+    np.testing.assert_array_equal(composite(frames, backgrounds), by_hand)
+    expected_gray = grayscale(by_hand)
+    # Gray compositing of pre-grayed backgrounds equals RGB compositing then grayscale.
+    np.testing.assert_array_equal(composite_gray(frames, grayscale(backgrounds)), expected_gray)
+    np.testing.assert_array_equal(composite_gray(frames, rgb_backgrounds=backgrounds), expected_gray)
+    np.testing.assert_array_equal(composite_gray(frames), grayscale(frames))
+
+
+def test_grayscale_follows_ales_law_within_one_level():
+    rng = np.random.default_rng(1)
+    colours = rng.integers(0, 256, (1, 200_000, 1, 3), dtype=np.uint8)
+    rgb = colours.astype(np.float64)
+    law = np.floor(rgb[..., 0] * 0.2989 + rgb[..., 1] * 0.5870 + rgb[..., 2] * 0.1140 + 0.5)
+    diff = np.abs(grayscale(colours).astype(int) - law)
+    assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+
+
+def test_batched_resize_equals_per_image_resize():
+    rng = np.random.default_rng(2)
+    gray = rng.integers(0, 256, (5, 210, 160), dtype=np.uint8)
+    per_image = np.stack([cv2.resize(g, (84, 84), interpolation=cv2.INTER_AREA) for g in gray])
+    np.testing.assert_array_equal(resize_area(gray, (84, 84)), per_image)
+
+
+def test_frame_stack_order_and_reset():
+    stack = FrameStack(3)
+    f = [np.full((2, 2, 2), v, np.uint8) for v in (1, 2, 3, 4)]
+    np.testing.assert_array_equal(stack.reset(f[0])[0, 0, 0], (0, 0, 1))
+    np.testing.assert_array_equal(stack.preview(f[1])[0, 0, 0], (0, 1, 2))
+    obs = stack.push(f[1], reset=np.array([False, True]))
+    np.testing.assert_array_equal(obs[0, 0, 0], (0, 1, 2))
+    np.testing.assert_array_equal(obs[1, 0, 0], (0, 0, 2))  # a new episode: zeros, then its frame
+    assert stack.push(f[2]).shape == (2, 2, 2, 3)
+
+
+def test_noise_sampler_follows_the_paper_law():
+    from jaxnat.natural import gaussian_noise_np
+
+    sampler = NoiseSampler(np.random.default_rng(3), scale=50.0)
+    ours = sampler.sample((400_000,))
+    law = NoiseSampler.law_probabilities(50.0)
+    assert abs(law.sum() - 1) < 1e-12
+    theirs = gaussian_noise_np(np.random.default_rng(4), (400_000,))
+    for sample in (ours, theirs):  # both draw the same law: clip(N(0,1)*50, 0) cast to uint8
+        freq = np.bincount(sample, minlength=256) / sample.size
+        assert abs(freq[0] - law[0]) < 0.005
+        np.testing.assert_allclose(freq[1:120], law[1:120], atol=0.0015)
+    assert sampler.sample((2, 3)).dtype == np.uint8
+    assert not np.array_equal(sampler.sample((64,)), sampler.sample((64,)))  # fresh every call
+
+
+# -- agreement with ale-py -----------------------------------------------------------------
+def _run_both(game, maxpool, steps, seed=3):
+    ours = NaturalAtariVecEnv(game, 2, sticky_actions=0.0, maxpool=maxpool, num_threads=1, seed=seed)
+    ref = ale_py.vector_env.AtariVectorEnv(
+        GAMES[game], 2, maxpool=maxpool, use_fire_reset=False, reward_clipping=False,
+        repeat_action_probability=0.0, num_threads=1, autoreset_mode="SameStep",
+    )
+    obs, _ = ours.reset(seed=seed)
+    ref_obs, _ = ref.reset(seed=seed)
+    pairs = [(obs, ref_obs.transpose(0, 2, 3, 1))]  # ale-py stacks channels-first
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        actions = rng.integers(0, ours.single_action_space.n, 2)
+        obs, reward, terminated, truncated, _ = ours.step(actions)
+        ref_obs, ref_reward, ref_terminated, ref_truncated, _ = ref.step(actions)
+        np.testing.assert_array_equal(reward, ref_reward)
+        np.testing.assert_array_equal(terminated, ref_terminated)
+        np.testing.assert_array_equal(truncated, ref_truncated)
+        pairs.append((obs, ref_obs.transpose(0, 2, 3, 1)))
+    ours.close()
+    ref.close()
+    return pairs
+
+
+@pytest.mark.parametrize("game", ["Breakout", "SpaceInvaders", "Alien"])
+def test_background_none_equals_ale_py_preprocessing(game):
+    for obs, ref_obs in _run_both(game, maxpool=False, steps=60):
+        np.testing.assert_array_equal(obs, ref_obs)
+
+
+def test_background_none_with_maxpool_equals_ale_py_on_breakout():
+    # Where the two pooled frames agree channel-wise (Breakout), gray(max) = max(gray) exactly;
+    # games that flicker (Alien) differ there: we pool RGB (the mask needs it), ale-py gray.
+    for obs, ref_obs in _run_both("Breakout", maxpool=True, steps=60):
+        np.testing.assert_array_equal(obs, ref_obs)
+
+
+# -- episodes, resets, determinism ---------------------------------------------------------
+def test_time_limit_reset_and_whole_game_statistics():
+    env = NaturalAtariVecEnv("Breakout", 2, max_episode_steps=5, num_threads=1)
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (2, 84, 84, 4) and obs.dtype == np.uint8
+    assert (obs[..., :3] == 0).all() and (obs[..., 3] > 0).any()
+    total = np.zeros(2, np.float32)
+    for t in range(5):
+        obs, reward, terminated, truncated, info = env.step(np.array([1, 3]))
+        total += reward
+        assert reward.dtype == np.float32
+    assert truncated.all() and not terminated.any() and info["returned_episode"].all()
+    np.testing.assert_array_equal(info["returned_episode_lengths"], [5, 5])
+    np.testing.assert_array_equal(info["returned_episode_returns"], total)
+    assert (obs[..., :3] == 0).all()  # the next episode's first observation
+    final = info["final_observation"]
+    assert (final[..., :3] > 0).any() and not np.array_equal(final, obs)
+    obs, *_, info = env.step(np.array([0, 0]))
+    assert not info["returned_episode"].any() and (obs[..., :2] == 0).all()
+
+
+def test_episodes_are_whole_games_not_lives():
+    env = NaturalAtariVecEnv("Breakout", 1, num_threads=1, sticky_actions=0.0)
+    env.reset(seed=1)
+    lives_seen = set()
+    for _ in range(3000):
+        *_, terminated, truncated, info = env.step(np.array([1]))  # FIRE, then play badly
+        lives_seen.add(int(info["lives"][0]))
+        if info["returned_episode"][0]:
+            break
+    assert terminated[0] and len(lives_seen) >= 3  # several lives lost within one episode
+    assert info["returned_episode_lengths"][0] > 100
+
+
+def test_same_seed_same_run_with_sticky_actions():
+    def run(seed):
+        env = NaturalAtariVecEnv("Breakout", 2, background="noise", num_threads=1, seed=seed)
+        out = [env.reset()[0]]
+        for t in range(20):
+            out.append(env.step(np.full(2, t % 4))[0])
+        return np.stack(out)
+
+    a, b, c = run(5), run(5), run(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_noise_background_fills_only_black_pixels():
+    plain = NaturalAtariVecEnv("Breakout", 1, sticky_actions=0.0, num_threads=1)
+    noisy = NaturalAtariVecEnv("Breakout", 1, background="noise", sticky_actions=0.0, num_threads=1)
+    a, _ = plain.reset(seed=0)
+    b, _ = noisy.reset(seed=0)
+    assert (b[..., 3] > a[..., 3]).mean() > 0.5  # the black field got noise
+    frame = plain._ale.reset(seed=0)[0][0, 0]  # the raw RGB screen: where it is not black,
+    keep = ~background_mask(frame[None])[0]  # noise must not change the pixels
+    gray_plain = composite_gray(frame[None])[0]
+    assert keep.any() and np.array_equal(gray_plain[keep], grayscale(frame[None])[0][keep])
+
+
+# -- video backgrounds ---------------------------------------------------------------------
+def _write_video(path: Path, video: int, num_frames: int) -> Path:
+    """Uniform gray frames of level 20 + 40 * video + 2 * frame, lossless (FFV1)."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 10, (40, 30))
+    assert writer.isOpened()
+    for f in range(num_frames):
+        writer.write(np.full((30, 40, 3), 20 + 40 * video + 2 * f, np.uint8))
+    writer.release()
+    return path
+
+
+@pytest.fixture
+def clips(tmp_path):
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for v in range(4):
+        _write_video(folder / f"clip{v}.avi", v, 12 + v)
+    return folder
+
+
+def _background_level(obs):
+    """The background's gray level in each env's newest frame (most of Pong's screen is not
+    black, so use Breakout: its black field is most of the frame)."""
+    newest = obs[..., -1].reshape(len(obs), -1)
+    return np.array([np.bincount(row).argmax() for row in newest])
+
+
+def test_video_background_one_frame_per_step_and_new_video_at_reset(clips):
+    env = NaturalAtariVecEnv(
+        "Breakout", 3, background="video", split="all", video_sources=str(clips),
+        max_episode_steps=8, num_threads=1, seed=0,
+    )
+    bank_levels = env._background.bank.frames[:, 0, 0, 0].astype(int)  # one level per frame
+    assert len(set(bank_levels)) == len(bank_levels)  # every bank frame is recognisable
+    index = {level: i for i, level in enumerate(bank_levels)}
+    obs, _ = env.reset()
+    positions = [[index[v] for v in _background_level(obs)]]
+    for _ in range(20):
+        obs, *_, info = env.step(np.zeros(3, np.int64))
+        positions.append([index[v] for v in _background_level(obs)])
+    positions = np.array(positions)
+    starts = np.asarray(env._background.bank.starts)
+    lengths = np.asarray(env._background.bank.lengths)
+    video_of = np.searchsorted(starts, np.arange(len(bank_levels)), side="right") - 1
+    for t in range(1, len(positions)):
+        for e in range(3):
+            prev, cur = positions[t - 1, e], positions[t, e]
+            if t % 8 == 0:  # a reset: a new video at a random offset (any frame)
+                continue
+            last = starts[video_of[prev]] + lengths[video_of[prev]] - 1
+            # One video frame per step; after a video's last frame, a new video's first frame.
+            assert cur == prev + 1 or (prev == last and cur == starts[video_of[cur]])
+    # Resets draw new offsets: not every env restarts where it would have continued.
+    assert any(positions[8, e] != positions[7, e] + 1 for e in range(3))
+
+
+def test_video_split_is_disjoint(clips):
+    names = {}
+    for split in ("train", "test", "all"):
+        env = NaturalAtariVecEnv("Breakout", 1, background="video", split=split,
+                                 video_sources=str(clips), num_threads=1)
+        names[split] = set(env._background.bank.names)
+    assert names["train"] and names["test"]
+    assert not names["train"] & names["test"]
+    assert names["train"] | names["test"] == names["all"]
+
+
+# -- registry, games, errors ---------------------------------------------------------------
+def test_every_ale_game_is_registered():
+    assert set(ROM_IDS) == set(ale_py.roms.get_all_rom_ids())
+    ids = set(jaxnat.registered_envs())
+    assert {f"NaturalAtari/{g}-v0" for g in GAMES} <= ids
+    assert set(AUTHORS_GAMES) <= set(GAMES) and len(AUTHORS_GAMES) == 16
+
+
+@pytest.mark.parametrize("game", AUTHORS_GAMES)
+def test_authors_games_construct_and_step(game):
+    env = jaxnat.make_vec(f"NaturalAtari/{game}-v0", 2, background="noise", num_threads=1)
+    obs, _ = env.reset(seed=0)
+    obs, reward, terminated, truncated, _ = env.step(np.zeros(2, np.int64))
+    assert obs.shape == (2, 84, 84, 4) and reward.shape == (2,)
+    env.close()
+
+
+def test_bad_game_id_lists_close_matches():
+    with pytest.raises(jaxnat.UnknownEnvError, match="NaturalAtari/Breakout-v0"):
+        jaxnat.make_vec("NaturalAtari/Breakot-v0", 2)
+    with pytest.raises(ValueError, match="Did you mean: SpaceInvaders"):
+        NaturalAtariVecEnv("SpaceInvader", 1)
+    with pytest.raises(TypeError, match="make_vec"):
+        jaxnat.make("NaturalAtari/Breakout-v0")
+
+
+def test_missing_rom_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setenv("ALE_ROMS_DIR", str(tmp_path))
+    with pytest.raises(RomNotFoundError, match=r"breakout\.bin.*ALE_ROMS_DIR"):
+        NaturalAtariVecEnv("Breakout", 1)
+
+
+def test_bad_arguments_are_clear_errors():
+    with pytest.raises(ValueError, match="background must be one of"):
+        NaturalAtariVecEnv("Breakout", 1, background="fog")
+    with pytest.raises(ValueError, match="split"):
+        NaturalAtariVecEnv("Breakout", 1, split="val")
+    env = NaturalAtariVecEnv("Breakout", 2, num_threads=1)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(2, np.int64))
+    env.reset()
+    with pytest.raises(ValueError, match=r"shape \(2,\)"):
+        env.step(np.zeros(3, np.int64))
+    with pytest.raises(ValueError, match=r"\[0, 4\)"):
+        env.step(np.array([0, 9]))
+
+
+# -- adapters ------------------------------------------------------------------------------
+def test_gymnasium_adapter_next_step_autoreset():
+    from jaxnat.compat.gymnasium import make_gymnasium_vec
+
+    vec = make_gymnasium_vec("NaturalAtari/Breakout-v0", 2, seed=0, max_episode_steps=3, num_threads=1)
+    obs, _ = vec.reset(seed=0)
+    assert vec.observation_space.contains(obs)
+    for _ in range(3):
+        obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
+    assert truncated.all() and (obs[..., :3] > 0).any()  # the final observation itself
+    np.testing.assert_array_equal(info["returned_episode_lengths"], [3, 3])
+    assert info["_returned_episode_lengths"].all()
+    obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
+    assert (reward == 0).all() and not (terminated | truncated).any()
+    assert (obs[..., :3] == 0).all() and not info["_returned_episode_lengths"].any()
+    vec.close()
+
+
+def test_clip_reward_and_device_arrays_wrappers():
+    import jax
+
+    from jaxnat.atari.wrappers import ClipRewardWrapper, DeviceArraysWrapper
+
+    env = DeviceArraysWrapper(ClipRewardWrapper(NaturalAtariVecEnv("Breakout", 2, num_threads=1)))
+    obs, _ = env.reset(seed=0)
+    assert isinstance(obs, jax.Array) and obs.shape == (2, 84, 84, 4)
+    for _ in range(40):
+        obs, reward, terminated, truncated, info = env.step(jax.numpy.ones(2, jax.numpy.int32))
+        assert isinstance(reward, jax.Array)
+        assert (np.abs(np.asarray(reward)) <= 1).all()
+        np.testing.assert_array_equal(np.clip(info["unclipped_reward"], -1, 1), reward)
+    assert env.num_envs == 2  # attributes pass through
