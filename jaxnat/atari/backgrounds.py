@@ -4,8 +4,8 @@
 
 - `reset(envs=None)`: envs (a bool mask, or all) start a new background: a new random video at
   a random offset (video), a new random photo (image); nothing for noise and none;
-- `frames()`: this step's background of every env, `uint8[B, H, W]` gray (`gray=True`: already
-  through the compositor's grayscale, composited in gray) or `uint8[B, H, W, 3]` RGB;
+- `frames()`: this step's background of every env as gray levels `uint8[B, H, W]` (through the
+  compositor's grayscale law: the compositor composites in gray), or None (black);
 - `advance()`: move every env's video on by one frame (called once per agent step).
 
 Videos and images come from the natural-sources module (`jaxnat.natural`), resized to the
@@ -26,8 +26,6 @@ BACKGROUNDS = ("none", "noise", "video", "image")
 class NoBackground:
     """Black, the baseline: the compositor leaves frames as they are."""
 
-    gray = True
-
     def reset(self, envs=None) -> None:
         pass
 
@@ -39,13 +37,12 @@ class NoBackground:
 
 
 class NoiseBackground:
-    """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame (RGB)."""
-
-    gray = False
+    """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame, drawn directly
+    as its gray level (`NoiseSampler(gray=True)`: the same law as graying RGB noise)."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0):
-        self._shape = (num_envs, *shape, 3)
-        self._sampler = NoiseSampler(np.random.default_rng(seed), scale)
+        self._shape = (num_envs, *shape)
+        self._sampler = NoiseSampler(np.random.default_rng(seed), scale, gray=True)
         self._current = None
 
     def reset(self, envs=None) -> None:
@@ -63,8 +60,6 @@ class NoiseBackground:
 class BankBackground:
     """Consecutive frames of natural videos, or one still photo per episode (`still`), gray,
     from a `FrameBank` through `jaxnat.natural.HostVideoSampler`."""
-
-    gray = True
 
     def __init__(self, bank, num_envs: int, seed: int, still: bool = False):
         from jaxnat.natural import HostVideoSampler

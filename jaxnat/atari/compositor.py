@@ -7,14 +7,27 @@ compared channels separately, which replaced it).
 
 Grayscale is ALE's own law, `round(0.2989 R + 0.5870 G + 0.1140 B)` (the palette grayscale that
 ale-py's `grayscale=True` uses); OpenCV's `COLOR_RGB2GRAY` uses 0.299/0.587/0.114 and differs by 1
-on about 1% of colours. Because grayscale acts pixel by pixel, `gray(where(mask, bg, frame))` equals
-`where(mask, gray(bg), gray(frame))`: backgrounds that do not change per step (video, image) are
-turned gray once, when loaded, and composited in gray, which is exact and three times cheaper.
+on about 1% of colours. Grayscale acts pixel by pixel, so `gray(where(mask, bg, frame))` equals
+`where(mask, gray(bg), gray(frame))`: backgrounds are turned gray (videos once, when loaded) and
+composited in gray, which is exact.
 
-A batch `[B, H, W, C]` is handed to OpenCV as one tall image `[B*H, W, C]`: every operation here
-is per pixel, and INTER_AREA resizing by the same factor keeps the images' rows apart (210 rows
-become 84 exactly, so no output row mixes two images), so one call does the whole batch and
-OpenCV spreads it over its threads.
+Two pooling orders (the env's `pool`):
+
+- "gray" (default): ale-py pools ALE's gray screens, `max(gray(a), gray(b))`, as ale-py, Gymnasium's
+  `AtariPreprocessing` and DQN do, and the mask is `gray == 0`. That mask is exactly the RGB
+  definition: in ALE's NTSC, PAL and SECAM palettes only black has gray level 0 (the darkest
+  other colour has 16), so a pooled gray pixel is 0 exactly when both pooled RGB pixels are
+  black (`tests/test_atari.py` checks the palettes and real screens). Composited pixels are then
+  exactly the RGB definition's; other pixels follow ale-py's own preprocessing (bit-identical
+  with background "none"), which differs from `gray(max(a, b))` only where two different colours
+  flicker on the same pixel.
+- "rgb": ale-py returns the max-pooled RGB screen and we turn it gray: the literal order of the
+  spec, with the RGB mask (`background_mask`). It moves three times the bytes.
+
+A batch `[B, H, W(, C)]` is handed to OpenCV as one tall image `[B*H, W(, C)]`: every operation
+here is per pixel, and INTER_AREA resizing by the same factor keeps the images' rows apart (210
+rows become 84 exactly, so no output row mixes two images), so one call does the whole batch
+and OpenCV spreads it over its threads.
 """
 
 from __future__ import annotations
@@ -29,6 +42,7 @@ __all__ = [
     "background_mask",
     "composite",
     "composite_gray",
+    "composite_pooled_gray",
     "grayscale",
     "resize_area",
     "FrameStack",
@@ -67,27 +81,26 @@ def grayscale(frames: np.ndarray) -> np.ndarray:
     return cv2.transform(_tall(frames), ALE_GRAY_WEIGHTS).reshape(b, h, w)
 
 
-def composite_gray(
-    frames: np.ndarray, gray_backgrounds: np.ndarray | None = None, rgb_backgrounds=None
-) -> np.ndarray:
-    """Composite and turn gray in one pass: `grayscale(composite(frames, backgrounds))`.
-
-    Give either `gray_backgrounds` (`uint8[B, H, W]`, already `grayscale`d: composited in gray,
-    which is exact because grayscale is per pixel) or `rgb_backgrounds` (`uint8[B, H, W, 3]`,
-    composited in RGB, for backgrounds that change every frame such as noise), or neither
-    (black background: plain grayscale).
-    """
-    if rgb_backgrounds is not None:
-        tall = _tall(frames)
-        mask = cv2.inRange(tall, (0, 0, 0), (0, 0, 0))
-        tall = tall.copy()
-        cv2.copyTo(_tall(rgb_backgrounds), mask, tall)
-        return grayscale(tall.reshape(frames.shape))
+def composite_gray(frames: np.ndarray, gray_backgrounds: np.ndarray | None = None) -> np.ndarray:
+    """`grayscale(composite(frames, backgrounds))` from RGB `frames` `uint8[B, H, W, 3]` and the
+    backgrounds' gray levels `gray_backgrounds` `uint8[B, H, W]` (`grayscale(backgrounds)`, or
+    gray noise): composited in gray, which is exact because grayscale is per pixel. None: black
+    background, plain grayscale."""
     gray = grayscale(frames)
     if gray_backgrounds is not None:
         mask = cv2.inRange(_tall(frames), (0, 0, 0), (0, 0, 0))
-        tall_gray = _tall(gray)
-        cv2.copyTo(_tall(gray_backgrounds), mask, tall_gray)  # in place: only masked pixels
+        cv2.copyTo(_tall(gray_backgrounds), mask, _tall(gray))  # in place: only masked pixels
+    return gray
+
+
+def composite_pooled_gray(gray: np.ndarray, gray_backgrounds: np.ndarray | None) -> np.ndarray:
+    """Composite ale-py's max-pooled gray screens `uint8[B, H, W]` in place: pixels at gray level
+    0 (exactly the all-channels-zero RGB pixels, see the module docstring) take
+    `gray_backgrounds`' pixels. Returns `gray`."""
+    if gray_backgrounds is not None:
+        tall = _tall(gray)
+        mask = cv2.compare(tall, 0, cv2.CMP_EQ)
+        cv2.copyTo(_tall(gray_backgrounds), mask, tall)
     return gray
 
 
@@ -152,21 +165,35 @@ class NoiseSampler:
     step; this draws 16-bit uniforms and maps them through the inverse distribution function of
     that uint8 law (a 65,536-entry table), so every value has its exact probability rounded to a
     multiple of 2^-16: values above about 4 sigma (rarer than 1.5e-5) are merged into their
-    neighbours. `law_probabilities` gives the exact law the tests compare with.
+    neighbours. `gray=True` samples, the same way, the law of ALE's gray level of such an RGB
+    pixel (three i.i.d. channels), which is what compositing RGB noise and then turning it gray
+    gives, at a third of the cost. `law_probabilities` gives the exact laws the tests use.
     """
 
-    def __init__(self, rng: np.random.Generator, scale: float = 50.0):
+    def __init__(self, rng: np.random.Generator, scale: float = 50.0, gray: bool = False):
         self.rng = rng
         self.scale = float(scale)
-        cdf = np.cumsum(self.law_probabilities(self.scale))
+        self.gray = bool(gray)
+        cdf = np.cumsum(self.law_probabilities(self.scale, self.gray))
         u = (np.arange(65536) + 0.5) / 65536
         self._table = np.minimum(np.searchsorted(cdf, u), 255).astype(np.uint8)
 
     @staticmethod
-    def law_probabilities(scale: float = 50.0) -> np.ndarray:
-        """P(value = k), k = 0..255, of `uint8(clip(N(0,1) * scale, 0, 255))` (truncating cast)."""
+    def law_probabilities(scale: float = 50.0, gray: bool = False) -> np.ndarray:
+        """P(value = k), k = 0..255, of `uint8(clip(N(0,1) * scale, 0, 255))` (truncating cast),
+        or (`gray`) of ALE's gray level of three independent such channels."""
         phi = np.array([0.5 * (1 + math.erf(k / scale / math.sqrt(2))) for k in range(1, 256)])
-        return np.diff(np.concatenate([[0.0], phi, [1.0]]))
+        channel = np.diff(np.concatenate([[0.0], phi, [1.0]]))
+        if not gray:
+            return channel
+        levels = np.arange(256, dtype=np.float64)
+        g_b = levels[:, None] * 0.5870 + levels[None, :] * 0.1140  # G and B contributions
+        p_gb = (channel[:, None] * channel[None, :]).ravel()
+        law = np.zeros(256)
+        for r in np.flatnonzero(channel > 1e-18):
+            gray_levels = np.floor(r * 0.2989 + g_b + 0.5).astype(np.int64).ravel()
+            law += channel[r] * np.bincount(gray_levels, weights=p_gb, minlength=256)[:256]
+        return law / law.sum()
 
     def sample(self, shape: tuple[int, ...]) -> np.ndarray:
         u = self.rng.integers(0, 65536, size=shape, dtype=np.uint16)

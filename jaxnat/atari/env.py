@@ -11,7 +11,12 @@ import numpy as np
 
 from jaxnat import spaces
 from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
-from jaxnat.atari.compositor import FrameStack, composite_gray, resize_area
+from jaxnat.atari.compositor import (
+    FrameStack,
+    composite_gray,
+    composite_pooled_gray,
+    resize_area,
+)
 from jaxnat.atari.games import rom_id, rom_path
 
 __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
@@ -23,9 +28,12 @@ _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 class NaturalAtariVecEnv:
     """`num_envs` copies of an Atari game whose black background shows natural video or noise.
 
-    Emulation: ale-py's C++ `AtariVectorEnv` on `num_threads` threads, full-resolution RGB
-    frames after its frame skip (`frame_skip` frames, rewards summed) and max-pool over the last
-    two frames (per channel), sticky actions with probability `sticky_actions` (ALE's
+    Emulation: ale-py's C++ `AtariVectorEnv` on `num_threads` threads, full-resolution (210x160)
+    screens after its frame skip (`frame_skip` frames, rewards summed) and max-pool over the last
+    two frames (`pool="gray"`: of ALE's gray screens, as ale-py's and Gymnasium's own
+    preprocessing, bit-identical to them with background "none"; `pool="rgb"`: of the RGB screens,
+    per channel, then ALE's grayscale; the background mask is the same either way, see
+    jaxnat.atari.compositor), sticky actions with probability `sticky_actions` (ALE's
     `repeat_action_probability`, applied at every emulated frame), a random number of no-ops in
     `[0, noop_max)` at each reset, no FIRE at reset, whole games as episodes (no life loss
     signal), truncation after `max_episode_steps` agent steps.
@@ -69,6 +77,7 @@ class NaturalAtariVecEnv:
         noop_max: int = 30,
         frame_skip: int = 4,
         maxpool: bool = True,
+        pool: str = "gray",
         full_action_space: bool = False,
         max_episode_steps: int = 27_000,
         obs_size: int | tuple[int, int] = 84,
@@ -84,6 +93,8 @@ class NaturalAtariVecEnv:
             raise ValueError(f"split must be 'train', 'test' or 'all', got {split!r}")
         if autoreset_mode not in _AUTORESET_MODES:
             raise ValueError(f"autoreset_mode must be one of {sorted(_AUTORESET_MODES)}, got {autoreset_mode!r}")
+        if pool not in ("gray", "rgb"):
+            raise ValueError(f"pool must be 'gray' or 'rgb', got {pool!r}")
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         if not 0.0 <= float(sticky_actions) <= 1.0:
@@ -97,7 +108,9 @@ class NaturalAtariVecEnv:
         self.num_envs = int(num_envs)
         self.background = background
         self.split = split
+        self.video_sources = video_sources
         self.autoreset_mode = autoreset_mode
+        self.pool = pool
         self.obs_size = (obs_size, obs_size) if isinstance(obs_size, int) else tuple(obs_size)
         self.max_episode_steps = int(max_episode_steps)
         self._seed = int(seed)
@@ -106,7 +119,7 @@ class NaturalAtariVecEnv:
             self.num_envs,
             img_height=SCREEN_SHAPE[0],
             img_width=SCREEN_SHAPE[1],
-            grayscale=False,
+            grayscale=pool == "gray",
             stack_num=1,
             frameskip=int(frame_skip),
             maxpool=bool(maxpool),
@@ -208,14 +221,13 @@ class NaturalAtariVecEnv:
         self.close()
 
     # -- internals ------------------------------------------------------------------------
-    def _preprocess(self, frames: np.ndarray, background) -> np.ndarray:
-        """RGB screens `[B, 210, 160, 3]` -> composited, gray, resized `[B, h, w]`."""
-        if background is None:
-            gray = composite_gray(frames)
-        elif self._background.gray:
-            gray = composite_gray(frames, gray_backgrounds=background)
+    def _preprocess(self, screens: np.ndarray, background) -> np.ndarray:
+        """Pooled screens `[B, 210, 160]` gray (modified in place) or `[B, 210, 160, 3]` RGB, and
+        gray backgrounds `[B, 210, 160]` (or None) -> composited, gray, resized `[B, h, w]`."""
+        if self.pool == "gray":
+            gray = composite_pooled_gray(screens, background)
         else:
-            gray = composite_gray(frames, rgb_backgrounds=background)
+            gray = composite_gray(screens, background)
         return resize_area(gray, self.obs_size)
 
     def _record_episodes(self, reward, done, restarted, info) -> None:
