@@ -238,6 +238,21 @@ def test_same_seed_same_run_with_sticky_actions():
     assert not np.array_equal(a, c)
 
 
+def test_reset_with_a_seed_repeats_the_run(clips):
+    env = NaturalAtariVecEnv("Breakout", 2, background="video", split="all",
+                             video_sources=str(clips), num_threads=1, seed=0)
+
+    def run(seed):
+        out = [env.reset(seed=seed)[0]]
+        for t in range(10):
+            out.append(env.step(np.full(2, t % 4))[0])
+        return np.stack(out)
+
+    first, other, again = run(7), run(8), run(7)
+    np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(first, other)
+
+
 @pytest.mark.parametrize("pool", ["gray", "rgb"])
 def test_noise_replaces_exactly_the_black_pixels(pool):
     # Full-resolution screens, no stack: the observation is the composited screen itself.

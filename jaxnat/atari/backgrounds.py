@@ -6,7 +6,8 @@
   a random offset (video), a new random photo (image); nothing for noise and none;
 - `frames()`: this step's background of every env as gray levels `uint8[B, H, W]` (through the
   compositor's grayscale law: the compositor composites in gray), or None (black);
-- `advance()`: move every env's video on by one frame (called once per agent step).
+- `advance()`: move every env's video on by one frame (called once per agent step);
+- `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`.
 
 Videos and images come from the natural-sources module (`jaxnat.natural`), resized to the
 emulator's 210x160 and split into train and test by whole files.
@@ -35,6 +36,9 @@ class NoBackground:
     def advance(self) -> None:
         pass
 
+    def seed(self, seed: int) -> None:
+        pass
+
 
 class NoiseBackground:
     """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame, drawn directly
@@ -55,6 +59,10 @@ class NoiseBackground:
 
     def advance(self) -> None:
         self._current = None  # drawn lazily, so a step that needs no background draws none
+
+    def seed(self, seed: int) -> None:
+        self._sampler.rng = np.random.default_rng(seed)
+        self._current = None
 
 
 class BankBackground:
@@ -83,6 +91,9 @@ class BankBackground:
     def advance(self) -> None:
         if not self.still:
             self._current = self._sampler.step()[..., 0]
+
+    def seed(self, seed: int) -> None:
+        self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
 
 
 def make_background(

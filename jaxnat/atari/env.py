@@ -150,8 +150,13 @@ class NaturalAtariVecEnv:
 
     # -- the batched API ------------------------------------------------------------------
     def reset(self, *, seed: int | None = None):
-        """Reset every env; `seed` (default: the constructor's) seeds env `i` with `seed + i`."""
-        seed = self._seed if seed is None else int(seed)
+        """Reset every env. `seed` seeds env `i`'s emulator with `seed + i` and restarts the
+        background draws from `seed`; without it, the first reset uses the constructor's seed
+        and later ones continue the random streams (new games, new videos)."""
+        if seed is not None:
+            self._seed = int(seed)
+            self._background.seed(self._seed)
+        seed = self._seed
         self._seed += self.num_envs  # a later reset() without a seed starts new games
         raw, info = self._ale.reset(seed=seed)
         self._background.reset(None)
