@@ -225,13 +225,18 @@ def test_episodes_are_whole_games_not_lives():
     assert info["returned_episode_lengths"][0] > 100
 
 
+def _observations(env, steps, seed=None):
+    """The observations of a reset and `steps` steps with fixed actions, stacked."""
+    out = [env.reset(seed=seed)[0]]
+    for t in range(steps):
+        out.append(env.step(np.full(env.num_envs, t % 4))[0])
+    return np.stack(out)
+
+
 def test_same_seed_same_run_with_sticky_actions():
     def run(seed):
         env = NaturalAtariVecEnv("Breakout", 2, background="noise", num_threads=1, seed=seed)
-        out = [env.reset()[0]]
-        for t in range(20):
-            out.append(env.step(np.full(2, t % 4))[0])
-        return np.stack(out)
+        return _observations(env, 20)
 
     a, b, c = run(5), run(5), run(6)
     np.testing.assert_array_equal(a, b)
@@ -241,14 +246,7 @@ def test_same_seed_same_run_with_sticky_actions():
 def test_reset_with_a_seed_repeats_the_run(clips):
     env = NaturalAtariVecEnv("Breakout", 2, background="video", split="all",
                              video_sources=str(clips), num_threads=1, seed=0)
-
-    def run(seed):
-        out = [env.reset(seed=seed)[0]]
-        for t in range(10):
-            out.append(env.step(np.full(2, t % 4))[0])
-        return np.stack(out)
-
-    first, other, again = run(7), run(8), run(7)
+    first, other, again = (_observations(env, 10, seed) for seed in (7, 8, 7))
     np.testing.assert_array_equal(first, again)
     assert not np.array_equal(first, other)
 
