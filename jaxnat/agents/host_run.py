@@ -75,8 +75,10 @@ def run_host_training(
                 if update == 1 or update % max(1, learner.num_updates // 20) == 0 \
                         or update == learner.num_updates:
                     ret = metrics["episode_return"]
-                    console.print(f"seed {s} · update {update}/{learner.num_updates} · train "
-                                  f"return {ret:+.1f} · {row['steps_per_second']:,.0f} steps/s")
+                    ret = "no game ended yet" if np.isnan(ret) else f"train return {ret:+.1f}"
+                    console.print(f"seed {s} · update {update}/{learner.num_updates} · {ret} · "
+                                  f"{row['steps_per_second']:,.0f} steps/s"
+                                  + (" (compiling)" if update == 1 else ""))
 
             train_state, history = learner.train(jax.random.key(s), callback=log)
             scores = {}
