@@ -137,6 +137,15 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.quick:
         args.num_envs, args.threads, args.steps, args.rounds = 4, [min(2, cores)], 20, 1
+    if "video" in args.backgrounds:
+        from jaxnat.datasets import DatasetNotFoundError
+        from jaxnat.natural import load_videos
+
+        try:
+            load_videos(args.video_sources, shape=(210, 160), split="train")
+        except DatasetNotFoundError as err:  # e.g. a host without Debian's opencv-doc
+            print(f"skipping the video background: {err}")
+            args.backgrounds = [b for b in args.backgrounds if b != "video"]
 
     info = common.machine()
     rows = []

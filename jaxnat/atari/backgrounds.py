@@ -7,13 +7,16 @@
 - `frames()`: this step's background of every env as gray levels `uint8[B, H, W]` (through the
   compositor's grayscale law: the compositor composites in gray), or None (black);
 - `advance()`: move every env's video on by one frame (called once per agent step);
-- `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`.
+- `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`;
+- `close()`: stop worker threads.
 
 Videos and images come from the natural-sources module (`jaxnat.natural`), resized to the
 emulator's 210x160 and split into train and test by whole files.
 """
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -25,12 +28,13 @@ BACKGROUNDS = ("none", "noise", "video", "image")
 
 
 class NoBackground:
-    """Black, the baseline: the compositor leaves frames as they are."""
+    """Black, the baseline: the compositor leaves frames as they are. Also the base class: its
+    methods are the do-nothing defaults."""
 
     def reset(self, envs=None) -> None:
         pass
 
-    def frames(self) -> None:
+    def frames(self) -> np.ndarray | None:
         return None
 
     def advance(self) -> None:
@@ -39,33 +43,44 @@ class NoBackground:
     def seed(self, seed: int) -> None:
         pass
 
+    def close(self) -> None:
+        pass
 
-class NoiseBackground:
+
+class NoiseBackground(NoBackground):
     """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame, drawn directly
-    as its gray level (`NoiseSampler(gray=True)`: the same law as graying RGB noise)."""
+    as its gray level (`NoiseSampler(gray=True)`: the same law as graying RGB noise).
+
+    The next frame's noise is drawn on a worker thread while the emulator runs (numpy releases
+    the GIL), so drawing costs little wall time; one worker draws them in order, so a seed
+    gives one sequence.
+    """
 
     def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0):
         self._shape = (num_envs, *shape)
-        self._sampler = NoiseSampler(np.random.default_rng(seed), scale, gray=True)
-        self._current = None
-
-    def reset(self, envs=None) -> None:
-        pass
+        self._scale = scale
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxnat-noise")
+        self.seed(seed)
 
     def frames(self) -> np.ndarray:
-        if self._current is None:
-            self._current = self._sampler.sample(self._shape)
         return self._current
 
     def advance(self) -> None:
-        self._current = None  # drawn lazily, so a step that needs no background draws none
+        self._current = self._next.result()
+        self._next = self._worker.submit(self._sampler.sample, self._shape)
 
     def seed(self, seed: int) -> None:
-        self._sampler.rng = np.random.default_rng(seed)
-        self._current = None
+        if getattr(self, "_next", None) is not None:
+            self._next.result()  # let the worker finish with the old generator
+        self._sampler = NoiseSampler(np.random.default_rng(seed), self._scale, gray=True)
+        self._current = self._sampler.sample(self._shape)
+        self._next = self._worker.submit(self._sampler.sample, self._shape)
+
+    def close(self) -> None:
+        self._worker.shutdown(wait=True)
 
 
-class BankBackground:
+class BankBackground(NoBackground):
     """Consecutive frames of natural videos, or one still photo per episode (`still`), gray,
     from a `FrameBank` through `jaxnat.natural.HostVideoSampler`."""
 

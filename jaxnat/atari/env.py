@@ -212,6 +212,7 @@ class NaturalAtariVecEnv:
 
     def close(self) -> None:
         self._ale.close()
+        self._background.close()
 
     def __repr__(self) -> str:
         return (
