@@ -811,6 +811,8 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     from rich.console import Console
 
     console = console or Console()
+    if _is_host_env(args.env_id):  # NaturalAtari/*: emulated on the host, a host loop trains
+        return _train_on_host(args, console, compiler_options)
     session_start = time.perf_counter()
     spec, run_dir, saved = _setup(args)
     _print_config(console, spec, run_dir)
@@ -930,6 +932,32 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     if interrupted:
         raise KeyboardInterrupt
     return TrainResult(run_dir, runner, summary, complete)
+
+
+def _is_host_env(env_id: str) -> bool:
+    try:
+        return jaxnat.spec(env_id).batched
+    except UnknownEnvError:
+        return False  # the main path reports it
+
+
+def _train_on_host(args: TrainArgs, console, compiler_options) -> TrainResult:
+    """Host-batched envs: `jaxnat.agents.host_run` (seeds one after another, no resume yet)."""
+    from jaxnat.agents.host_run import run_host_training
+
+    _check_algo(args.algo)
+    if args.resume is not None:
+        raise TrainError(f"--resume is not supported for {args.env_id} (host-emulated) yet")
+    try:
+        summary, run_dir = run_host_training(
+            args.env_id, args.algo, lambda space: _resolve_config(args, space),
+            env_kwargs=parse_env_kwargs(args.env_kwargs), seeds=args.seeds, seed=args.seed,
+            eval_episodes=args.eval_episodes, console=console, compiler_options=compiler_options,
+            run_dir=args.run_dir or _default_run_dir(args.env_id, args.algo))
+    except (MissingDependencyError, DatasetNotFoundError, DatasetFormatError, TypeError,
+            ValueError) as err:
+        raise TrainError(f"{args.env_id}: {err}") from None
+    return TrainResult(run_dir, None, summary, True)
 
 
 def _test_field(entry: dict) -> str:

@@ -26,6 +26,7 @@ CONFIGS = {
     "a2c": a2c.A2CConfig(total_timesteps=4096, num_envs=4, num_steps=8, trunk="mlp", lr=1e-3),
 }
 RULES = {"ppo": ppo.RULE, "a2c": a2c.RULE}
+FAST = {"xla_backend_optimization_level": 0}  # compiles much faster on CPU
 
 
 class HostProbe:
@@ -60,7 +61,7 @@ class HostProbe:
 @functools.cache
 def trained(probe: str, algo: str, gamma: float = 0.99):
     config = CONFIGS[algo].replace(gamma=gamma)
-    learner = make_host_learner(config, HostProbe(probe, config.num_envs), RULES[algo])
+    learner = make_host_learner(config, HostProbe(probe, config.num_envs), RULES[algo], FAST)
     train_state, history = learner.train(jax.random.key(0))
     return learner, train_state.params, history
 
@@ -73,7 +74,7 @@ def value(learner, params, obs):
 def test_policy_learns_the_sign_probe(algo):
     learner, params, history = trained("sign", algo)
     assert np.nanmean([h["episode_return"] for h in history[-5:]]) >= 0.9
-    greedy = evaluate_host(learner.network, params, HostProbe("sign", 4), 20, jax.random.key(1),
+    greedy = evaluate_host(learner, params, HostProbe("sign", 4), 20, jax.random.key(1),
                            greedy=True)
     assert greedy.shape == (20,) and (greedy == 1.0).all()
 
@@ -105,3 +106,27 @@ def test_batch_size_must_match_the_env():
     with pytest.raises(ValueError, match="less than one rollout"):
         make_host_learner(CONFIGS["ppo"].replace(total_timesteps=10), HostProbe("sign", 4),
                           ppo.RULE)
+
+
+def test_jaxnat_train_runs_natural_atari(tmp_path):
+    """`jaxnat train` routes NaturalAtari ids to the host loop and writes a run directory."""
+    pytest.importorskip("ale_py")
+    import json
+
+    from jaxnat.train import main
+
+    run_dir = tmp_path / "run"
+    status = main(["--env-id", "NaturalAtari/Breakout-v0", "--algo", "a2c", "--seeds", "1",
+                   "--total-timesteps", "32", "--num-envs", "2", "--num-steps", "8",
+                   "--eval-episodes", "2", "--run-dir", str(run_dir), "--env-kwargs",
+                   "obs_size=36", "num_threads=1", "max_episode_steps=10", "background=noise"],
+                  compiler_options=FAST)
+    assert status == 0
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [r["update"] for r in rows] == [1, 2]
+    # 10-step games (time limit) in 8-step rollouts: both envs' first games end in update 2.
+    assert rows[0]["episodes"] == 0 and rows[1]["episodes"] == 2
+    assert rows[1]["episode_length"] == 10.0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["complete"] and summary["env_steps_per_seed"] == 32
+    assert np.isfinite(summary["test_sampled_return_mean"])

@@ -21,6 +21,7 @@ bootstraps from its last observation, a terminated one does not.
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any, Callable, NamedTuple
 
@@ -42,6 +43,8 @@ class HostLearner(NamedTuple):
     """`train(key, num_updates=None, callback=None) -> (train_state, history)`, and its parts."""
 
     init: Callable  # key -> TrainState
+    act: Callable  # jitted (params, obs, key) -> (action [B, F], log_prob, value)
+    greedy: Callable  # jitted (params, obs, key) -> the most likely action [B, F]
     collect: Callable  # (train_state, obs, key) -> (Transition on the device, next obs, key)
     learn: Callable  # jitted (train_state, transitions, key) -> (train_state, metrics)
     train: Callable
@@ -49,10 +52,13 @@ class HostLearner(NamedTuple):
     num_updates: int
 
 
-def make_host_learner(config, env, rule: UpdateRule) -> HostLearner:
+def make_host_learner(config, env, rule: UpdateRule, compiler_options: dict | None = None
+                      ) -> HostLearner:
     """The host-loop learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched host env.
 
     `config.num_envs` must equal `env.num_envs` (the env is built with its batch size).
+    `compiler_options`: XLA options for every jitted function, e.g.
+    `{"xla_backend_optimization_level": 0}` (compiles much faster on CPU).
     """
     if config.num_envs != env.num_envs:
         raise ValueError(f"config.num_envs={config.num_envs} but the env has {env.num_envs} envs")
@@ -65,18 +71,24 @@ def make_host_learner(config, env, rule: UpdateRule) -> HostLearner:
     observation_space = env.single_observation_space
     network = make_actor_critic(observation_space, env.single_action_space, config.trunk)
     scalar_action = not hasattr(env.single_action_space, "nvec")
+    jit = functools.partial(jax.jit, compiler_options=compiler_options)
 
-    @jax.jit
+    @jit
     def act(params, obs, key):
         logits, value = network.apply(params, obs)
         action = distributions.sample(key, logits)
         return action, distributions.log_prob(logits, action), value
 
-    @jax.jit
+    @jit
+    def greedy(params, obs, key):
+        del key  # the same signature as act's first output
+        return distributions.mode(network.apply(params, obs)[0])
+
+    @jit
     def value_of(params, obs):
         return network.apply(params, obs)[1]
 
-    @jax.jit
+    @jit
     def learn(train_state, transitions: Transition, key):
         advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
         train_state, losses = rule.update_step(
@@ -84,6 +96,7 @@ def make_host_learner(config, env, rule: UpdateRule) -> HostLearner:
         )
         return train_state, {**episode_metrics(transitions.info), **losses}
 
+    @jit  # one compiled program, not hundreds of small eager ones
     def init(key) -> TrainState:
         return TrainState.create(
             apply_fn=network.apply,
@@ -108,7 +121,7 @@ def make_host_learner(config, env, rule: UpdateRule) -> HostLearner:
             next_obs_device = jax.device_put(next_obs)
             # V(final observation) where an episode ended; elsewhere the next step's value serves.
             final_value = (value_of(params, jax.device_put(info["final_observation"]))
-                           if done.any() else None)
+                           if done.any() else np.zeros(config.num_envs, np.float32))
             for name, x in (("obs", obs_device), ("action", action), ("log_prob", log_prob),
                             ("value", value), ("reward", reward), ("done", done),
                             ("terminated", terminated), ("final_value", final_value)):
@@ -137,48 +150,46 @@ def make_host_learner(config, env, rule: UpdateRule) -> HostLearner:
                 callback(update + 1, metrics, time.perf_counter() - start)
         return train_state, history
 
-    return HostLearner(init, collect, learn, train, network, num_updates)
+    return HostLearner(init, act, greedy, collect, learn, train, network, num_updates)
 
 
+@jax.jit
 def _transitions(rollout: dict, last_value) -> Transition:
-    """Stack the per-step lists into a time-major `Transition` and bootstrap values."""
-    value = jnp.stack(rollout["value"])
+    """Stack the per-step lists (host and device arrays) into a time-major `Transition` on the
+    device and bootstrap the values."""
+    stacked = {name: jnp.stack(steps) for name, steps in rollout.items()}
+    value, done, terminated = stacked["value"], stacked["done"], stacked["terminated"]
     next_value = jnp.concatenate([value[1:], last_value[None]])
-    final_value = jnp.stack([fv if fv is not None else jnp.zeros_like(last_value)
-                             for fv in rollout["final_value"]])
-    done = jnp.asarray(np.stack(rollout["done"]))
-    terminated = jnp.asarray(np.stack(rollout["terminated"]))
-    next_value = jnp.where(done, final_value, next_value)
+    next_value = jnp.where(done, stacked["final_value"], next_value)
     next_value = jnp.where(terminated, 0.0, next_value)
-    info = {name: jnp.asarray(np.stack(rollout[name])) for name in _EPISODE_KEYS}
+    info = {name: stacked[name] for name in _EPISODE_KEYS}
     info["terminated"] = terminated
     return Transition(
-        obs=jnp.stack(rollout["obs"]),
-        action=jnp.stack(rollout["action"]),
-        log_prob=jnp.stack(rollout["log_prob"]),
+        obs=stacked["obs"],
+        action=stacked["action"],
+        log_prob=stacked["log_prob"],
         value=value,
-        reward=jnp.asarray(np.stack(rollout["reward"]), jnp.float32),
+        reward=stacked["reward"].astype(jnp.float32),
         done=done.astype(jnp.float32),
         next_value=next_value,
         info=info,
     )
 
 
-def evaluate_host(network, params, env, num_episodes: int, key, greedy: bool = False) -> np.ndarray:
-    """Whole-game returns (unclipped) of the first `num_episodes` games that end, policy sampled
-    (or greedy); every env of `env` plays until enough games have ended."""
+def evaluate_host(learner: HostLearner, params, env, num_episodes: int, key,
+                  greedy: bool = False) -> np.ndarray:
+    """Whole-game returns (unclipped) of the first `num_episodes` games that end, with the
+    learner's policy sampled (or greedy); every env of `env` plays until enough have ended. The
+    learner's jitted functions are reused (nothing new to compile)."""
     scalar_action = not hasattr(env.single_action_space, "nvec")
-
-    @jax.jit
-    def policy(obs, key):
-        logits, _ = network.apply(params, obs)
-        return distributions.mode(logits) if greedy else distributions.sample(key, logits)
-
     obs, _ = env.reset()
     returns: list[float] = []
     while len(returns) < num_episodes:
         key, key_act = jax.random.split(key)
-        action = np.asarray(policy(jax.device_put(obs), key_act))
+        obs_device = jax.device_put(obs)
+        action = (learner.greedy(params, obs_device, key_act) if greedy
+                  else learner.act(params, obs_device, key_act)[0])
+        action = np.asarray(action)
         obs, _, _, _, info = env.step(action[:, 0] if scalar_action else action)
         returns.extend(info["returned_episode_returns"][info["returned_episode"]].tolist())
     return np.asarray(returns[:num_episodes], np.float32)

@@ -15,6 +15,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 import jax
 import numpy as np
@@ -31,7 +32,7 @@ RULES = {"ppo": ppo.RULE, "a2c": a2c.RULE}
 def run_host_training(
     env_id: str,
     algo: str,
-    config,
+    resolve_config: Callable,
     *,
     env_kwargs: dict,
     seeds: int,
@@ -39,17 +40,32 @@ def run_host_training(
     eval_episodes: int,
     run_dir: Path,
     console=None,
-) -> dict:
-    """Train `seeds` seeds of `algo` (resolved `config`) on `env_id`; returns the summary."""
+    max_eval_episodes: int = 32,
+    compiler_options: dict | None = None,
+) -> tuple[dict, Path]:
+    """Train `seeds` seeds of `algo` on `env_id`; returns `(summary, run_dir)`.
+
+    `resolve_config(observation_space)` gives the algorithm's config (the trainer's overrides
+    applied, the trunk resolved for the observation space). Evaluation plays `min(eval_episodes, max_eval_episodes)` games
+    per seed: whole Atari games are thousands of steps.
+    """
     from rich.console import Console
 
     console = console or Console()
     if "split" in env_kwargs:
-        raise ValueError("env kwarg 'split' is set by jaxnat train: train for training, test for "
-                         "evaluation")
+        raise ValueError("env kwarg 'split' is set by jaxnat train: split=train for training and "
+                         "split=test for evaluation")
+    # The observation space, from one env without background (cheap), for the default trunk.
+    probe = jaxnat.make_vec(env_id, 1, **{**env_kwargs, "background": "none"})
+    config = resolve_config(probe.single_observation_space)
+    probe.close()
     env = jaxnat.make_vec(env_id, config.num_envs, split="train", **env_kwargs)
     test_env = jaxnat.make_vec(env_id, config.num_envs, split="test", **env_kwargs)
-    learner = make_host_learner(config, env, RULES[algo])
+    learner = make_host_learner(config, env, RULES[algo], compiler_options)
+    if eval_episodes > max_eval_episodes:
+        console.print(f"[dim]evaluating {max_eval_episodes} test games per seed (not "
+                      f"{eval_episodes}): whole Atari games are long[/dim]")
+        eval_episodes = max_eval_episodes
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(json.dumps({
         "env_id": env_id, "env_kwargs": env_kwargs, "algo": algo,
@@ -83,7 +99,7 @@ def run_host_training(
             train_state, history = learner.train(jax.random.key(s), callback=log)
             scores = {}
             for mode in ("sampled", "greedy"):
-                returns = evaluate_host(learner.network, train_state.params, test_env,
+                returns = evaluate_host(learner, train_state.params, test_env,
                                         eval_episodes, jax.random.key(10_000 + s),
                                         greedy=mode == "greedy")
                 scores[f"{mode}_return"] = float(returns.mean())
@@ -107,4 +123,4 @@ def run_host_training(
                   f"{summary['test_sampled_return_mean']:+.1f} · run directory: {run_dir}")
     env.close()
     test_env.close()
-    return summary
+    return summary, run_dir
