@@ -23,7 +23,6 @@ import pytest
 
 from jaxnat import natural
 from jaxnat.datasets.base import DatasetFormatError, DatasetNotFoundError
-from jaxnat.natural import bank as bank_module
 from jaxnat.natural import decode, sources
 
 REAL_DOC_DIRS = sources.OPENCV_DOC_DIRS
@@ -230,7 +229,7 @@ def test_missing_opencv_doc_says_how_to_install_it(monkeypatch, tmp_path):
 # ----------------------------------------------------------------------------- split
 
 
-def test_split_is_disjoint_deterministic_and_follows_content(videos, tmp_path):
+def test_split_is_disjoint_deterministic_and_follows_content(videos, tmp_path, monkeypatch):
     train = load(videos, split="train", test_fraction=0.4)
     test = load(videos, split="test", test_fraction=0.4)
     assert set(train.names).isdisjoint(test.names)
@@ -245,6 +244,9 @@ def test_split_is_disjoint_deterministic_and_follows_content(videos, tmp_path):
                  cache=False)
     assert again.names == tuple(f"renamed_{videos.index(p)}.avi" for p in ranked[:2])
     np.testing.assert_array_equal(again.frames, test.frames)
+    monkeypatch.setattr(decode, "decode_video", None)  # a cache hit must not decode
+    cached = load([Path(p) for p in moved], split="test", test_fraction=0.4)
+    assert cached.names == again.names  # named by today's files
 
 
 def test_split_keeps_one_video_each_side_and_all_uses_everything(videos):
@@ -323,6 +325,31 @@ def test_cache_false_writes_nothing_and_corrupt_entries_are_rewritten(videos, tm
         again = load(videos)
     np.testing.assert_array_equal(again.frames, expected.frames)
     np.testing.assert_array_equal(load(videos).frames, expected.frames)  # rewritten, readable
+
+
+def test_inconsistent_cache_entry_is_rewritten(videos, tmp_path):
+    expected = load(videos)
+    (entry,) = (tmp_path / "cache").glob("natural-videos-*.npz")
+    with np.load(entry) as arrays:
+        broken = dict(arrays)
+    broken["lengths"] = broken["lengths"] + 1  # no longer tiles the frames
+    with open(entry, "wb") as f:
+        np.savez(f, **broken)
+    with pytest.warns(UserWarning, match="unreadable dataset cache entry .*inconsistent"):
+        again = load(videos)
+    np.testing.assert_array_equal(again.lengths, expected.lengths)
+    np.testing.assert_array_equal(again.frames, expected.frames)
+
+
+def test_banks_concatenate_in_order(videos):
+    a, b = load(videos[:2]), load(videos[2:3])
+    both = natural.FrameBank.concatenate([a, b.to_device()])
+    assert both.names == a.names + b.names
+    np.testing.assert_array_equal(both.frames, np.concatenate([a.frames, b.frames]))
+    assert both.lengths.tolist() == a.lengths.tolist() + b.lengths.tolist()
+    assert both.starts.tolist() == [0, int(a.lengths[0]), a.num_frames]
+    with pytest.raises(ValueError, match="different frame shapes"):
+        natural.FrameBank.concatenate([a, load(videos[2:3], shape=(6, 8))])
 
 
 # ----------------------------------------------------------------------------- images
@@ -460,9 +487,43 @@ def test_gaussian_noise_follows_the_repository_law():
     strong = natural.gaussian_noise_np(np.random.default_rng(1), (n,), scale=255.0, mean=10.0)
     assert np.mean(strong == 255) > 0.1
     keys = jax.random.split(jax.random.key(2), 3)
-    batch = jax.vmap(lambda k, s: natural.gaussian_noise(k, (4, 5, 3), s))(
+    batch = jax.jit(jax.vmap(lambda k, s: natural.gaussian_noise(k, (4, 5, 3), s)))(
         keys, jnp.array([0.0, 50.0, 100.0]))
     assert batch.shape == (3, 4, 5, 3) and int(batch[0].max()) == 0 and int(batch[2].max()) > 0
+
+
+def exact_noise_law(scale: float, mean: float) -> np.ndarray:
+    """P(value = k), k = 0..255, of clip(floor(mean + N(0,1) * scale), 0, 255)."""
+    from statistics import NormalDist
+
+    cdf = NormalDist(mean, scale).cdf
+    upper = np.array([cdf(k + 1) for k in range(255)] + [1.0])  # P(value <= k)
+    return np.diff(np.concatenate([[0.0], upper]))
+
+
+@pytest.mark.parametrize("scale, mean", [(50.0, 0.0), (255.0, 10.0), (20.0, 128.0)])
+def test_noise_table_is_the_law_to_within_its_resolution(scale, mean):
+    table = natural.noise.noise_table(scale, mean)
+    assert table.shape == (65536,) and table.dtype == np.uint8
+    assert np.all(np.diff(table.astype(int)) >= 0)  # quantiles ascend
+    probabilities = np.bincount(table, minlength=256) / 65536
+    np.testing.assert_allclose(probabilities, exact_noise_law(scale, mean), atol=1.01 / 65536)
+    with pytest.raises(ValueError, match="scale >= 0"):
+        natural.noise.noise_table(-1.0, 0.0)
+
+
+def test_traced_and_table_noise_agree_in_law():
+    n = 300_000
+    table_route = np.asarray(natural.gaussian_noise(jax.random.key(3), (n,), 50.0))
+    traced_route = np.asarray(jax.jit(lambda k, s: natural.gaussian_noise(k, (n,), s))(
+        jax.random.key(4), jnp.float32(50.0)))
+    law = exact_noise_law(50.0, 0.0)
+    for noise in (table_route, traced_route):
+        counts = np.bincount(noise, minlength=256)
+        # P(0) and P(1..10) each within 5 standard errors of the exact law.
+        assert abs(counts[0] / n - law[0]) < 5 * np.sqrt(law[0] / n)
+        low = counts[1:11].sum() / n
+        assert abs(low - law[1:11].sum()) < 5 * np.sqrt(law[1:11].sum() / n)
 
 
 def test_constant_color():

@@ -22,6 +22,7 @@ import warnings
 import zipfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,26 +52,35 @@ def entry_path(name: str, split: str, files: Iterable[Path], extra: Iterable[str
     return cache_dir() / f"{name}-{split}-{digest}.npz"
 
 
-def read_arrays(path: Path, keys: Iterable[str]) -> dict[str, np.ndarray] | None:
-    """The arrays `keys` of the `.npz` entry at `path`, or None when it is absent or unreadable
-    (an unreadable entry is reported with a warning; the caller rewrites it)."""
+def read_arrays(path: Path, keys: Iterable[str], build: Callable[..., Any]) -> Any | None:
+    """`build(**arrays)` of the entry at `path`, or None when it is absent or unreadable."""
     try:
         # Open the file ourselves: np.load leaks its own handle when the archive is corrupt.
         with open(path, "rb") as f:
             entry = np.load(f, allow_pickle=False)
             if not isinstance(entry, np.lib.npyio.NpzFile):
                 raise ValueError("not an .npz archive")
-            return {k: entry[k] for k in keys}
+            arrays = {k: entry[k] for k in keys}
+        return build(**arrays)
     except FileNotFoundError:
         return None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        # ValueError also covers an entry whose arrays break the dataset type's contract.
         warnings.warn(f"ignoring unreadable dataset cache entry {path} ({e}); rewriting it",
                       stacklevel=3)
         return None
 
 
+def _read(path: Path, name: str, split: str) -> ImageDataset | None:
+    def build(images, labels, class_names):
+        return ImageDataset(name=name, split=split, images=images, labels=labels,
+                            class_names=tuple(str(c) for c in class_names))
+
+    return read_arrays(path, ("images", "labels", "class_names"), build)
+
+
 def write_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """Write `arrays` as an `.npz` entry at `path`, atomically; a failure is only a warning."""
+    """Store `arrays` at `path` atomically; a failure is a warning (the cache is optional)."""
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,20 +93,6 @@ def write_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
             Path(tmp).unlink(missing_ok=True)
         warnings.warn(f"could not write dataset cache entry {path} ({e}); set JAXNAT_CACHE_DIR "
                       "to a writable folder to cache decoded datasets", stacklevel=3)
-
-
-def _read(path: Path, name: str, split: str) -> ImageDataset | None:
-    arrays = read_arrays(path, ("images", "labels", "class_names"))
-    if arrays is None:
-        return None
-    try:
-        return ImageDataset(name=name, split=split, images=arrays["images"],
-                            labels=arrays["labels"],
-                            class_names=tuple(str(c) for c in arrays["class_names"]))
-    except ValueError as e:  # arrays that break the ImageDataset contract
-        warnings.warn(f"ignoring unreadable dataset cache entry {path} ({e}); rewriting it",
-                      stacklevel=3)
-        return None
 
 
 def _write(path: Path, dataset: ImageDataset) -> None:

@@ -4,7 +4,7 @@
     from jaxnat import natural
 
     bank = natural.load_videos(shape=(84, 84), split="train")   # FrameBank, numpy, on the host
-    print(bank.describe())           # "3 videos, 1080 frames of 84x84x3 uint8 = 22.3 MiB"
+    print(bank.describe())           # "3 videos, 1080 frames of 84x84x3 uint8 = 21.8 MiB"
     dev = bank.to_device()           # jax arrays, to carry in env params
     cursor = natural.cursor_reset(jax.random.key(0), dev)
     frame = natural.cursor_frame(dev, cursor)                 # uint8 [84, 84, 3]

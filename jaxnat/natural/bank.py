@@ -82,6 +82,18 @@ class FrameBank:
     def to_host(self) -> FrameBank:
         return jax.tree.map(np.asarray, self)
 
+    @staticmethod
+    def concatenate(banks: Iterable[FrameBank]) -> FrameBank:
+        """One host bank holding the videos of `banks` in order (e.g. videos and photos as one
+        pool of backgrounds); their frames must share one shape."""
+        banks = [b.to_host() for b in banks]
+        shapes = {b.frame_shape for b in banks}
+        if len(shapes) != 1:
+            raise ValueError(f"cannot concatenate banks with different frame shapes: "
+                             f"{sorted(shapes)}; load them with the same shape and grayscale")
+        clips = [b.frames[s:s + n] for b in banks for s, n in zip(b.starts, b.lengths)]
+        return _from_clips(clips, [name for b in banks for name in b.names])
+
     def describe(self) -> str:
         """One line: videos, frames, shape and memory."""
         h, w, c = self.frame_shape
@@ -124,45 +136,67 @@ def _cache_path(kind: str, split: str, digests: list[str], extra: dict) -> Path:
     return _cache.cache_dir() / f"natural-{kind}-{split}-{digest}.npz"
 
 
-def _read_cached(path: Path) -> FrameBank | None:
-    arrays = _cache.read_arrays(path, ("frames", "starts", "lengths", "names"))
-    if arrays is None:
-        return None
-    return FrameBank(frames=arrays["frames"], starts=arrays["starts"], lengths=arrays["lengths"],
-                     names=tuple(str(n) for n in arrays["names"]))
+def _check_consistent(bank: FrameBank) -> FrameBank:
+    """`bank`, or ValueError when its arrays do not describe a bank: uint8 frames
+    [N, H, W, 1 or 3], int32 index [V] of positive lengths tiling the frames in order."""
+    frames, starts, lengths = bank.frames, bank.starts, bank.lengths
+    if not (frames.dtype == np.uint8 and frames.ndim == 4 and frames.shape[-1] in (1, 3)
+            and starts.dtype == lengths.dtype == np.int32 and starts.ndim == lengths.ndim == 1
+            and len(starts) == len(lengths) == len(bank.names) >= 1
+            and bool(np.all(lengths > 0)) and np.array_equal(starts, np.cumsum(lengths) - lengths)
+            and int(lengths.sum()) == frames.shape[0]):
+        raise ValueError("inconsistent frame bank arrays")
+    return bank
 
 
-def _write_cached(path: Path, bank: FrameBank) -> None:
+def _read_cached(path: Path, names_by_digest: dict[str, str]) -> FrameBank | None:
+    """The cached bank at `path`, its videos named by today's file names (a renamed file keeps
+    its entry: the key is its content)."""
+
+    def build(frames, starts, lengths, digests):
+        names = tuple(names_by_digest.get(str(d), "") for d in digests)
+        if "" in names:
+            raise ValueError("the entry's videos are not the requested files")
+        return _check_consistent(FrameBank(frames=frames, starts=starts, lengths=lengths,
+                                           names=names))
+
+    return _cache.read_arrays(path, ("frames", "starts", "lengths", "digests"), build)
+
+
+def _write_cached(path: Path, bank: FrameBank, digests: list[str]) -> None:
     _cache.write_arrays(path, {"frames": bank.frames, "starts": bank.starts,
-                               "lengths": bank.lengths, "names": np.array(bank.names, dtype=str)})
+                               "lengths": bank.lengths, "digests": np.array(digests, dtype=str)})
 
 
 def _load(kind: str, files: list[Path], split: str, test_fraction: float, shape, grayscale: bool,
           max_frames: int | None, cache: bool,
           decode_one: Callable[[Path, int | None], np.ndarray | None]) -> FrameBank:
     chosen = _sources.split_files(files, split, test_fraction)
+    # Whether PyAV is installed is in the key: a file skipped without it may decode with it.
     path = _cache_path(kind, split, [d for _, d in chosen],
-                       {"shape": list(shape), "grayscale": grayscale, "max_frames": max_frames})
-    bank = _read_cached(path) if cache else None
+                       {"shape": list(shape), "grayscale": grayscale, "max_frames": max_frames,
+                        "pyav": decode.pyav_available()})
+    bank = _read_cached(path, {d: f.name for f, d in chosen}) if cache else None
     if bank is None:
-        clips, names = [], []
-        for file, _ in chosen:
+        clips, names, digests = [], [], []
+        for file, digest in chosen:
             clip = decode_one(file, max_frames)
             if clip is not None:
                 clips.append(clip)
                 names.append(file.name)
+                digests.append(digest)
         if not clips:
             raise DatasetFormatError(
                 f"none of the {len(chosen)} source file(s) of split {split!r} could be decoded "
                 f"({', '.join(str(f) for f, _ in chosen)}); see the warnings above for each file")
         if max_frames is not None:
             # More videos than the budget has frames: keep the first ones (content-hash order).
-            clips, names = clips[:max_frames], names[:max_frames]
+            clips, names, digests = clips[:max_frames], names[:max_frames], digests[:max_frames]
             cap = _per_video_cap([len(c) for c in clips], max_frames)
             clips = [c[:cap] for c in clips]
         bank = _from_clips(clips, names)
         if cache:
-            _write_cached(path, bank)
+            _write_cached(path, bank, digests)
     logger.info("natural %s (%s): %s", kind, split, bank.describe())
     return bank
 

@@ -29,7 +29,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["VideoDecodeWarning", "decode_video", "decode_image", "resize_frame"]
+__all__ = ["VideoDecodeWarning", "decode_video", "decode_image", "resize_frame",
+           "pyav_available"]
 
 
 class VideoDecodeWarning(UserWarning):
@@ -102,9 +103,12 @@ def _pyav_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
         return 0, iter(())
     try:
         container = av.open(str(path))
-        stream = container.streams.video[0]
-    except (av.FFmpegError, IndexError, ValueError, OSError):
+    except (av.FFmpegError, ValueError, OSError):
         return 0, iter(())
+    if not container.streams.video:  # audio only, or not a media file at all
+        container.close()
+        return 0, iter(())
+    stream = container.streams.video[0]
 
     def frames():
         with container:
@@ -117,7 +121,8 @@ def _pyav_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
     return int(stream.frames or 0), frames()
 
 
-def _pyav_available() -> bool:
+def pyav_available() -> bool:
+    """Whether PyAV (`pip install av`) can be imported."""
     try:
         import av  # noqa: F401
     except ImportError:
@@ -159,7 +164,7 @@ def decode_video(path: Path, shape: tuple[int, int], grayscale: bool,
                       stacklevel=3)
         return None
     if not frames:
-        hint = "" if _pyav_available() else " (PyAV is not installed: pip install av)"
+        hint = "" if pyav_available() else " (PyAV is not installed: pip install av)"
         warnings.warn(f"skipping video {path}: no frame could be decoded by OpenCV or PyAV; "
                       f"the file is corrupt or in an unsupported format{hint}",
                       VideoDecodeWarning, stacklevel=3)
