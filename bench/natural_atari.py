@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402
 
 from jaxnat.atari import GAMES  # noqa: E402
-from jaxnat.atari.compositor import NoiseSampler, composite  # noqa: E402
+from jaxnat.atari.compositor import composite  # noqa: E402
 from jaxnat.atari.env import NaturalAtariVecEnv  # noqa: E402
 
 SETTINGS = dict(sticky_actions=0.25, noop_max=30, frame_skip=4, maxpool=True)
@@ -109,11 +109,12 @@ def frame_strip(game: str, backgrounds, video_sources, path: Path, steps=(0, 40,
 
 
 def _rgb_background(env, bg):
+    from jaxnat import natural
+
     if bg == "none":
         return None
     if bg == "noise":
-        return NoiseSampler(np.random.default_rng(0)).sample((1, 210, 160, 3))
-    from jaxnat import natural
+        return natural.gaussian_noise_np(np.random.default_rng(0), (1, 210, 160, 3))
 
     load = natural.load_videos if bg == "video" else natural.load_images
     bank = load(env.video_sources, shape=(210, 160), split=env.split)

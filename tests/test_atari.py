@@ -19,7 +19,7 @@ import jaxnat  # noqa: E402
 from jaxnat.atari import AUTHORS_GAMES, GAMES, RomNotFoundError  # noqa: E402
 from jaxnat.atari.compositor import (  # noqa: E402
     FrameStack,
-    NoiseSampler,
+    GrayNoiseSampler,
     background_mask,
     composite,
     composite_gray,
@@ -124,27 +124,22 @@ def test_only_black_has_gray_level_zero_on_real_screens():
             gray, *_ = gray_env.step(actions)
 
 
-def test_noise_sampler_follows_the_paper_law():
+def test_gray_noise_is_the_gray_level_of_the_papers_rgb_noise():
     from jaxnat.natural import gaussian_noise_np
 
-    sampler = NoiseSampler(np.random.default_rng(3), scale=50.0)
-    ours = sampler.sample((400_000,))
-    law = NoiseSampler.law_probabilities(50.0)
-    assert abs(law.sum() - 1) < 1e-12
-    theirs = gaussian_noise_np(np.random.default_rng(4), (400_000,))
-    for sample in (ours, theirs):  # both draw the same law: clip(N(0,1)*50, 0) cast to uint8
+    channel = GrayNoiseSampler.channel_probabilities(50.0)
+    rgb_noise = gaussian_noise_np(np.random.default_rng(4), (1, 400_000, 1, 3))
+    freq = np.bincount(rgb_noise.ravel(), minlength=256) / rgb_noise.size
+    assert abs(channel.sum() - 1) < 1e-12 and abs(freq[0] - channel[0]) < 0.005  # half black
+    np.testing.assert_allclose(freq[1:120], channel[1:120], atol=0.0015)
+    # Our gray draws and the gray levels of the paper's RGB noise follow one law.
+    law = GrayNoiseSampler.law_probabilities(50.0)
+    sampler = GrayNoiseSampler(np.random.default_rng(5), scale=50.0)
+    for sample in (sampler.sample((400_000,)), grayscale(rgb_noise).ravel()):
         freq = np.bincount(sample, minlength=256) / sample.size
-        assert abs(freq[0] - law[0]) < 0.005
-        np.testing.assert_allclose(freq[1:120], law[1:120], atol=0.0015)
+        np.testing.assert_allclose(freq, law, atol=0.0015)
     assert sampler.sample((2, 3)).dtype == np.uint8
     assert not np.array_equal(sampler.sample((64,)), sampler.sample((64,)))  # fresh every call
-    # Gray noise: the law of the gray level of an RGB noise pixel, which is what we composite.
-    gray_sampler = NoiseSampler(np.random.default_rng(5), scale=50.0, gray=True)
-    gray_law = NoiseSampler.law_probabilities(50.0, gray=True)
-    rgb_noise = gaussian_noise_np(np.random.default_rng(6), (1, 400_000, 1, 3))
-    for sample in (gray_sampler.sample((400_000,)), grayscale(rgb_noise).ravel()):
-        freq = np.bincount(sample, minlength=256) / sample.size
-        np.testing.assert_allclose(freq, gray_law, atol=0.0015)
 
 
 # -- agreement with ale-py -----------------------------------------------------------------

@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from jaxnat.atari.compositor import NoiseSampler, grayscale
+from jaxnat.atari.compositor import GrayNoiseSampler, grayscale
 
 __all__ = ["BACKGROUNDS", "make_background"]
 
@@ -49,7 +49,7 @@ class NoBackground:
 
 class NoiseBackground(NoBackground):
     """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame, drawn directly
-    as its gray level (`NoiseSampler(gray=True)`: the same law as graying RGB noise).
+    as its gray level (`GrayNoiseSampler`: the same law as graying RGB noise).
 
     The next frame's noise is drawn on a worker thread while the emulator runs (numpy releases
     the GIL), so drawing costs little wall time; one worker draws them in order, so a seed
@@ -72,7 +72,7 @@ class NoiseBackground(NoBackground):
     def seed(self, seed: int) -> None:
         if getattr(self, "_next", None) is not None:
             self._next.result()  # let the worker finish with the old generator
-        self._sampler = NoiseSampler(np.random.default_rng(seed), self._scale, gray=True)
+        self._sampler = GrayNoiseSampler(np.random.default_rng(seed), self._scale)
         self._current = self._sampler.sample(self._shape)
         self._next = self._worker.submit(self._sampler.sample, self._shape)
 

@@ -46,7 +46,7 @@ __all__ = [
     "grayscale",
     "resize_area",
     "FrameStack",
-    "NoiseSampler",
+    "GrayNoiseSampler",
 ]
 
 ALE_GRAY_WEIGHTS = np.array([[0.2989, 0.5870, 0.1140]])  # ALE's ColourPalette::convertGrayscale
@@ -158,34 +158,34 @@ class FrameStack:
         return cv2.merge([f.reshape(b * h, w) for f in frames]).reshape(b, h, w, self.depth)
 
 
-class NoiseSampler:
-    """Fresh i.i.d. noise `uint8(clip(N(0, 1) * scale, 0, 255))` per pixel and channel, fast.
+class GrayNoiseSampler:
+    """Fresh i.i.d. gray levels of RGB noise pixels, fast: the gray level (ALE's law) of a pixel
+    whose three channels are i.i.d. `uint8(clip(N(0, 1) * scale, 0, 255))` (the paper
+    repository's noise, `jaxnat.natural.gaussian_noise_np`).
 
-    Drawing 100 KB of normals per frame with numpy costs ~1 ms, which would dominate an Atari
-    step; this draws 16-bit uniforms and maps them through the inverse distribution function of
-    that uint8 law (a 65,536-entry table), so every value has its exact probability rounded to a
-    multiple of 2^-16: values above about 4 sigma (rarer than 1.5e-5) are merged into their
-    neighbours. `gray=True` samples, the same way, the law of ALE's gray level of such an RGB
-    pixel (three i.i.d. channels), which is what compositing RGB noise and then turning it gray
-    gives, at a third of the cost. `law_probabilities` gives the exact laws the tests use.
+    Compositing RGB noise and then turning it gray gives exactly these values, so drawing the
+    gray level directly is the same in law at a third of the random numbers and no RGB pass.
+    Drawn like `jaxnat.natural`'s noise: 16-bit uniforms through a 65,536-entry table of the
+    law's quantiles, so each level's probability is exact to within 2^-16. `law_probabilities`
+    is the exact law (the tests compare both samplers with it).
     """
 
-    def __init__(self, rng: np.random.Generator, scale: float = 50.0, gray: bool = False):
+    def __init__(self, rng: np.random.Generator, scale: float = 50.0):
         self.rng = rng
-        self.scale = float(scale)
-        self.gray = bool(gray)
-        cdf = np.cumsum(self.law_probabilities(self.scale, self.gray))
+        cdf = np.cumsum(self.law_probabilities(float(scale)))
         u = (np.arange(65536) + 0.5) / 65536
         self._table = np.minimum(np.searchsorted(cdf, u), 255).astype(np.uint8)
 
     @staticmethod
-    def law_probabilities(scale: float = 50.0, gray: bool = False) -> np.ndarray:
-        """P(value = k), k = 0..255, of `uint8(clip(N(0,1) * scale, 0, 255))` (truncating cast),
-        or (`gray`) of ALE's gray level of three independent such channels."""
+    def channel_probabilities(scale: float = 50.0) -> np.ndarray:
+        """P(value = k), k = 0..255, of one channel, `uint8(clip(N(0,1) * scale, 0, 255))`."""
         phi = np.array([0.5 * (1 + math.erf(k / scale / math.sqrt(2))) for k in range(1, 256)])
-        channel = np.diff(np.concatenate([[0.0], phi, [1.0]]))
-        if not gray:
-            return channel
+        return np.diff(np.concatenate([[0.0], phi, [1.0]]))
+
+    @classmethod
+    def law_probabilities(cls, scale: float = 50.0) -> np.ndarray:
+        """P(gray level = k), k = 0..255, for three independent channels."""
+        channel = cls.channel_probabilities(scale)
         levels = np.arange(256, dtype=np.float64)
         g_b = levels[:, None] * 0.5870 + levels[None, :] * 0.1140  # G and B contributions
         p_gb = (channel[:, None] * channel[None, :]).ravel()
