@@ -1,7 +1,9 @@
 """A training run on a host-batched env (`NaturalAtari/*`), for `jaxnat train`.
 
 `jaxnat train --env-id NaturalAtari/Breakout-v0 --algo ppo` comes here (the jitted, vmapped
-trainer needs a pure-JAX env). Seeds train one after another with `host_loop`; after training,
+trainer needs a pure-JAX env). Seeds train one after another with `host_loop`, on rewards
+clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
+(train and test) are whole games with unclipped rewards. After training,
 each seed's policy plays `eval_episodes` whole games on the test split (videos the agent never
 saw), sampled and greedy. The run directory holds `config.json`, `metrics.jsonl` (one row per
 update and seed), `eval.jsonl` and `summary.json`. No checkpoints or `--resume` yet.
@@ -23,6 +25,7 @@ import numpy as np
 import jaxnat
 from jaxnat.agents import a2c, ppo
 from jaxnat.agents.host_loop import evaluate_host, make_host_learner
+from jaxnat.atari.wrappers import ClipRewardWrapper
 
 __all__ = ["RULES", "run_host_training"]
 
@@ -59,7 +62,7 @@ def run_host_training(
     probe = jaxnat.make_vec(env_id, 1, **{**env_kwargs, "background": "none"})
     config = resolve_config(probe.single_observation_space)
     probe.close()
-    env = jaxnat.make_vec(env_id, config.num_envs, split="train", **env_kwargs)
+    env = ClipRewardWrapper(jaxnat.make_vec(env_id, config.num_envs, split="train", **env_kwargs))
     test_env = jaxnat.make_vec(env_id, config.num_envs, split="test", **env_kwargs)
     learner = make_host_learner(config, env, RULES[algo], compiler_options)
     if eval_episodes > max_eval_episodes:
