@@ -13,6 +13,10 @@ for _name, _dataset in [
 ]:
     register(f"Classify/{_name}-v0", _CLASSIFY, dataset=_dataset)
 
+_LOCALIZE = "jaxnat.vision_envs.localize:Localize"
+register("Localize/Cityscapes-v0", _LOCALIZE, dataset="cityscapes")
+register("Localize/Clutter-v0", _LOCALIZE, dataset="clutter")
+
 # Natural Atari: every game ALE ships, emulated in batches on the host (jaxnat.make_vec only).
 from jaxnat.atari.games import GAMES as _ATARI_GAMES  # noqa: E402  (plain data, no ale-py)
 
