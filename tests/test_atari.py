@@ -350,6 +350,14 @@ def test_authors_games_construct_and_step(game):
     env.close()
 
 
+def test_full_action_set_is_optional():
+    minimal = NaturalAtariVecEnv("Breakout", 1, num_threads=1)
+    full = NaturalAtariVecEnv("Breakout", 1, full_action_space=True, num_threads=1)
+    assert (minimal.single_action_space.n, full.single_action_space.n) == (4, 18)
+    full.reset(seed=0)
+    assert full.step(np.array([17]))[0].shape == (1, 84, 84, 4)
+
+
 def test_bad_game_id_lists_close_matches():
     with pytest.raises(jaxnat.UnknownEnvError, match="NaturalAtari/Breakout-v0"):
         jaxnat.make_vec("NaturalAtari/Breakot-v0", 2)
