@@ -82,6 +82,7 @@ def run_host_training(
                   f"{learner.num_updates} updates of {steps_per_update} env steps · run: {run_dir}")
     start = time.perf_counter()
     per_seed = []
+    last_print = [start]
     with open(run_dir / "metrics.jsonl", "w") as metrics_file, \
             open(run_dir / "eval.jsonl", "w") as eval_file:
         for s in range(seed, seed + seeds):
@@ -91,8 +92,11 @@ def run_host_training(
                        "steps_per_second": steps_per_update / seconds}
                 metrics_file.write(json.dumps(row) + "\n")
                 metrics_file.flush()
-                if update == 1 or update % max(1, learner.num_updates // 20) == 0 \
-                        or update == learner.num_updates:
+                # About 20 lines a seed, and at least one every 30 s (a CPU run is slow).
+                if update in (1, learner.num_updates) \
+                        or update % max(1, learner.num_updates // 20) == 0 \
+                        or time.perf_counter() - last_print[0] > 30:
+                    last_print[0] = time.perf_counter()
                     ret = metrics["episode_return"]
                     ret = "no game ended yet" if np.isnan(ret) else f"train return {ret:+.1f}"
                     console.print(f"seed {s} · update {update}/{learner.num_updates} · {ret} · "
