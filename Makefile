@@ -3,7 +3,7 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-EXTRAS ?= dev,agents,gym,video
+EXTRAS ?= dev,agents,gym,video,atari
 STAMP := $(VENV)/.jaxnat-installed
 
 .PHONY: setup data run demo test bench clean

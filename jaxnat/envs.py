@@ -16,3 +16,15 @@ for _name, _dataset in [
 _LOCALIZE = "jaxnat.vision_envs.localize:Localize"
 register("Localize/Cityscapes-v0", _LOCALIZE, dataset="cityscapes")
 register("Localize/Clutter-v0", _LOCALIZE, dataset="clutter")
+
+# Natural Atari: every game ALE ships, emulated in batches on the host (jaxnat.make_vec only).
+from jaxnat.atari.games import GAMES as _ATARI_GAMES  # noqa: E402  (plain data, no ale-py)
+
+for _game in _ATARI_GAMES:
+    register(
+        f"NaturalAtari/{_game}-v0",
+        "jaxnat.atari.env:NaturalAtariVecEnv",
+        extra="atari",
+        batched=True,
+        game=_game,
+    )

@@ -46,25 +46,35 @@ class EnvSpec:
         entry_point: `"module:attr"` (imported lazily) or a callable returning an `Environment`.
         kwargs: defaults passed to the entry point and/or params, overridable in `make`.
         extra: the pip extra that provides this env's optional dependencies, if any.
+        batched: the entry point builds a whole batch itself (`num_envs=` argument; host
+            emulators such as Atari): only `make_vec` builds it.
     """
 
     id: str
     entry_point: str | Callable[..., Any]
     kwargs: dict = dataclasses.field(default_factory=dict)
     extra: str | None = None
+    batched: bool = False
 
 
 _REGISTRY: dict[str, EnvSpec] = {}
 
 
 def register(
-    id: str, entry_point: str | Callable[..., Any], *, extra: str | None = None, **kwargs: Any
+    id: str,
+    entry_point: str | Callable[..., Any],
+    *,
+    extra: str | None = None,
+    batched: bool = False,
+    **kwargs: Any,
 ) -> None:
     """Register `id`. Re-registering an id replaces it (useful in notebooks)."""
     namespace, _, rest = id.partition("/")
     if not namespace or not rest or "-v" not in rest:
         raise ValueError(f"Env ids look like 'Namespace/Name-v0', got {id!r}")
-    _REGISTRY[id] = EnvSpec(id=id, entry_point=entry_point, kwargs=dict(kwargs), extra=extra)
+    _REGISTRY[id] = EnvSpec(
+        id=id, entry_point=entry_point, kwargs=dict(kwargs), extra=extra, batched=batched
+    )
 
 
 def registered_envs() -> tuple[str, ...]:
@@ -145,6 +155,11 @@ def make(id: str, *, autoreset: bool = True, **kwargs: Any):
         `(env, params)`.
     """
     env_spec = spec(id)
+    if env_spec.batched:
+        raise TypeError(
+            f"{id} is emulated in batches on the host: build it with "
+            f"jaxnat.make_vec({id!r}, num_envs, ...)."
+        )
     entry = _load_entry_point(env_spec)
     ctor_kwargs, param_kwargs = _split_kwargs(entry, {**env_spec.kwargs, **kwargs}, id)
     env = entry(**ctor_kwargs)
@@ -161,11 +176,18 @@ def make(id: str, *, autoreset: bool = True, **kwargs: Any):
 def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
     """Build `num_envs` copies of an env behind one batched interface.
 
-    Pure-JAX envs come back in a `VmapWrapper` (one key in, `num_envs` envs out). Envs that
-    are batched by nature (host emulators) may register an entry point that accepts
-    `num_envs` themselves.
+    Pure-JAX envs come back as `(VmapWrapper(env, num_envs), params)` (one key in, `num_envs`
+    envs out). Envs registered with `batched=True` (host emulators: `NaturalAtari/*`) come back
+    alone, built by their entry point with `num_envs`, with numpy `reset()`/`step(actions)`
+    that autoreset themselves (`autoreset` does not apply to them).
     """
     from jaxnat.wrappers import VmapWrapper
+
+    env_spec = spec(id)
+    if env_spec.batched:
+        entry = _load_entry_point(env_spec)
+        ctor_kwargs, _ = _split_kwargs(entry, {**env_spec.kwargs, **kwargs}, id)
+        return entry(num_envs=num_envs, **ctor_kwargs)
 
     env, params = make(id, autoreset=autoreset, **kwargs)
     return VmapWrapper(env, num_envs), params

@@ -7,7 +7,13 @@ from jaxnat.datasets import DatasetNotFoundError
 from jaxnat.testing import check_env
 
 
-@pytest.mark.parametrize("env_id", [i for i in jaxnat.registered_envs() if not i.startswith("Test/")])
+# Host-batched envs (NaturalAtari/*) have their own contract tests (tests/test_atari.py).
+_JAX_IDS = [
+    i for i in jaxnat.registered_envs() if not i.startswith("Test/") and not jaxnat.spec(i).batched
+]
+
+
+@pytest.mark.parametrize("env_id", _JAX_IDS)
 def test_registered_env_keeps_the_contract(env_id):
     try:
         env, params = jaxnat.make(env_id, autoreset=False)

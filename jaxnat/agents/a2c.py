@@ -13,7 +13,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, clipped_optimizer, make_learner, static
+from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, static
 
 __all__ = ["A2CConfig", "make_train", "make_a2c"]
 
@@ -53,8 +53,11 @@ def _update(config: A2CConfig, network, train_state, transitions, advantages, ta
     return train_state.apply_gradients(grads=grads), losses
 
 
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update)
+
+
 def make_a2c(config: A2CConfig, env, env_params) -> Learner:
-    return make_learner(config, env, env_params, make_optimizer=_optimizer, update_step=_update)
+    return make_learner(config, env, env_params, **RULE._asdict())
 
 
 def make_train(config: A2CConfig, env, env_params):

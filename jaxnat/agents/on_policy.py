@@ -51,6 +51,14 @@ class RunnerState(NamedTuple):
     update: jax.Array  # updates done so far (int32)
 
 
+class UpdateRule(NamedTuple):
+    """An algorithm's parts that do not depend on how rollouts are collected: the jitted loop
+    here and the host loop (`jaxnat.agents.host_loop`, for host-batched envs) share them."""
+
+    make_optimizer: Callable  # (config, num_updates) -> optax.GradientTransformation
+    update_step: Callable  # (config, network, train_state, transitions, advantages, targets, key)
+
+
 class Learner(NamedTuple):
     """`train(key, config=config) -> (runner, metrics)`; `init`/`run` split it for chunked runs."""
 

@@ -19,7 +19,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, clipped_optimizer, make_learner, static
+from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, static
 
 __all__ = ["PPOConfig", "make_train", "make_ppo"]
 
@@ -89,9 +89,12 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
     return train_state, jax.tree_util.tree_map(jnp.mean, losses)
 
 
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update)
+
+
 def make_ppo(config: PPOConfig, env, env_params) -> Learner:
     """The PPO learner (`init`, `run`, `train`, `network`, `num_updates`)."""
-    return make_learner(config, env, env_params, make_optimizer=_optimizer, update_step=_update)
+    return make_learner(config, env, env_params, **RULE._asdict())
 
 
 def make_train(config: PPOConfig, env, env_params):

@@ -23,7 +23,7 @@ except ImportError as err:  # pragma: no cover - exercised only without the extr
 
 from jaxnat import spaces
 from jaxnat.core import Environment
-from jaxnat.registration import make
+from jaxnat.registration import make, spec
 from jaxnat.wrappers import AutoResetWrapper, VmapWrapper, Wrapper
 
 __all__ = ["GymnasiumVectorEnv", "make_gymnasium_vec"]
@@ -153,7 +153,12 @@ class GymnasiumVectorEnv(VectorEnv):
 
 
 def make_gymnasium_vec(env_id: str, num_envs: int, seed: int = 0, **kwargs: Any):
-    """`GymnasiumVectorEnv` of `jaxnat.make(env_id, autoreset=False, **kwargs)`."""
+    """`GymnasiumVectorEnv` of `jaxnat.make(env_id, autoreset=False, **kwargs)`; host-batched
+    envs (`NaturalAtari/*`) get their own adapter (`jaxnat.atari.gymnasium`)."""
+    if spec(env_id).batched:
+        from jaxnat.atari.gymnasium import AtariGymnasiumVectorEnv
+
+        return AtariGymnasiumVectorEnv(num_envs=num_envs, seed=seed, **{**spec(env_id).kwargs, **kwargs})
     env, params = make(env_id, autoreset=False, **kwargs)
     return GymnasiumVectorEnv(env, params, num_envs=num_envs, seed=seed)
 

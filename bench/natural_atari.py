@@ -1,0 +1,200 @@
+"""Natural Atari throughput: our env (background none / noise / video) against ale-py's own vector
+env with the same preprocessing and threads, side by side in one run, and thread scaling.
+
+For each thread count, every contender steps `--num-envs` envs of `--game` with the same random
+actions (sticky actions 0.25, up to 30 no-ops at reset, frame skip 4 with max-pool, 84x84 gray,
+stack 4, no FIRE at reset, unclipped rewards); ale-py does all preprocessing in its C++ threads,
+we ask it for the max-pooled 210x160 gray screen and composite, resize and stack on the host.
+Also timed: ale-py returning that screen alone (the emulation share of our step), and our env
+with `pool="rgb"` (RGB screens, the spec's literal pooling order) with the video background. Contenders
+are timed in interleaved rounds (median), so load from other processes hits them alike.
+Target (performance.md): video >= 90% of ale-py's own throughput.
+
+Also writes bench/results/natural_atari_frames.png: one row per background, the agent's newest
+84x84 frame at a few steps, then the next RGB screen composited at full resolution with a
+frame of that background's source (the env itself composites in gray).
+
+    python bench/natural_atari.py                 # sizes from the CPU count
+    python bench/natural_atari.py --quick         # a smoke run
+    python bench/natural_atari.py --threads 1 4 8 16 --num-envs 64 --steps 300
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+from jaxnat.atari import GAMES  # noqa: E402
+from jaxnat.atari.compositor import composite  # noqa: E402
+from jaxnat.atari.env import NaturalAtariVecEnv  # noqa: E402
+
+SETTINGS = dict(sticky_actions=0.25, noop_max=30, frame_skip=4, maxpool=True)
+
+
+def ale_py_env(game: str, num_envs: int, threads: int, screen: bool, seed: int):
+    """ale-py's own vector env with our settings: 84x84 gray stack 4, or the 210x160 screen."""
+    from ale_py.vector_env import AtariVectorEnv
+
+    shape = dict(img_height=210, img_width=160, stack_num=1) if screen else {}
+    env = AtariVectorEnv(
+        GAMES[game], num_envs, num_threads=threads, repeat_action_probability=0.25,
+        noop_max=30, frameskip=4, maxpool=True, use_fire_reset=False, reward_clipping=False,
+        autoreset_mode="SameStep", **shape,
+    )
+    env.reset(seed=seed)
+    return env
+
+
+def steps_per_second(env, actions: np.ndarray) -> float:
+    t0 = time.perf_counter()
+    for a in actions:
+        env.step(a)
+    return actions.size / (time.perf_counter() - t0)
+
+
+def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_pool):
+    envs = {
+        "ale-py (gray 84x84x4)": ale_py_env(game, num_envs, threads, screen=False, seed=seed),
+        "ale-py 210x160 screen only": ale_py_env(game, num_envs, threads, screen=True, seed=seed),
+    }
+    variants = [(bg, "gray") for bg in backgrounds]
+    if rgb_pool and "video" in backgrounds:
+        variants.append(("video", "rgb"))
+    for bg, pool in variants:
+        env = NaturalAtariVecEnv(game, num_envs, background=bg, num_threads=threads, seed=seed,
+                                 video_sources=video_sources, pool=pool, **SETTINGS)
+        env.reset()
+        envs[f"jaxnat {bg}" + (" (pool=rgb)" if pool == "rgb" else "")] = env
+    return envs
+
+
+def frame_strip(game: str, backgrounds, video_sources, path: Path, steps=(0, 40, 80)) -> None:
+    """Newest observation frame (84x84, upscaled 2x) per background and step, plus an RGB
+    composite at full resolution, one row per background."""
+    rows = []
+    for bg in backgrounds:
+        env = NaturalAtariVecEnv(game, 1, background=bg, num_threads=1, seed=1, pool="rgb",
+                                 video_sources=video_sources, **SETTINGS)
+        obs, _ = env.reset()
+        tiles = []
+        rng = np.random.default_rng(0)
+        for t in range(max(steps) + 1):
+            if t in steps:
+                tiles.append(cv2.resize(obs[0, ..., -1], (168, 168), interpolation=cv2.INTER_NEAREST))
+            if t < max(steps):
+                obs, *_ = env.step(rng.integers(0, env.single_action_space.n, 1))
+        # The RGB composite this step showed (the env composites in gray; redo it in RGB).
+        rgb = env._ale.step(np.zeros(1, np.int64))[0][:, 0]
+        background = _rgb_background(env, bg)
+        full = composite(rgb, background)[0] if background is not None else rgb[0]
+        full = cv2.resize(full, (128, 168), interpolation=cv2.INTER_AREA)
+        gray_tiles = [cv2.cvtColor(t, cv2.COLOR_GRAY2RGB) for t in tiles]
+        row = np.concatenate([*gray_tiles, full], axis=1)
+        cv2.putText(row, bg, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 64, 64), 1)
+        rows.append(row)
+        env.close()
+    strip = np.concatenate(rows, axis=0)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), cv2.cvtColor(strip, cv2.COLOR_RGB2BGR))
+
+
+def _rgb_background(env, bg):
+    from jaxnat import natural
+
+    if bg == "none":
+        return None
+    if bg == "noise":
+        return natural.gaussian_noise_np(np.random.default_rng(0), (1, 210, 160, 3))
+
+    load = natural.load_videos if bg == "video" else natural.load_images
+    bank = load(env.video_sources, shape=(210, 160), split=env.split)
+    return bank.frames[bank.num_frames // 2][None]
+
+
+def main(argv=None):
+    cores = os.cpu_count() or 1
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--game", default="Breakout")
+    parser.add_argument("--num-envs", type=int, default=max(8, 4 * cores))
+    parser.add_argument("--threads", type=int, nargs="+",
+                        default=sorted({1, max(1, cores // 4), max(1, cores // 2), cores}))
+    parser.add_argument("--steps", type=int, default=150, help="batched steps per round")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--backgrounds", nargs="+", default=["none", "noise", "video"])
+    parser.add_argument("--video-sources", default=None, help="default: opencv-doc's videos")
+    parser.add_argument("--no-rgb-pool", action="store_true", help="skip the pool='rgb' variant")
+    parser.add_argument("--quick", action="store_true", help="few envs and steps, one thread count")
+    parser.add_argument("--no-record", action="store_true")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.num_envs, args.threads, args.steps, args.rounds = 4, [min(2, cores)], 20, 1
+    if "video" in args.backgrounds:
+        from jaxnat.datasets import DatasetNotFoundError
+        from jaxnat.natural import load_videos
+
+        try:
+            load_videos(args.video_sources, shape=(210, 160), split="train")
+        except DatasetNotFoundError as err:  # e.g. a host without Debian's opencv-doc
+            print(f"skipping the video background: {err}")
+            args.backgrounds = [b for b in args.backgrounds if b != "video"]
+
+    info = common.machine()
+    rows = []
+    for threads in args.threads:
+        envs = contenders(args.game, args.num_envs, threads, args.backgrounds, 0,
+                          args.video_sources, not args.no_rgb_pool)
+        rng = np.random.default_rng(0)
+        n_actions = envs["jaxnat none" if "none" in args.backgrounds else next(iter(envs))]
+        n_actions = int(n_actions.single_action_space.n)
+        warm = rng.integers(0, n_actions, (10, args.num_envs))
+        for env in envs.values():
+            steps_per_second(env, warm)
+        rates = {name: [] for name in envs}
+        for _ in range(args.rounds):
+            actions = rng.integers(0, n_actions, (args.steps, args.num_envs))
+            for name, env in envs.items():
+                rates[name].append(steps_per_second(env, actions))
+        reference = statistics.median(rates["ale-py (gray 84x84x4)"])
+        for name, values in rates.items():
+            rate = statistics.median(values)
+            rows.append(dict(threads=threads, env=name, num_envs=args.num_envs,
+                             steps_per_s=rate, vs_ale_py=rate / reference))
+        for env in envs.values():
+            env.close()
+
+    table = common.markdown_table(rows, [
+        ("threads", "threads", "d"), ("env", "env", "s"), ("num_envs", "envs", "d"),
+        ("steps_per_s", "env steps/s", ",.0f"), ("vs_ale_py", "vs ale-py", ".2f"),
+    ])
+    most = max(args.threads)
+    video = [r for r in rows if r["env"] == "jaxnat video" and r["threads"] == most]
+    summary = {
+        "game": args.game,
+        "num_envs": args.num_envs,
+        "settings": "sticky 0.25, noop 30, frame skip 4 + max-pool, 84x84 gray, stack 4, no fire reset",
+        "target": "video >= 0.90 of ale-py at the same threads",
+        f"video vs ale-py at {most} threads": f"{video[0]['vs_ale_py']:.2f}" if video else "not run",
+    }
+    strip = common.RESULTS / "natural_atari_frames.png"
+    if not args.no_record:
+        frame_strip(args.game, [*args.backgrounds, "image"] if "video" in args.backgrounds
+                    else args.backgrounds, args.video_sources, strip)
+        summary["frames"] = str(strip.relative_to(common.RESULTS.parent.parent))
+        common.record("natural_atari", info, table, summary, rows)
+    else:
+        print(table)
+        print(summary)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""The background compositor and the frame preprocessing, vectorised over a batch with OpenCV.
+
+Semantics (docs/environments.md section 3): a pixel of the max-pooled RGB frame is background
+when all three of its channels are 0; background pixels take the background frame's pixels, on
+the RGB frame, before grayscale and resize. A (200, 0, 0) pixel is never replaced (the authors
+compared channels separately, which replaced it).
+
+Grayscale is ALE's own law, `round(0.2989 R + 0.5870 G + 0.1140 B)` (the palette grayscale that
+ale-py's `grayscale=True` uses); OpenCV's `COLOR_RGB2GRAY` uses 0.299/0.587/0.114 and differs by 1
+on about 1% of colours. Grayscale acts pixel by pixel, so `gray(where(mask, bg, frame))` equals
+`where(mask, gray(bg), gray(frame))`: backgrounds are turned gray (videos once, when loaded) and
+composited in gray, which is exact.
+
+Two pooling orders (the env's `pool`):
+
+- "gray" (default): ale-py pools ALE's gray screens, `max(gray(a), gray(b))`, as ale-py, Gymnasium's
+  `AtariPreprocessing` and DQN do, and the mask is `gray == 0`. That mask is exactly the RGB
+  definition: in ALE's NTSC, PAL and SECAM palettes only black has gray level 0 (the darkest
+  other colour has 16), so a pooled gray pixel is 0 exactly when both pooled RGB pixels are
+  black (`tests/test_atari.py` checks the palettes and real screens). Composited pixels are then
+  exactly the RGB definition's; other pixels follow ale-py's own preprocessing (bit-identical
+  with background "none"), which differs from `gray(max(a, b))` only where two different colours
+  flicker on the same pixel.
+- "rgb": ale-py returns the max-pooled RGB screen and we turn it gray: the literal order of the
+  spec, with the RGB mask (`background_mask`). It moves three times the bytes.
+
+A batch `[B, H, W(, C)]` is handed to OpenCV as one tall image `[B*H, W(, C)]`: every operation
+here is per pixel, and INTER_AREA resizing by the same factor keeps the images' rows apart (210
+rows become 84 exactly, so no output row mixes two images), so one call does the whole batch
+and OpenCV spreads it over its threads.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "ALE_GRAY_WEIGHTS",
+    "background_mask",
+    "composite",
+    "composite_gray",
+    "composite_pooled_gray",
+    "grayscale",
+    "resize_area",
+    "FrameStack",
+    "GrayNoiseSampler",
+]
+
+ALE_GRAY_WEIGHTS = np.array([[0.2989, 0.5870, 0.1140]])  # ALE's ColourPalette::convertGrayscale
+
+
+def _tall(frames: np.ndarray) -> np.ndarray:
+    """`[B, H, W, ...]` -> `[B*H, W, ...]` without copying (frames must be C-contiguous)."""
+    frames = np.ascontiguousarray(frames)
+    return frames.reshape(-1, *frames.shape[2:])
+
+
+def background_mask(frames: np.ndarray) -> np.ndarray:
+    """`uint8[B, H, W, 3]` RGB -> `bool[B, H, W]`, True where all three channels are 0."""
+    b, h, w, _ = frames.shape
+    mask = cv2.inRange(_tall(frames), (0, 0, 0), (0, 0, 0))  # 255 where every channel is 0
+    return mask.reshape(b, h, w) != 0
+
+
+def composite(frames: np.ndarray, backgrounds: np.ndarray) -> np.ndarray:
+    """RGB compositing, the definition: background pixels of `frames` take `backgrounds`' pixels.
+
+    `frames` and `backgrounds` are `uint8[B, H, W, 3]` (a single `[H, W, 3]` background is shared).
+    Returns a new array.
+    """
+    mask = background_mask(frames)
+    return np.where(mask[..., None], backgrounds, frames)
+
+
+def grayscale(frames: np.ndarray) -> np.ndarray:
+    """`uint8[B, H, W, 3]` RGB -> `uint8[B, H, W]` with ALE's grayscale law."""
+    b, h, w, _ = frames.shape
+    return cv2.transform(_tall(frames), ALE_GRAY_WEIGHTS).reshape(b, h, w)
+
+
+def composite_gray(frames: np.ndarray, gray_backgrounds: np.ndarray | None = None) -> np.ndarray:
+    """`grayscale(composite(frames, backgrounds))` from RGB `frames` `uint8[B, H, W, 3]` and the
+    backgrounds' gray levels `gray_backgrounds` `uint8[B, H, W]` (`grayscale(backgrounds)`, or
+    gray noise): composited in gray, which is exact because grayscale is per pixel. None: black
+    background, plain grayscale."""
+    gray = grayscale(frames)
+    if gray_backgrounds is not None:
+        mask = cv2.inRange(_tall(frames), (0, 0, 0), (0, 0, 0))
+        cv2.copyTo(_tall(gray_backgrounds), mask, _tall(gray))  # in place: only masked pixels
+    return gray
+
+
+def composite_pooled_gray(gray: np.ndarray, gray_backgrounds: np.ndarray | None) -> np.ndarray:
+    """Composite ale-py's max-pooled gray screens `uint8[B, H, W]` in place: pixels at gray level
+    0 (exactly the all-channels-zero RGB pixels, see the module docstring) take
+    `gray_backgrounds`' pixels. Returns `gray`."""
+    if gray_backgrounds is not None:
+        tall = _tall(gray)
+        mask = cv2.compare(tall, 0, cv2.CMP_EQ)
+        cv2.copyTo(_tall(gray_backgrounds), mask, tall)
+    return gray
+
+
+def resize_area(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """`uint8[B, H, W]` -> `uint8[B, h, w]` with INTER_AREA (as ale-py and Gymnasium resize).
+
+    One OpenCV call over the tall image when `H/h` keeps images' rows apart (an integer number
+    of output rows per image: always, since each image gives exactly `h` rows, as long as the
+    scale is the same for every row block; checked against per-image resizing in the tests).
+    """
+    b, h_in, w_in = gray.shape
+    h, w = size
+    if (h_in, w_in) == (h, w):
+        return gray.copy()
+    out = cv2.resize(_tall(gray), (w, b * h), interpolation=cv2.INTER_AREA)
+    return out.reshape(b, h, w)
+
+
+class FrameStack:
+    """The last `depth` frames of each env, handed out channels-last `uint8[B, h, w, depth]`.
+
+    Kept as `depth` separate `[B, h, w]` frames and interleaved with `cv2.merge` (a few us per
+    env) instead of shifting a channels-last array (a strided copy, ten times slower). A reset
+    env's stack is zeros and then its first frame, as ale-py's.
+    """
+
+    def __init__(self, depth: int):
+        self.depth = int(depth)
+        self.frames: list[np.ndarray] = []
+
+    def reset(self, frame: np.ndarray) -> np.ndarray:
+        zeros = np.zeros_like(frame)
+        self.frames = [zeros] * (self.depth - 1) + [frame]
+        return self.observation()
+
+    def push(self, frame: np.ndarray, reset: np.ndarray | None = None) -> np.ndarray:
+        """Append `frame [B, h, w]`; where `reset` is True the env's older frames become 0."""
+        frames = self.frames[1:] + [frame]
+        if reset is not None and reset.any():
+            frames[:-1] = [np.where(reset[:, None, None], 0, f) for f in frames[:-1]]
+        self.frames = frames
+        return self.observation()
+
+    def preview(self, frame: np.ndarray) -> np.ndarray:
+        """The stack that `push(frame)` would give, without pushing (final observations)."""
+        return self._merge(self.frames[1:] + [frame])
+
+    def observation(self) -> np.ndarray:
+        return self._merge(self.frames)
+
+    def _merge(self, frames: list[np.ndarray]) -> np.ndarray:
+        b, h, w = frames[0].shape
+        if self.depth == 1:
+            return frames[0][..., None].copy()
+        return cv2.merge([f.reshape(b * h, w) for f in frames]).reshape(b, h, w, self.depth)
+
+
+class GrayNoiseSampler:
+    """Fresh i.i.d. gray levels of RGB noise pixels, fast: the gray level (ALE's law) of a pixel
+    whose three channels are i.i.d. `uint8(clip(N(0, 1) * scale, 0, 255))` (the paper
+    repository's noise, `jaxnat.natural.gaussian_noise_np`).
+
+    Compositing RGB noise and then turning it gray gives exactly these values, so drawing the
+    gray level directly is the same in law at a third of the random numbers and no RGB pass.
+    Drawn like `jaxnat.natural`'s noise: 16-bit uniforms through a 65,536-entry table of the
+    law's quantiles, so each level's probability is exact to within 2^-16. `law_probabilities`
+    is the exact law (the tests compare both samplers with it).
+    """
+
+    def __init__(self, rng: np.random.Generator, scale: float = 50.0):
+        self.rng = rng
+        cdf = np.cumsum(self.law_probabilities(float(scale)))
+        u = (np.arange(65536) + 0.5) / 65536
+        self._table = np.minimum(np.searchsorted(cdf, u), 255).astype(np.uint8)
+
+    @staticmethod
+    def channel_probabilities(scale: float = 50.0) -> np.ndarray:
+        """P(value = k), k = 0..255, of one channel, `uint8(clip(N(0,1) * scale, 0, 255))`."""
+        phi = np.array([0.5 * (1 + math.erf(k / scale / math.sqrt(2))) for k in range(1, 256)])
+        return np.diff(np.concatenate([[0.0], phi, [1.0]]))
+
+    @classmethod
+    def law_probabilities(cls, scale: float = 50.0) -> np.ndarray:
+        """P(gray level = k), k = 0..255, for three independent channels."""
+        channel = cls.channel_probabilities(scale)
+        levels = np.arange(256, dtype=np.float64)
+        g_b = levels[:, None] * 0.5870 + levels[None, :] * 0.1140  # G and B contributions
+        p_gb = (channel[:, None] * channel[None, :]).ravel()
+        law = np.zeros(256)
+        for r in np.flatnonzero(channel > 1e-18):
+            gray_levels = np.floor(r * 0.2989 + g_b + 0.5).astype(np.int64).ravel()
+            law += channel[r] * np.bincount(gray_levels, weights=p_gb, minlength=256)[:256]
+        return law / law.sum()
+
+    def sample(self, shape: tuple[int, ...]) -> np.ndarray:
+        u = self.rng.integers(0, 65536, size=shape, dtype=np.uint16)
+        return self._table[u]

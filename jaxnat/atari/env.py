@@ -1,0 +1,252 @@
+"""`NaturalAtariVecEnv`: a batch of ALE games with natural backgrounds, emulated on the host.
+
+    env = jaxnat.make_vec("NaturalAtari/Breakout-v0", 8, background="video", split="train")
+    obs, info = env.reset(seed=0)              # uint8[8, 84, 84, 4]
+    obs, reward, terminated, truncated, info = env.step(np.zeros(8, np.int32))
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jaxnat import spaces
+from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
+from jaxnat.atari.compositor import (
+    FrameStack,
+    composite_gray,
+    composite_pooled_gray,
+    resize_area,
+)
+from jaxnat.atari.games import rom_id, rom_path
+
+__all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
+
+SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
+_AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
+
+
+class NaturalAtariVecEnv:
+    """`num_envs` copies of an Atari game whose black background shows natural video or noise.
+
+    Emulation: ale-py's C++ `AtariVectorEnv` on `num_threads` threads, full-resolution (210x160)
+    screens after its frame skip (`frame_skip` frames, rewards summed) and max-pool over the last
+    two frames (`pool="gray"`: of ALE's gray screens, as ale-py's and Gymnasium's own
+    preprocessing, bit-identical to them with background "none"; `pool="rgb"`: of the RGB screens,
+    per channel, then ALE's grayscale; the background mask is the same either way, see
+    jaxnat.atari.compositor), sticky actions with probability `sticky_actions` (ALE's
+    `repeat_action_probability`, applied at every emulated frame), a random number of no-ops in
+    `[0, noop_max)` at each reset, no FIRE at reset, whole games as episodes (no life loss
+    signal), truncation after `max_episode_steps` agent steps.
+
+    Then on the host, vectorised over the batch (jaxnat.atari.compositor): pixels whose three
+    channels are all 0 take this step's background frame (`background`: "none" black, "noise"
+    i.i.d. `clip(N(0,1)*50, 0)` per pixel and channel each step, "video" consecutive frames of a
+    random natural video, one per agent step, a new video at a random offset at every reset,
+    "image" a random still photo per episode); then ALE's grayscale, INTER_AREA resize to
+    `obs_size`, and a stack of the last `stack` frames, channels-last, oldest first (zeros before
+    the first frame of an episode).
+
+    Videos and photos come from `jaxnat.natural` (`video_sources`: None = opencv-doc's samples),
+    split by whole files: `split="train"` and `"test"` never share a file, `"all"` uses both.
+
+    Autoreset (`autoreset_mode`): "same_step" (default, as jaxnat's `AutoResetWrapper`): the
+    step that ends an episode returns the next episode's first observation, and the final one in
+    `info["final_observation"]` (every row; equal to `obs` where the episode did not end).
+    "next_step" (Gymnasium's vector default): the ending step returns the final observation;
+    the next step ignores that env's action, resets it and returns reward 0.
+
+    `step` returns numpy arrays: obs `uint8[B, h, w, stack]`, reward `float32[B]` (the game's
+    score change, never clipped; see `ClipRewardWrapper`), terminated and truncated `bool[B]`,
+    and `info` with `lives`, `returned_episode` (an episode ended), `returned_episode_returns` and
+    `returned_episode_lengths` (return and length in agent steps of each env's last finished
+    whole game, held until the next one ends).
+
+    Deterministic given `seed` (env `i`'s emulator is seeded with `seed + i`), the actions, and
+    `sticky_actions=0` or not: ALE's sticky actions use the emulator's own seeded generator.
+    """
+
+    def __init__(
+        self,
+        game: str = "Breakout",
+        num_envs: int = 8,
+        *,
+        background: str = "none",
+        split: str = "train",
+        video_sources=None,
+        sticky_actions: float = 0.25,
+        noop_max: int = 30,
+        frame_skip: int = 4,
+        maxpool: bool = True,
+        pool: str = "gray",
+        full_action_space: bool = False,
+        max_episode_steps: int = 27_000,
+        obs_size: int | tuple[int, int] = 84,
+        stack: int = 4,
+        num_threads: int = 0,
+        autoreset_mode: str = "same_step",
+        noise_scale: float = 50.0,
+        seed: int = 0,
+    ):
+        if background not in BACKGROUNDS:
+            raise ValueError(f"background must be one of {BACKGROUNDS}, got {background!r}")
+        if split not in ("train", "test", "all"):
+            raise ValueError(f"split must be 'train', 'test' or 'all', got {split!r}")
+        if autoreset_mode not in _AUTORESET_MODES:
+            raise ValueError(f"autoreset_mode must be one of {sorted(_AUTORESET_MODES)}, got {autoreset_mode!r}")
+        if pool not in ("gray", "rgb"):
+            raise ValueError(f"pool must be 'gray' or 'rgb', got {pool!r}")
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        if not 0.0 <= float(sticky_actions) <= 1.0:
+            raise ValueError(f"sticky_actions is a probability in [0, 1], got {sticky_actions}")
+        if int(stack) < 1 or int(frame_skip) < 1 or int(noop_max) < 0:
+            raise ValueError(f"need stack >= 1, frame_skip >= 1, noop_max >= 0; got {stack}, {frame_skip}, {noop_max}")
+        rom_path(game)  # clear errors for unknown games and missing ROMs, before ale-py's
+        from ale_py.vector_env import AtariVectorEnv  # noqa: PLC0415  (optional dependency)
+
+        self.game = game
+        self.num_envs = int(num_envs)
+        self.background = background
+        self.split = split
+        self.video_sources = video_sources
+        self.autoreset_mode = autoreset_mode
+        self.pool = pool
+        self.obs_size = (obs_size, obs_size) if isinstance(obs_size, int) else tuple(obs_size)
+        self.max_episode_steps = int(max_episode_steps)
+        self._seed = int(seed)
+        self._ale = AtariVectorEnv(
+            rom_id(game),
+            self.num_envs,
+            img_height=SCREEN_SHAPE[0],
+            img_width=SCREEN_SHAPE[1],
+            grayscale=pool == "gray",
+            stack_num=1,
+            frameskip=int(frame_skip),
+            maxpool=bool(maxpool),
+            noop_max=int(noop_max),
+            use_fire_reset=False,
+            episodic_life=False,
+            reward_clipping=False,
+            repeat_action_probability=float(sticky_actions),
+            full_action_space=bool(full_action_space),
+            max_num_frames_per_episode=self.max_episode_steps * int(frame_skip),
+            num_threads=int(num_threads),
+            autoreset_mode=_AUTORESET_MODES[autoreset_mode],
+        )
+        self._background = make_background(
+            background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
+            seed=self._seed, noise_scale=noise_scale,
+        )
+        self._stack = FrameStack(stack)
+        n_actions = int(self._ale.single_action_space.n)
+        self.single_action_space = spaces.Discrete(n_actions)
+        self.single_observation_space = spaces.Box(0, 255, (*self.obs_size, int(stack)), np.uint8)
+        self._returns = np.zeros(self.num_envs, np.float64)
+        self._lengths = np.zeros(self.num_envs, np.int32)
+        self._last_returns = np.zeros(self.num_envs, np.float32)
+        self._last_lengths = np.zeros(self.num_envs, np.int32)
+        self._ended = np.zeros(self.num_envs, bool)  # next_step mode: reset at the next step
+        self._needs_reset = True
+
+    # -- the batched API ------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None):
+        """Reset every env. `seed` seeds env `i`'s emulator with `seed + i` and restarts the
+        background draws from `seed`; without it, the first reset uses the constructor's seed
+        and later ones continue the random streams (new games, new videos)."""
+        if seed is not None:
+            self._seed = int(seed)
+            self._background.seed(self._seed)
+        seed = self._seed
+        self._seed += self.num_envs  # a later reset() without a seed starts new games
+        raw, info = self._ale.reset(seed=seed)
+        self._background.reset(None)
+        frame = self._preprocess(raw[:, 0], self._background.frames())
+        obs = self._stack.reset(frame)
+        self._returns[:] = 0
+        self._lengths[:] = 0
+        self._ended[:] = False
+        self._needs_reset = False
+        return obs, {"lives": np.asarray(info["lives"])}
+
+    def step(self, actions):
+        """One agent step of every env; numpy in (`int[B]` actions) and out."""
+        if self._needs_reset:
+            raise RuntimeError("Call reset() before step().")
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs,) or not np.issubdtype(actions.dtype, np.integer):
+            raise ValueError(
+                f"actions must be integers of shape ({self.num_envs},), got {actions.dtype} "
+                f"{actions.shape}"
+            )
+        if actions.min() < 0 or actions.max() >= self.single_action_space.n:
+            raise ValueError(
+                f"actions must lie in [0, {self.single_action_space.n}), got {actions.min()} .. "
+                f"{actions.max()}"
+            )
+        raw, reward, terminated, truncated, ale_info = self._ale.step(actions.astype(np.int64))
+        if not np.array_equal(ale_info["env_id"], np.arange(self.num_envs)):  # never seen; cheap
+            raise RuntimeError(f"ale-py returned envs out of order: {ale_info['env_id']}")
+        reward = reward.astype(np.float32)
+        done = terminated | truncated
+        restarted = self._ended  # next_step mode: these envs were reset by this step
+        self._background.advance()
+        info = {"lives": np.asarray(ale_info["lives"])}
+        if self.autoreset_mode == "same_step" and done.any():
+            # The final frame against this step's background, then the new episode's background.
+            final = raw[:, 0].copy()
+            final[done] = ale_info["final_obs"][done, 0]
+            final_frame = self._preprocess(final, self._background.frames())
+            info["final_observation"] = self._stack.preview(final_frame)
+            self._background.reset(done)
+            obs = self._stack.push(self._preprocess(raw[:, 0], self._background.frames()), done)
+        else:
+            if restarted.any():
+                self._background.reset(restarted)
+            obs = self._stack.push(self._preprocess(raw[:, 0], self._background.frames()), restarted)
+            if self.autoreset_mode == "same_step":
+                info["final_observation"] = obs
+        self._record_episodes(reward, done, restarted, info)
+        if self.autoreset_mode == "next_step":
+            self._ended = done
+        return obs, reward, terminated, truncated, info
+
+    def close(self) -> None:
+        self._ale.close()
+        self._background.close()
+
+    def __repr__(self) -> str:
+        return (
+            f"NaturalAtariVecEnv({self.game}, num_envs={self.num_envs}, "
+            f"background={self.background!r}, split={self.split!r})"
+        )
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- internals ------------------------------------------------------------------------
+    def _preprocess(self, screens: np.ndarray, background) -> np.ndarray:
+        """Pooled screens `[B, 210, 160]` gray (modified in place) or `[B, 210, 160, 3]` RGB, and
+        gray backgrounds `[B, 210, 160]` (or None) -> composited, gray, resized `[B, h, w]`."""
+        if self.pool == "gray":
+            gray = composite_pooled_gray(screens, background)
+        else:
+            gray = composite_gray(screens, background)
+        return resize_area(gray, self.obs_size)
+
+    def _record_episodes(self, reward, done, restarted, info) -> None:
+        """Whole-game returns and lengths (rewards unclipped), PureJaxRL's info keys."""
+        self._returns[restarted] = 0  # next_step mode: the restart step is not part of a game
+        self._lengths[restarted] = 0
+        live = ~restarted
+        self._returns[live] += reward[live]
+        self._lengths[live] += 1
+        self._last_returns[done] = self._returns[done]
+        self._last_lengths[done] = self._lengths[done]
+        self._returns[done] = 0
+        self._lengths[done] = 0
+        info["returned_episode"] = done.copy()
+        info["returned_episode_returns"] = self._last_returns.copy()
+        info["returned_episode_lengths"] = self._last_lengths.copy()

@@ -1,0 +1,422 @@
+"""Natural Atari: compositor semantics, agreement with ale-py's own preprocessing, backgrounds,
+resets, splits, errors, and the adapters.
+
+Background videos for the video tests are written here (lossless FFV1, uniform frames whose
+gray level says which video and frame they are), so the tests do not need opencv-doc.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+ale_py = pytest.importorskip("ale_py")
+
+import jaxnat  # noqa: E402
+from jaxnat.atari import AUTHORS_GAMES, GAMES, RomNotFoundError  # noqa: E402
+from jaxnat.atari.compositor import (  # noqa: E402
+    FrameStack,
+    GrayNoiseSampler,
+    background_mask,
+    composite,
+    composite_gray,
+    composite_pooled_gray,
+    grayscale,
+    resize_area,
+)
+from jaxnat.atari.env import NaturalAtariVecEnv  # noqa: E402
+from jaxnat.atari.games import ROM_IDS  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def isolated_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXNAT_CACHE_DIR", str(tmp_path / "cache"))
+
+
+# -- compositor ----------------------------------------------------------------------------
+def test_mask_is_all_three_channels_zero():
+    frames = np.zeros((2, 3, 4, 3), np.uint8)
+    frames[0, 0, 0] = (200, 0, 0)  # the authors' per-channel test replaced two of its channels
+    frames[0, 0, 1] = (0, 200, 0)
+    frames[0, 0, 2] = (0, 0, 1)
+    frames[1, 2, 3] = (1, 1, 1)
+    expected = np.ones((2, 3, 4), bool)
+    expected[0, 0, :3] = False
+    expected[1, 2, 3] = False
+    np.testing.assert_array_equal(background_mask(frames), expected)
+    backgrounds = np.full_like(frames, 77)
+    out = composite(frames, backgrounds)
+    np.testing.assert_array_equal(out[0, 0, 0], (200, 0, 0))  # never replaced
+    np.testing.assert_array_equal(out[0, 0, 1], (0, 200, 0))
+    np.testing.assert_array_equal(out[0, 0, 2], (0, 0, 1))
+    np.testing.assert_array_equal(out[expected], 77)
+
+
+def test_compositing_is_exact_in_rgb_and_gray():
+    rng = np.random.default_rng(0)
+    # Sparse random colours (half the pixels black, some with only one channel set).
+    frames = rng.integers(0, 256, (3, 210, 160, 3), dtype=np.uint8)
+    frames[rng.random((3, 210, 160)) < 0.5] = 0
+    frames[rng.random((3, 210, 160, 3)) < 0.3] = 0
+    backgrounds = rng.integers(0, 256, frames.shape, dtype=np.uint8)
+    mask = (frames == 0).all(axis=-1)
+    by_hand = np.where(mask[..., None], backgrounds, frames)
+    np.testing.assert_array_equal(composite(frames, backgrounds), by_hand)
+    expected_gray = grayscale(by_hand)
+    # Gray compositing of pre-grayed backgrounds equals RGB compositing then grayscale.
+    np.testing.assert_array_equal(composite_gray(frames, grayscale(backgrounds)), expected_gray)
+    np.testing.assert_array_equal(composite_gray(frames), grayscale(frames))
+    # Pooled gray screens: level 0 is exactly the mask on ALE screens (palette test below); these
+    # random colours include dark ones that round to 0, so lift those to 1 first.
+    gray = grayscale(frames)
+    gray[~mask & (gray == 0)] = 1
+    out = composite_pooled_gray(gray.copy(), grayscale(backgrounds))
+    np.testing.assert_array_equal(out, np.where(mask, grayscale(backgrounds), gray))
+
+
+def test_grayscale_follows_ales_law_within_one_level():
+    rng = np.random.default_rng(1)
+    colours = rng.integers(0, 256, (1, 200_000, 1, 3), dtype=np.uint8)
+    rgb = colours.astype(np.float64)
+    law = np.floor(rgb[..., 0] * 0.2989 + rgb[..., 1] * 0.5870 + rgb[..., 2] * 0.1140 + 0.5)
+    diff = np.abs(grayscale(colours).astype(int) - law)
+    assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+
+
+def test_batched_resize_equals_per_image_resize():
+    rng = np.random.default_rng(2)
+    gray = rng.integers(0, 256, (5, 210, 160), dtype=np.uint8)
+    per_image = np.stack([cv2.resize(g, (84, 84), interpolation=cv2.INTER_AREA) for g in gray])
+    np.testing.assert_array_equal(resize_area(gray, (84, 84)), per_image)
+
+
+def test_frame_stack_order_and_reset():
+    stack = FrameStack(3)
+    f = [np.full((2, 2, 2), v, np.uint8) for v in (1, 2, 3, 4)]
+    np.testing.assert_array_equal(stack.reset(f[0])[0, 0, 0], (0, 0, 1))
+    np.testing.assert_array_equal(stack.preview(f[1])[0, 0, 0], (0, 1, 2))
+    obs = stack.push(f[1], reset=np.array([False, True]))
+    np.testing.assert_array_equal(obs[0, 0, 0], (0, 1, 2))
+    np.testing.assert_array_equal(obs[1, 0, 0], (0, 0, 2))  # a new episode: zeros, then its frame
+    assert stack.push(f[2]).shape == (2, 2, 2, 3)
+
+
+def test_only_black_has_gray_level_zero_on_real_screens():
+    """The gray-pooled mask (`gray == 0`) is the RGB mask (all three channels 0) on ALE screens:
+    the same seeds and actions, screens pooled in RGB and in gray."""
+    kwargs = dict(img_height=210, img_width=160, stack_num=1, repeat_action_probability=0.0,
+                  use_fire_reset=False, num_threads=1)
+    for game in ("alien", "space_invaders", "pong"):
+        rgb_env = ale_py.vector_env.AtariVectorEnv(game, 2, grayscale=False, **kwargs)
+        gray_env = ale_py.vector_env.AtariVectorEnv(game, 2, grayscale=True, **kwargs)
+        rgb, _ = rgb_env.reset(seed=0)
+        gray, _ = gray_env.reset(seed=0)
+        rng = np.random.default_rng(0)
+        for _ in range(30):
+            rgb_mask = background_mask(rgb[:, 0])
+            np.testing.assert_array_equal(gray[:, 0] == 0, rgb_mask)
+            assert rgb_mask.any() and not rgb_mask.all()
+            actions = rng.integers(0, rgb_env.single_action_space.n, 2)
+            rgb, *_ = rgb_env.step(actions)
+            gray, *_ = gray_env.step(actions)
+
+
+def test_gray_noise_is_the_gray_level_of_the_papers_rgb_noise():
+    from jaxnat.natural import gaussian_noise_np
+
+    channel = GrayNoiseSampler.channel_probabilities(50.0)
+    rgb_noise = gaussian_noise_np(np.random.default_rng(4), (1, 400_000, 1, 3))
+    freq = np.bincount(rgb_noise.ravel(), minlength=256) / rgb_noise.size
+    assert abs(channel.sum() - 1) < 1e-12 and abs(freq[0] - channel[0]) < 0.005  # half black
+    np.testing.assert_allclose(freq[1:120], channel[1:120], atol=0.0015)
+    # Our gray draws and the gray levels of the paper's RGB noise follow one law.
+    law = GrayNoiseSampler.law_probabilities(50.0)
+    sampler = GrayNoiseSampler(np.random.default_rng(5), scale=50.0)
+    for sample in (sampler.sample((400_000,)), grayscale(rgb_noise).ravel()):
+        freq = np.bincount(sample, minlength=256) / sample.size
+        np.testing.assert_allclose(freq, law, atol=0.0015)
+    assert sampler.sample((2, 3)).dtype == np.uint8
+    assert not np.array_equal(sampler.sample((64,)), sampler.sample((64,)))  # fresh every call
+
+
+# -- agreement with ale-py -----------------------------------------------------------------
+def _run_both(game, maxpool, steps, pool="gray", seed=3):
+    ours = NaturalAtariVecEnv(game, 2, sticky_actions=0.0, maxpool=maxpool, pool=pool,
+                              num_threads=1, seed=seed)
+    ref = ale_py.vector_env.AtariVectorEnv(
+        GAMES[game], 2, maxpool=maxpool, use_fire_reset=False, reward_clipping=False,
+        repeat_action_probability=0.0, num_threads=1, autoreset_mode="SameStep",
+    )
+    obs, _ = ours.reset(seed=seed)
+    ref_obs, _ = ref.reset(seed=seed)
+    pairs = [(obs, ref_obs.transpose(0, 2, 3, 1))]  # ale-py stacks channels-first
+    rng = np.random.default_rng(0)
+    for _ in range(steps):
+        actions = rng.integers(0, ours.single_action_space.n, 2)
+        obs, reward, terminated, truncated, _ = ours.step(actions)
+        ref_obs, ref_reward, ref_terminated, ref_truncated, _ = ref.step(actions)
+        np.testing.assert_array_equal(reward, ref_reward)
+        np.testing.assert_array_equal(terminated, ref_terminated)
+        np.testing.assert_array_equal(truncated, ref_truncated)
+        pairs.append((obs, ref_obs.transpose(0, 2, 3, 1)))
+    ours.close()
+    ref.close()
+    return pairs
+
+
+@pytest.mark.parametrize("game", ["Breakout", "SpaceInvaders", "Alien"])
+def test_background_none_equals_ale_py_preprocessing(game):
+    for obs, ref_obs in _run_both(game, maxpool=True, steps=60):
+        np.testing.assert_array_equal(obs, ref_obs)
+
+
+@pytest.mark.parametrize("game", ["Breakout", "Alien"])
+def test_rgb_pooling_equals_ale_py_without_pooling_and_differs_only_by_flicker(game):
+    # Without max-pool both orders are one frame: bit-identical.
+    for obs, ref_obs in _run_both(game, maxpool=False, steps=40, pool="rgb"):
+        np.testing.assert_array_equal(obs, ref_obs)
+    # With it, gray(max(a, b)) >= max(gray(a), gray(b)): equal on Breakout (nothing flickers),
+    # brighter on Alien's flickering sprites.
+    pairs = _run_both(game, maxpool=True, steps=40, pool="rgb")
+    diffs = np.array([np.mean(obs != ref) for obs, ref in pairs])
+    assert all((obs >= ref).all() for obs, ref in pairs)
+    assert (diffs == 0).all() if game == "Breakout" else 0 < diffs.max() < 0.05
+
+
+# -- episodes, resets, determinism ---------------------------------------------------------
+def test_time_limit_reset_and_whole_game_statistics():
+    env = NaturalAtariVecEnv("Breakout", 2, max_episode_steps=5, num_threads=1)
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (2, 84, 84, 4) and obs.dtype == np.uint8
+    assert (obs[..., :3] == 0).all() and (obs[..., 3] > 0).any()
+    total = np.zeros(2, np.float32)
+    for t in range(5):
+        obs, reward, terminated, truncated, info = env.step(np.array([1, 3]))
+        total += reward
+        assert reward.dtype == np.float32
+    assert truncated.all() and not terminated.any() and info["returned_episode"].all()
+    np.testing.assert_array_equal(info["returned_episode_lengths"], [5, 5])
+    np.testing.assert_array_equal(info["returned_episode_returns"], total)
+    assert (obs[..., :3] == 0).all()  # the next episode's first observation
+    final = info["final_observation"]
+    assert (final[..., :3] > 0).any() and not np.array_equal(final, obs)
+    obs, *_, info = env.step(np.array([0, 0]))
+    assert not info["returned_episode"].any() and (obs[..., :2] == 0).all()
+
+
+def test_episodes_are_whole_games_not_lives():
+    env = NaturalAtariVecEnv("Breakout", 1, num_threads=1, sticky_actions=0.0)
+    env.reset(seed=1)
+    lives_seen = set()
+    for _ in range(3000):
+        *_, terminated, truncated, info = env.step(np.array([1]))  # FIRE, then play badly
+        lives_seen.add(int(info["lives"][0]))
+        if info["returned_episode"][0]:
+            break
+    assert terminated[0] and len(lives_seen) >= 3  # several lives lost within one episode
+    assert info["returned_episode_lengths"][0] > 100
+
+
+def _observations(env, steps, seed=None):
+    """The observations of a reset and `steps` steps with fixed actions, stacked."""
+    out = [env.reset(seed=seed)[0]]
+    for t in range(steps):
+        out.append(env.step(np.full(env.num_envs, t % 4))[0])
+    return np.stack(out)
+
+
+def test_same_seed_same_run_with_sticky_actions():
+    def run(seed):
+        env = NaturalAtariVecEnv("Breakout", 2, background="noise", num_threads=1, seed=seed)
+        return _observations(env, 20)
+
+    a, b, c = run(5), run(5), run(6)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_reset_with_a_seed_repeats_the_run(clips):
+    env = NaturalAtariVecEnv("Breakout", 2, background="video", split="all",
+                             video_sources=str(clips), num_threads=1, seed=0)
+    first, other, again = (_observations(env, 10, seed) for seed in (7, 8, 7))
+    np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(first, other)
+
+
+@pytest.mark.parametrize("pool", ["gray", "rgb"])
+def test_noise_replaces_exactly_the_black_pixels(pool):
+    # Full-resolution screens, no stack: the observation is the composited screen itself.
+    kwargs = dict(sticky_actions=0.0, obs_size=(210, 160), stack=1, pool=pool, num_threads=1)
+    plain = NaturalAtariVecEnv("Breakout", 2, **kwargs)
+    noisy = NaturalAtariVecEnv("Breakout", 2, background="noise", **kwargs)
+    a, _ = plain.reset(seed=0)
+    b, _ = noisy.reset(seed=0)
+    for t in range(12):
+        black = a[..., 0] == 0
+        np.testing.assert_array_equal(b[~black], a[~black])  # the game's pixels are kept
+        assert 0.8 < (b[black] > 0).mean() < 0.9  # P(gray noise level 0) = 0.14
+        if t:
+            assert not np.array_equal(b, previous)  # fresh noise every step
+        previous = b
+        actions = np.full(2, t % 4)
+        a, *_ = plain.step(actions)
+        b, *_ = noisy.step(actions)
+
+
+# -- video backgrounds ---------------------------------------------------------------------
+def _write_video(path: Path, video: int, num_frames: int) -> Path:
+    """Uniform gray frames of level 20 + 40 * video + 2 * frame, lossless (FFV1)."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 10, (40, 30))
+    assert writer.isOpened()
+    for f in range(num_frames):
+        writer.write(np.full((30, 40, 3), 20 + 40 * video + 2 * f, np.uint8))
+    writer.release()
+    return path
+
+
+@pytest.fixture
+def clips(tmp_path):
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for v in range(4):
+        _write_video(folder / f"clip{v}.avi", v, 12 + v)
+    return folder
+
+
+def _background_level(obs):
+    """The background's gray level in each env's newest frame (most of Pong's screen is not
+    black, so use Breakout: its black field is most of the frame)."""
+    newest = obs[..., -1].reshape(len(obs), -1)
+    return np.array([np.bincount(row).argmax() for row in newest])
+
+
+def test_video_background_one_frame_per_step_and_new_video_at_reset(clips):
+    env = NaturalAtariVecEnv(
+        "Breakout", 3, background="video", split="all", video_sources=str(clips),
+        max_episode_steps=8, num_threads=1, seed=0,
+    )
+    bank_levels = env._background.bank.frames[:, 0, 0, 0].astype(int)  # one level per frame
+    assert len(set(bank_levels)) == len(bank_levels)  # every bank frame is recognisable
+    index = {level: i for i, level in enumerate(bank_levels)}
+    obs, _ = env.reset()
+    positions = [[index[v] for v in _background_level(obs)]]
+    for _ in range(20):
+        obs, *_, info = env.step(np.zeros(3, np.int64))
+        positions.append([index[v] for v in _background_level(obs)])
+    positions = np.array(positions)
+    starts = np.asarray(env._background.bank.starts)
+    lengths = np.asarray(env._background.bank.lengths)
+    video_of = np.searchsorted(starts, np.arange(len(bank_levels)), side="right") - 1
+    for t in range(1, len(positions)):
+        for e in range(3):
+            prev, cur = positions[t - 1, e], positions[t, e]
+            if t % 8 == 0:  # a reset: a new video at a random offset (any frame)
+                continue
+            last = starts[video_of[prev]] + lengths[video_of[prev]] - 1
+            # One video frame per step; after a video's last frame, a new video's first frame.
+            assert cur == prev + 1 or (prev == last and cur == starts[video_of[cur]])
+    # Resets draw new offsets: not every env restarts where it would have continued.
+    assert any(positions[8, e] != positions[7, e] + 1 for e in range(3))
+
+
+def test_video_split_is_disjoint(clips):
+    names = {}
+    for split in ("train", "test", "all"):
+        env = NaturalAtariVecEnv("Breakout", 1, background="video", split=split,
+                                 video_sources=str(clips), num_threads=1)
+        names[split] = set(env._background.bank.names)
+    assert names["train"] and names["test"]
+    assert not names["train"] & names["test"]
+    assert names["train"] | names["test"] == names["all"]
+
+
+# -- registry, games, errors ---------------------------------------------------------------
+def test_every_ale_game_is_registered():
+    assert set(ROM_IDS) == set(ale_py.roms.get_all_rom_ids())
+    ids = set(jaxnat.registered_envs())
+    assert {f"NaturalAtari/{g}-v0" for g in GAMES} <= ids
+    assert set(AUTHORS_GAMES) <= set(GAMES) and len(AUTHORS_GAMES) == 16
+
+
+@pytest.mark.parametrize("game", AUTHORS_GAMES)
+def test_authors_games_construct_and_step(game):
+    env = jaxnat.make_vec(f"NaturalAtari/{game}-v0", 2, background="noise", num_threads=1)
+    obs, _ = env.reset(seed=0)
+    obs, reward, terminated, truncated, _ = env.step(np.zeros(2, np.int64))
+    assert obs.shape == (2, 84, 84, 4) and reward.shape == (2,)
+    env.close()
+
+
+def test_full_action_set_is_optional():
+    minimal = NaturalAtariVecEnv("Breakout", 1, num_threads=1)
+    full = NaturalAtariVecEnv("Breakout", 1, full_action_space=True, num_threads=1)
+    assert (minimal.single_action_space.n, full.single_action_space.n) == (4, 18)
+    full.reset(seed=0)
+    assert full.step(np.array([17]))[0].shape == (1, 84, 84, 4)
+
+
+def test_bad_game_id_lists_close_matches():
+    with pytest.raises(jaxnat.UnknownEnvError, match="NaturalAtari/Breakout-v0"):
+        jaxnat.make_vec("NaturalAtari/Breakot-v0", 2)
+    with pytest.raises(ValueError, match="Did you mean: SpaceInvaders"):
+        NaturalAtariVecEnv("SpaceInvader", 1)
+    with pytest.raises(TypeError, match="make_vec"):
+        jaxnat.make("NaturalAtari/Breakout-v0")
+
+
+def test_missing_rom_is_a_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setenv("ALE_ROMS_DIR", str(tmp_path))
+    with pytest.raises(RomNotFoundError, match=r"breakout\.bin.*ALE_ROMS_DIR"):
+        NaturalAtariVecEnv("Breakout", 1)
+
+
+def test_bad_arguments_are_clear_errors():
+    with pytest.raises(ValueError, match="background must be one of"):
+        NaturalAtariVecEnv("Breakout", 1, background="fog")
+    with pytest.raises(ValueError, match="split"):
+        NaturalAtariVecEnv("Breakout", 1, split="val")
+    env = NaturalAtariVecEnv("Breakout", 2, num_threads=1)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(2, np.int64))
+    env.reset()
+    with pytest.raises(ValueError, match=r"shape \(2,\)"):
+        env.step(np.zeros(3, np.int64))
+    with pytest.raises(ValueError, match=r"\[0, 4\)"):
+        env.step(np.array([0, 9]))
+
+
+# -- adapters ------------------------------------------------------------------------------
+def test_gymnasium_adapter_next_step_autoreset():
+    from jaxnat.compat.gymnasium import make_gymnasium_vec
+
+    vec = make_gymnasium_vec("NaturalAtari/Breakout-v0", 2, seed=0, max_episode_steps=3, num_threads=1)
+    obs, _ = vec.reset(seed=0)
+    assert vec.observation_space.contains(obs)
+    for _ in range(3):
+        obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
+    assert truncated.all() and (obs[..., :3] > 0).any()  # the final observation itself
+    np.testing.assert_array_equal(info["returned_episode_lengths"], [3, 3])
+    assert info["_returned_episode_lengths"].all()
+    obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
+    assert (reward == 0).all() and not (terminated | truncated).any()
+    assert (obs[..., :3] == 0).all() and not info["_returned_episode_lengths"].any()
+    vec.close()
+
+
+def test_clip_reward_and_device_arrays_wrappers():
+    import jax
+
+    from jaxnat.atari.wrappers import ClipRewardWrapper, DeviceArraysWrapper
+
+    env = DeviceArraysWrapper(ClipRewardWrapper(NaturalAtariVecEnv("Breakout", 2, num_threads=1)))
+    obs, _ = env.reset(seed=0)
+    assert isinstance(obs, jax.Array) and obs.shape == (2, 84, 84, 4)
+    for _ in range(40):
+        obs, reward, terminated, truncated, info = env.step(jax.numpy.ones(2, jax.numpy.int32))
+        assert isinstance(reward, jax.Array)
+        assert (np.abs(np.asarray(reward)) <= 1).all()
+        np.testing.assert_array_equal(np.clip(info["unclipped_reward"], -1, 1), reward)
+    assert env.num_envs == 2  # attributes pass through
