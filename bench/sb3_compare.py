@@ -280,6 +280,12 @@ def check(env_id: str, seed: int = 0, num_envs: int = NUM_ENVS, steps: int = 45)
           f"({model.num_timesteps} steps)")
 
 
+def _print_row(row: dict) -> None:
+    print(f"  {row['setup_s']:.1f} s compile/setup, {row['train_s']:.1f} s training: "
+          f"{row['steps_per_s']:.3g} env steps/s; test return {row['test_return']:+.3f}, "
+          f"accuracy {row['test_accuracy']:.1%}", flush=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env-id", default="Classify/Digits-v0")
@@ -300,14 +306,17 @@ def main(argv=None):
 
     info = {**common.machine(), "torch": torch.__version__, "stable_baselines3": stable_baselines3.__version__,
             "torch_threads": torch.get_num_threads()}
+    load_start = os.getloadavg()[0]
     env_device = jax.devices("cpu")[0] if args.sb3_env_device == "cpu" else jax.devices()[0]
     rows = []
     for seeds in (args.seeds, 1):
         print(f"jaxnat PPO, {seeds} seed(s) vmapped, {args.steps:,} steps per seed ...", flush=True)
         rows.append(run_jaxnat(args.env_id, args.steps, seeds, args.eval_episodes))
+        _print_row(rows[-1])
     print(f"SB3 PPO, 1 seed, {args.steps:,} steps, torch threads {torch.get_num_threads()} ...", flush=True)
     sb3 = run_sb3(args.env_id, args.steps, 0, args.eval_episodes, env_device)
     rows.append(sb3)
+    _print_row(sb3)
     for row in rows:
         row["ratio_total"] = row["steps_per_s"] / sb3["steps_per_s"]
         row["ratio_per_seed"] = row["steps_per_s_per_seed"] / sb3["steps_per_s_per_seed"]
@@ -333,6 +342,8 @@ def main(argv=None):
         f"{args.seeds} SB3 seeds one after another": f"{args.seeds * sb3['train_s']:.0f} s "
             f"(= {args.seeds} x {sb3['train_s']:.1f} s) vs jaxnat {vmapped['train_s']:.1f} s "
             f"(+ {vmapped['setup_s']:.1f} s compile)",
+        "host load average (1 min) at start / end": f"{load_start:.1f} / {os.getloadavg()[0]:.1f} "
+            f"on {os.cpu_count()} cores (other processes share them)",
     }
     if args.no_record:
         print(table)
