@@ -177,6 +177,31 @@ def test_make_gymnasium_vec(monkeypatch, toy_dataset):
     vec.close()
 
 
+def test_partial_reset_with_reset_mask(vec):
+    """`reset(options={"reset_mask": m})` restarts the masked envs at once (no wasted next step)
+    and leaves the others as they were."""
+    obs, _ = vec.reset(seed=5)
+    ends = np.array([True, False, True, False])
+    obs, _, terminated, _, _ = vec.step(act(DOWN, np.where(ends, labels(obs), labels(obs) + 1) % 3))
+    np.testing.assert_array_equal(terminated, ends)
+    stepped = obs.copy()
+    obs, info = vec.reset(options={"reset_mask": ends})
+    assert info == {}
+    np.testing.assert_array_equal(obs[~ends], stepped[~ends])
+    np.testing.assert_array_equal(revealed(obs)[ends], WINDOW)
+    # The masked envs' pending autoreset is cancelled: this step is a real step for every env.
+    obs, reward, terminated, _, _ = vec.step(act(RIGHT, labels(obs)))
+    np.testing.assert_allclose(reward, 1.0, rtol=1e-6)
+    assert terminated.all()
+    for bad in (ends.astype(np.int64), ends[:2], list(ends)):
+        with pytest.raises(ValueError, match="reset_mask"):
+            vec.reset(options={"reset_mask": bad})
+    with pytest.raises(ValueError, match="no reset options but 'reset_mask'"):
+        vec.reset(options={"other": 1})
+    with pytest.raises(RuntimeError, match="before a partial reset"):
+        GymnasiumVectorEnv(vec.jax_env, num_envs=N).reset(options={"reset_mask": ends})
+
+
 def test_step_compiles_once(vec):
     """Runs last: the shared adapter has stepped and reset through every test above."""
     vec.reset(seed=0)
@@ -186,3 +211,4 @@ def test_step_compiles_once(vec):
     vec.step(np.zeros((N, 2), np.int64))
     assert vec._step_fn._cache_size() == 1
     assert vec._reset_fn._cache_size() == 1
+    assert vec._reset_some_fn._cache_size() == 1

@@ -36,7 +36,11 @@ class GymnasiumVectorEnv(VectorEnv):
     (`terminated | truncated`) at one `step`, the next `step` ignores action `i`, resets env `i`
     and returns its first observation with reward 0 and both flags False. The final observation
     is the one returned with the ending flags; nothing is put in `info` for it. `reset()`
-    restarts every env.
+    restarts every env; `reset(options={"reset_mask": mask})` restarts only the envs where the
+    bool `(num_envs,)` mask is True (Gymnasium's partial reset, as `SyncVectorEnv` does): their
+    pending autoreset is cancelled, and the other envs keep their state and observation. That
+    lets a same-step-autoreset consumer (e.g. a Stable-Baselines3 `VecEnv` shim) reset the envs
+    that just ended without a wasted step.
 
     Dtypes: observations are writable numpy arrays (dicts of arrays for `Dict` spaces) in the
     env's own dtype, with a leading `num_envs` axis; rewards are float64, terminations and
@@ -81,20 +85,31 @@ class GymnasiumVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._key = jax.random.key(seed)
-        self._state = self._autoreset = None  # set by reset()
+        self._obs = self._state = self._autoreset = None  # set by reset()
         self._reset_fn = jax.jit(self._reset_all)
+        self._reset_some_fn = jax.jit(self._reset_some)
         self._step_fn = jax.jit(self._step_all)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
-        """Reset every env; `seed` re-seeds the key. Returns `(obs, {})`."""
+        """Reset every env, or those where `options["reset_mask"]` is True; `seed` re-seeds the
+        key. Returns `(obs, {})`."""
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
         if options:
-            raise ValueError(f"jaxnat envs take no reset options, got {sorted(options)}")
+            raise ValueError(f"jaxnat envs take no reset options but 'reset_mask', got {sorted(options)}")
         super().reset(seed=seed)
         if seed is not None:
             self._key = jax.random.key(seed)
-        self._key, obs, self._state = self._reset_fn(self._key, self.params)
-        self._autoreset = jnp.zeros(self.num_envs, jnp.bool_)
-        return _to_numpy(obs), {}
+        if mask is None:
+            self._key, self._obs, self._state = self._reset_fn(self._key, self.params)
+            self._autoreset = jnp.zeros(self.num_envs, jnp.bool_)
+        else:
+            mask = self._check_reset_mask(mask)
+            self._key, self._obs, self._state = self._reset_some_fn(
+                self._key, self._obs, self._state, mask, self.params
+            )
+            self._autoreset = self._autoreset & ~mask
+        return _to_numpy(self._obs), {}
 
     def step(self, actions):
         """Step every env (resetting those that ended at the previous step); numpy in and out."""
@@ -102,12 +117,12 @@ class GymnasiumVectorEnv(VectorEnv):
             raise RuntimeError("Call reset() before step().")
         actions = _cast_actions(actions, self._action_space, self.num_envs, "actions")
         reset = self._autoreset
-        self._key, obs, self._state, reward, terminated, truncated, info, self._autoreset = (
+        self._key, self._obs, self._state, reward, terminated, truncated, info, self._autoreset = (
             self._step_fn(self._key, self._state, actions, reset, self.params)
         )
         info = _vector_info(info, ~np.asarray(reset)) if info else {}
         return (
-            _to_numpy(obs),
+            _to_numpy(self._obs),
             np.asarray(reward, np.float64),
             np.array(terminated),
             np.array(truncated),
@@ -122,6 +137,24 @@ class GymnasiumVectorEnv(VectorEnv):
         keys = jax.random.split(sub, self.num_envs)
         obs, state = jax.vmap(self.jax_env.reset, in_axes=(0, None))(keys, params)
         return key, obs, state
+
+    def _check_reset_mask(self, mask) -> np.ndarray:
+        if self._state is None:
+            raise RuntimeError("Call reset() before a partial reset (options={'reset_mask': ...}).")
+        if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ or mask.shape != (self.num_envs,):
+            raise ValueError(
+                f"options['reset_mask'] must be a bool numpy array of shape ({self.num_envs},), got "
+                f"{type(mask).__name__} {getattr(mask, 'dtype', '')} {getattr(mask, 'shape', '')}"
+            )
+        return mask
+
+    def _reset_some(self, key, obs, state, mask, params):
+        key, fresh_obs, fresh = self._reset_all(key, params)
+
+        def pick(new, old):
+            return jax.vmap(lambda m, n, o: jax.tree.map(lambda a, b: jnp.where(m, a, b), n, o))(mask, new, old)
+
+        return key, pick(fresh_obs, obs), pick(fresh, state)
 
     def _step_all(self, key, state, actions, autoreset, params):
         key, sub = jax.random.split(key)
