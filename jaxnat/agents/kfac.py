@@ -137,7 +137,7 @@ def refine_inverse(matrix, inverse, iterations: int, key):
     for _ in range(8):
         v = residual @ (v / jnp.maximum(jnp.linalg.norm(v), 1e-30))
     radius = jnp.linalg.norm(v)  # of the last unit vector's image: about the spectral radius
-    warm = (radius < 0.9) & jnp.all(jnp.isfinite(inverse))
+    warm = (radius < 1.0) & jnp.all(jnp.isfinite(inverse))
     scale = 1.0 / jnp.linalg.norm(matrix)
     inverse = jnp.where(warm, inverse, scale * eye)
     product = jnp.where(warm, product, scale * matrix)
