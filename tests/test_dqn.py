@@ -106,6 +106,8 @@ def test_bad_config_is_a_clear_error():
 
 
 # --- learning the probes ----------------------------------------------------------------------
+# Not the two-step probe: its step-2 observation hides whether the step-1 action was right, so
+# one-step Q-learning values both step-1 actions alike (it needs multi-step returns).
 
 # mlp trunk, 4 envs x 4 steps, 2 gradient steps per update (a replay ratio of 8 samples per
 # env step), Adam 3e-3, double DQN, epsilon 1 -> 0 over 1024 env steps, 256 updates.
@@ -164,4 +166,6 @@ def test_q_bootstraps_through_time_limits():
     learner, params, metrics = trained("endless")
     (q,) = q_values(learner, params, [[1.0]])
     assert np.all(q[:, 0, 0] > 8.0) and np.all(q[:, 0, 0] < 12.0), q[:, 0, 0]
-    np.testing.assert_array_equal(metrics["terminated_fraction"][:, -1], 0.0)
+    # Updates of 4 steps and episodes of 5: some updates see no episode end (NaN).
+    np.testing.assert_array_equal(np.nanmax(metrics["terminated_fraction"][:, -10:], axis=1), 0.0)
+    np.testing.assert_array_equal(np.nanmean(metrics["episode_return"][:, -10:], axis=1), 5.0)
