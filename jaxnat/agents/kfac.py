@@ -134,8 +134,7 @@ def refine_inverse(matrix, inverse, iterations: int, key):
     product = matrix @ inverse
     residual = eye - product
     v = jax.random.normal(key, matrix.shape[:1], matrix.dtype)
-    for _ in range(8):
-        v = residual @ (v / jnp.maximum(jnp.linalg.norm(v), 1e-30))
+    v = jax.lax.fori_loop(0, 8, lambda _, v: residual @ (v / jnp.maximum(jnp.linalg.norm(v), 1e-30)), v)
     radius = jnp.linalg.norm(v)  # of the last unit vector's image: about the spectral radius
     warm = (radius < 1.0) & jnp.all(jnp.isfinite(inverse))
     scale = 1.0 / jnp.linalg.norm(matrix)
