@@ -3,7 +3,7 @@ vmapped, and wall time to a test return of 0.9.
 
 Each algorithm trains `--seeds` seeds in one jitted program (`jit(vmap(run))`, through the same
 `Learner` interface as `jaxnat train`), in chunks of updates for at most `--seconds`; after
-each chunk every seed is evaluated greedily on the test split (1000 episodes). Steps/s exclude
+each chunk every seed is evaluated greedily on the test split (1000 episodes; 200 with --quick). Steps/s exclude
 compilation and evaluation. All algorithms get the same number of envs; their own defaults
 otherwise (PPO's 128-step rollouts shortened to 32 as in bench/train_throughput.py; DQN with one
 env step per update and a replay ratio of 2 samples per env step, see `_configs`).
@@ -52,10 +52,10 @@ def _configs(num_envs: int, on_gpu: bool) -> dict:
     }
 
 
-def bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds):
+def bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds, eval_episodes):
     _, make_learner = ALGORITHMS[algo]
     learner = make_learner(config, env, params)
-    evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, 1000)))
+    evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, eval_episodes)))
     run = jax.jit(jax.vmap(functools.partial(learner.run, num_updates=chunk)))
     keys = jax.random.split(jax.random.key(0), seeds)
     per_update = config.num_envs * config.num_steps
@@ -104,6 +104,7 @@ def main(argv=None):
     parser.add_argument("--seconds", type=float, default=None, help="training budget per algorithm; default 90 (30 with --quick)")
     parser.add_argument("--chunk-steps", type=int, default=None,
                         help="env steps per seed between evaluations; default num_envs * 160")
+    parser.add_argument("--eval-episodes", type=int, default=None, help="test episodes per seed per evaluation; default 1000 (200 with --quick)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
@@ -113,6 +114,7 @@ def main(argv=None):
     num_envs = args.num_envs or (16 if args.quick or not on_gpu else 2048)
     seconds = args.seconds or (30.0 if args.quick else 90.0)
     chunk_steps = args.chunk_steps or num_envs * 160
+    eval_episodes = args.eval_episodes or (200 if args.quick else 1000)
     env, params = jaxnat.make(args.env_id)
     test_env, test_params = jaxnat.make(args.env_id, split="test", autoreset=False)
     configs = _configs(num_envs, on_gpu)
@@ -121,7 +123,8 @@ def main(argv=None):
     for algo in args.algos.split(","):
         config, _ = configs[algo]
         chunk = max(1, chunk_steps // (config.num_envs * config.num_steps))
-        rows.append(bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds))
+        rows.append(bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds,
+                               eval_episodes))
     table = common.markdown_table(rows, [
         ("algo", "algorithm", "s"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
         ("threshold_s", f"s to test return >= {THRESHOLD}", ".1f"),
@@ -133,7 +136,7 @@ def main(argv=None):
     summary = {
         "env": args.env_id,
         "setup": f"{seeds} seeds vmapped, {num_envs} envs each; at most {seconds:.0f} s training per algorithm, "
-                 f"greedy evaluation on the test split every {chunk_steps:,} env steps per seed",
+                 f"greedy evaluation on the test split ({eval_episodes} episodes) every {chunk_steps:,} env steps per seed",
         **{f"{algo} settings": configs[algo][1] for algo in args.algos.split(",")},
     }
     if args.no_record:
