@@ -21,7 +21,6 @@ import sys
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
@@ -29,47 +28,6 @@ import common  # noqa: E402
 
 import jaxnat  # noqa: E402
 from jaxnat.vision_envs.observation import masked_image_observation_reference  # noqa: E402
-
-
-def copy_bandwidths(num_bytes: int) -> dict[str, float]:
-    """Bytes read + written per second when XLA copies `num_bytes` on the device, two ways:
-    an elementwise kernel (`x ^ 1` on uint32) and a plain copy (`jnp.copy`, a device memcpy).
-    The larger is "the device's copy bandwidth"."""
-    x = jnp.zeros((num_bytes // 4,), jnp.uint32)
-    result = {}
-    for name, fn in [("xor_u32", lambda x: x ^ jnp.uint32(1)), ("copy", jnp.copy)]:
-        f = jax.jit(fn)
-        jax.block_until_ready(f(x))
-        seconds = common.median_seconds(lambda: jax.block_until_ready(f(x)), repeats=10)
-        result[name] = 2 * num_bytes / seconds
-    return result
-
-
-def scan_rollout(env, params, num_envs: int, num_steps: int, trajectory: bool):
-    """A jitted `run(key, params)`: `num_steps` vmapped steps with uniformly random actions.
-
-    `trajectory=False`: each step's observation is the scan carry (the next policy input), so
-    every step writes it to the carry buffer: the env-step metric. `trajectory=True`: every
-    observation is also a scan output (a rollout buffer, as a learner keeps). The scan is not
-    unrolled: unrolled, XLA may drop observations that no later step reads.
-    """
-    nvec = jnp.asarray(env.action_space(params).nvec)
-    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
-    reset = jax.vmap(env.reset, in_axes=(0, None))
-
-    def run(key, params):
-        obs, state = reset(jax.random.split(key, num_envs), params)
-
-        def body(carry, key):
-            obs, state = carry
-            key_act, key_step = jax.random.split(key)
-            actions = jax.random.randint(key_act, (num_envs, 2), 0, nvec)
-            obs, state, reward, *_ = step(jax.random.split(key_step, num_envs), state, actions, params)
-            return (obs, state), ((obs, reward) if trajectory else reward)
-
-        return jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
-
-    return jax.jit(run)
 
 
 class NumpyClassify:
@@ -151,7 +109,7 @@ def main(argv=None):
     obs_bytes = int(np.prod(raw.observation_space(params).shape))
     print(f"{env_id}: {params.images.shape[0]} images, observation {obs_bytes} bytes; {info['device']}")
 
-    bandwidths = copy_bandwidths(2**31 if on_gpu else 2**28)
+    bandwidths = common.copy_bandwidths(2**31 if on_gpu else 2**28)
     bandwidth = max(bandwidths.values())
     rows = []
     sizes = [4**i for i in range(9) if 4**i <= args.max_envs]
@@ -169,7 +127,7 @@ def main(argv=None):
         row = {"envs": num_envs, "steps": num_steps, "traj_steps": traj_steps}
         for label, env, trajectory in variants:
             steps = traj_steps if trajectory else num_steps
-            run = scan_rollout(env, params, num_envs, steps, trajectory)
+            run = common.scan_rollout(env, params, num_envs, steps, trajectory)
             key = jax.random.key(0)
             t0 = time.perf_counter()
             jax.block_until_ready(run(key, params))

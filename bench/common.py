@@ -1,5 +1,8 @@
 """Shared by the benchmarks: timing, the machine/versions header, and recording results.
 
+Also the two measurements the env throughput benchmarks share: the device's copy bandwidth and
+a timed `lax.scan` rollout of a vmapped env under random actions.
+
 Every benchmark prints a table and appends it, with the date, hardware and versions, to
 `bench/results/<name>.md` (human-readable) and `bench/results/<name>.jsonl` (one JSON object per
 run).
@@ -14,6 +17,9 @@ import pathlib
 import platform
 import statistics
 import time
+
+import jax
+import jax.numpy as jnp
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 
@@ -88,3 +94,45 @@ def record(name: str, info: dict, table: str, summary: dict, rows: list[dict]) -
     with open(RESULTS / f"{name}.jsonl", "a") as f:
         f.write(json.dumps({"machine": info, "summary": summary, "rows": rows}) + "\n")
     return RESULTS / f"{name}.md"
+
+
+def copy_bandwidths(num_bytes: int) -> dict[str, float]:
+    """Bytes read + written per second when XLA copies `num_bytes` on the device, two ways:
+    an elementwise kernel (`x ^ 1` on uint32) and a plain copy (`jnp.copy`, a device memcpy).
+    The larger is "the device's copy bandwidth"."""
+    x = jnp.zeros((num_bytes // 4,), jnp.uint32)
+    result = {}
+    for name, fn in [("xor_u32", lambda x: x ^ jnp.uint32(1)), ("copy", jnp.copy)]:
+        f = jax.jit(fn)
+        jax.block_until_ready(f(x))
+        seconds = median_seconds(lambda: jax.block_until_ready(f(x)), repeats=10)
+        result[name] = 2 * num_bytes / seconds
+    return result
+
+
+def scan_rollout(env, params, num_envs: int, num_steps: int, trajectory: bool):
+    """A jitted `run(key, params)`: `num_steps` vmapped steps with uniformly random actions.
+
+    `trajectory=False`: each step's observation is the scan carry (the next policy input), so
+    every step writes it to the carry buffer: the env-step metric. `trajectory=True`: every
+    observation is also a scan output (a rollout buffer, as a learner keeps). The scan is not
+    unrolled: unrolled, XLA may drop observations that no later step reads.
+    """
+    space = env.action_space(params)
+    high = jnp.asarray(space.nvec if hasattr(space, "nvec") else space.n)
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+
+    def run(key, params):
+        obs, state = reset(jax.random.split(key, num_envs), params)
+
+        def body(carry, key):
+            obs, state = carry
+            key_act, key_step = jax.random.split(key)
+            actions = jax.random.randint(key_act, (num_envs, *space.shape), 0, high)
+            obs, state, reward, *_ = step(jax.random.split(key_step, num_envs), state, actions, params)
+            return (obs, state), ((obs, reward) if trajectory else reward)
+
+        return jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
+
+    return jax.jit(run)

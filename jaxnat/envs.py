@@ -12,3 +12,7 @@ for _name, _dataset in [
     ("ImageFolder", "image_folder"),
 ]:
     register(f"Classify/{_name}-v0", _CLASSIFY, dataset=_dataset)
+
+_LOCALIZE = "jaxnat.vision_envs.localize:Localize"
+register("Localize/Cityscapes-v0", _LOCALIZE, dataset="cityscapes")
+register("Localize/Clutter-v0", _LOCALIZE, dataset="clutter")

@@ -392,3 +392,19 @@ def test_minibatches_must_divide_the_batch():
     config = CONFIGS["ppo"].replace(num_minibatches=3)  # 4 envs * 16 steps = 64
     with pytest.raises(ValueError, match="not divisible by num_minibatches=3"):
         jax.eval_shape(make_ppo(config, env, params).train, jax.random.key(0))
+
+
+def test_vmapped_init_equals_per_seed_init_for_the_paper_trunk():
+    """Five seeds' MNIST-trunk parameters built under `jit(vmap(...))` are exactly the ones each
+    seed gets alone. (A batched orthogonal init used to deadlock here on a 2-core CPU.)"""
+    from jaxnat.agents.networks import init_params, make_actor_critic
+
+    observation_space = spaces.Box(0, 255, (28, 28, 3), jnp.uint8)
+    network = make_actor_critic(observation_space, spaces.MultiDiscrete([4, 10]), "mnist")
+    keys = jax.random.split(jax.random.key(3), SEEDS)
+    batched = jax.jit(jax.vmap(lambda k: init_params(network, observation_space, k)))(keys)
+    for seed in range(SEEDS):
+        alone = init_params(network, observation_space, keys[seed])
+        jax.tree_util.tree_map(
+            lambda b, a: np.testing.assert_array_equal(b[seed], a), batched, alone
+        )

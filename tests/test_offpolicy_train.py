@@ -12,6 +12,7 @@ import pytest
 from jaxnat import train
 from jaxnat.agents.kfac import KFACState
 from jaxnat.testing import has_dataset
+from jaxnat.training import checkpoints
 
 FAST = {"xla_backend_optimization_level": 0}
 TINY = ["--env-id", "Classify/Digits-v0", "--seeds", "2", "--num-envs", "8", "--num-steps", "16",
@@ -32,8 +33,8 @@ def test_run_and_exact_resume(algo, tmp_path):
 
     (expected, _), (actual, meta) = (train.load_checkpoint(d, compiler_options=FAST) for d in (full, resumed))
     assert meta["update"] == 4
-    for a, b in zip(jax.tree.leaves(train._to_saveable(expected)),
-                    jax.tree.leaves(train._to_saveable(actual)), strict=True):
+    for a, b in zip(jax.tree.leaves(checkpoints.to_saveable(expected)),
+                    jax.tree.leaves(checkpoints.to_saveable(actual)), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # params, optimizer, env, keys
     if algo == "acktr":  # the K-FAC factors are in the checkpoint, and have moved off identity
         kfac_state = actual.train_state.opt_state[0]

@@ -12,7 +12,12 @@ import jax
 import numpy as np
 import pytest
 
+import dataclasses
+
 from jaxnat import cli, train
+from jaxnat.agents import ALGORITHMS
+from jaxnat.training import checkpoints
+from jaxnat.training import spec as spec_module
 
 FAST = {"xla_backend_optimization_level": 0}
 TINY = ["--env-id", "Classify/Digits-v0", "--algo", "ppo", "--seeds", "2", "--num-envs", "8",
@@ -48,7 +53,7 @@ def _check_run_dir(run_dir):
     config = json.loads((run_dir / "config.json").read_text())
     spec = config["spec"]
     assert spec["env_id"] == "Classify/Digits-v0" and spec["algo"] == "ppo"
-    assert set(spec["config"]) == {f.name for f in train.dataclasses.fields(train.ALGORITHMS["ppo"][0])}
+    assert set(spec["config"]) == {f.name for f in dataclasses.fields(ALGORITHMS["ppo"][0])}
     assert spec["config"]["trunk"] == "mnist" and spec["config"]["num_steps"] == 16
     assert "trunk" in spec["static_fields"] and "lr" not in spec["static_fields"]
     assert spec["num_updates"] == 4 and spec["seed_values"] == [0, 1]
@@ -91,8 +96,8 @@ def test_run_and_exact_resume(tmp_path, capsys):
     assert len(leaves) > 0
     for a, b in zip(leaves, jax.tree.leaves(actual.train_state.params), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    for a, b in zip(jax.tree.leaves(train._to_saveable(expected)),
-                    jax.tree.leaves(train._to_saveable(actual)), strict=True):
+    for a, b in zip(jax.tree.leaves(checkpoints.to_saveable(expected)),
+                    jax.tree.leaves(checkpoints.to_saveable(actual)), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # optimizer, env state, keys
     assert (resumed / "metrics.jsonl").read_text() == (full / "metrics.jsonl").read_text()
     timing = ("chunk_seconds", "steps_per_second")
@@ -137,9 +142,9 @@ def test_parse_env_kwargs():
 
 
 def test_auto_eval_every():
-    assert train._auto_eval_every(976) == 61  # PPO defaults: a divisor near 976 / 20
-    assert train._auto_eval_every(977) == 49  # prime: one shorter last chunk
-    assert train._auto_eval_every(7) == 1
+    assert spec_module.auto_eval_every(976) == 61  # PPO defaults: a divisor near 976 / 20
+    assert spec_module.auto_eval_every(977) == 49  # prime: one shorter last chunk
+    assert spec_module.auto_eval_every(7) == 1
 
 
 def test_cli_dispatch(capsys):

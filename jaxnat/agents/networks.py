@@ -216,5 +216,14 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):
+    """The network's initial parameters; under `vmap` (one set per seed) they are built one
+    seed after another.
+
+    Why not batched: the orthogonal initialiser runs a QR, and jaxlib 0.10's CPU LAPACK kernels
+    split a batched QR into tasks on XLA's intra-op pool and block waiting for them, which
+    deadlocks when several run at once on a small pool (`jit(vmap(train))` over 5 seeds hung on
+    2 cores). `sequential_vmap` turns the vmap of this one function into a loop; the result
+    is the same stacked parameters, and init runs once per training run.
+    """
     dummy = jax.tree_util.tree_map(jnp.zeros_like, observation_space.sample(jax.random.key(0)))
-    return network.init(key, dummy)
+    return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy))(key)

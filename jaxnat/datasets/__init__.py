@@ -11,6 +11,10 @@ Datasets (`DATASETS`) and their splits ("train", "test"):
 - "cifar10", "cifar100": the binary or python release (`cifar`), 50,000 / 10,000, 32x32x3.
 - "image_folder": your own `root/{train,test}/<class>/*.png` (`image_folder`); needs `root`.
 
+Localization data (photos with a class per pixel, `segmentation.SegmentationDataset`) has its own
+loaders: `cityscapes.load(split, root=...)` (the release layout) and `clutter.load(split)` (real
+objects pasted on natural backgrounds, built from the embedded data).
+
 Files are found by `locate` (explicit `root`, then `$JAXNAT_DATA_DIR/<name>`, then
 ~/.cache/jaxnat/data/<name>, then Debian package locations) and fetched by `download`. Decoded
 arrays are cached on disk by `cache` (`$JAXNAT_CACHE_DIR`); `load(..., cache=False)` skips it.

@@ -1,0 +1,119 @@
+"""The command line of `jaxnat train`: `TrainArgs` (tyro), per-algorithm config overrides, env kwargs."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import typing
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import tyro
+
+from jaxnat.agents import ALGORITHMS
+from jaxnat.agents.networks import TRUNKS
+
+PROG = "jaxnat train"
+# Fields of the algorithm configs that are top-level arguments rather than overrides.
+CORE_CONFIG_FIELDS = ("total_timesteps", "num_envs", "trunk")
+
+
+class TrainError(Exception):
+    """A user error: printed as one line `jaxnat train: error: <message>`, exit status 2."""
+
+
+
+def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
+    """Every algorithm config field except the core ones: name -> (type, {algo: default})."""
+    fields: dict[str, tuple[Any, dict[str, Any]]] = {}
+    for algo, (config_cls, _) in ALGORITHMS.items():
+        hints = typing.get_type_hints(config_cls)
+        for field in dataclasses.fields(config_cls):
+            if field.name in CORE_CONFIG_FIELDS:
+                continue
+            kind, defaults = fields.setdefault(field.name, (hints[field.name], {}))
+            defaults[algo] = field.default
+    return fields
+
+
+def _metavar(kind) -> str:
+    return {int: "INT", float: "FLOAT", bool: "{True,False}", str: "STR"}.get(kind, "VALUE")
+
+
+def _make_overrides_class():
+    fields = []
+    for name, (kind, defaults) in _config_fields().items():
+        hint = "(default: " + ", ".join(f"{algo} {value}" for algo, value in defaults.items()) + ")"
+        only = "" if len(defaults) == len(ALGORITHMS) else f"{'/'.join(defaults)} only"
+        fields.append((name, Annotated[Optional[kind], tyro.conf.arg(
+            help=only, help_behavior_hint=hint, metavar=_metavar(kind))], None))
+    cls = dataclasses.make_dataclass("ConfigOverrides", fields, frozen=True)
+    cls.__module__ = __name__
+    cls.__doc__ = ("Algorithm settings; unset ones take the algorithm's default. Every field of "
+                   f"{', '.join(c.__name__ for c, _ in ALGORITHMS.values())} is here or above.")
+    return cls
+
+
+ConfigOverrides = _make_overrides_class()
+
+
+@dataclasses.dataclass
+class TrainArgs:
+    """Train PPO, A2C, ACKTR or DQN on a jaxnat env over several seeds at once, evaluate on the test split,
+    write metrics, a learning curve and checkpoints to a run directory."""
+
+    env_id: str = "Classify/Digits-v0"
+    """A registered env id (see jaxnat.registered_envs())."""
+    env_kwargs: Annotated[tuple[str, ...], tyro.conf.arg(metavar="KEY=VALUE [KEY=VALUE ...]")] = ()
+    """Keyword arguments of jaxnat.make, e.g. w=3 M=10 start=center; values are read as int, float, bool (true/false), none, else str. The trainer sets split (train, and test for evaluation)."""
+    algo: Annotated[str, tyro.conf.arg(metavar="{" + ",".join(ALGORITHMS) + "}")] = "ppo"
+    """The algorithm."""
+    seeds: int = 5
+    """Number of seeds, trained at once (vmapped)."""
+    seed: int = 0
+    """The first seed; the run uses seed, seed+1, ..., seed+seeds-1."""
+    total_timesteps: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
+    """Env steps per seed (unset: the algorithm's default, 1e6)."""
+    num_envs: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
+    """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16, acktr 32, dqn 8)."""
+    trunk: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(TRUNKS) + "}",
+                                                  help_behavior_hint="")] = None
+    """Network trunk (unset: the paper's trunk for the observation size)."""
+    eval_every: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
+    """Updates per chunk: evaluate, log and checkpoint after every this many updates (unset: about 20 evaluations over the run)."""
+    eval_episodes: int = 1000
+    """Test episodes per seed per evaluation."""
+    run_dir: Annotated[Optional[Path], tyro.conf.arg(metavar="PATH", help_behavior_hint="")] = None
+    """Where to write the run (unset: runs/<env>-<algo>-<timestamp>)."""
+    resume: Annotated[Optional[Path], tyro.conf.arg(metavar="RUN_DIR", help_behavior_hint="")] = None
+    """Continue the run in this directory from its latest checkpoint; other arguments must be left out or match its config.json."""
+    config: Annotated[ConfigOverrides, tyro.conf.OmitArgPrefixes] = dataclasses.field(
+        default_factory=ConfigOverrides)
+
+
+def parse_env_kwargs(items) -> dict[str, Any]:
+    """`["w=3", "start=center"]` (or a dict of strings) -> `{"w": 3, "start": "center"}`."""
+    pairs = items.items() if isinstance(items, dict) else []
+    if not isinstance(items, dict):
+        for item in items:
+            key, sep, value = item.partition("=")
+            if not sep or not key:
+                raise TrainError(f"--env-kwargs takes KEY=VALUE pairs, got {item!r}")
+            pairs.append((key.strip(), value.strip()))
+    return {key: _parse_value(value) for key, value in pairs}
+
+
+def _parse_value(value: Any) -> Any:
+    if not isinstance(value, str):
+        return value
+    for convert in (int, float):
+        try:
+            return convert(value)
+        except ValueError:
+            pass
+    special = {"true": True, "false": False, "none": None, "null": None}
+    return special.get(value.lower(), value)
+
+
+def parse_args(argv=None) -> TrainArgs:
+    return tyro.cli(TrainArgs, args=argv, prog=PROG, description=inspect.cleandoc(TrainArgs.__doc__))

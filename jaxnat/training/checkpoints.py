@@ -1,0 +1,78 @@
+"""Orbax checkpoints of the vmapped runner state, and loading a run's checkpoint back."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+from jaxnat.training.args import TrainError
+from jaxnat.training.programs import compiled_program
+from jaxnat.training.spec import RunSpec
+
+
+def _is_key(x) -> bool:
+    return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def to_saveable(tree):
+    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+class Checkpoints:
+    """Orbax checkpoints of the vmapped RunnerState under run_dir/checkpoints, step = update."""
+
+    def __init__(self, directory: Path):
+        import orbax.checkpoint as ocp
+
+        self.ocp = ocp
+        self.manager = ocp.CheckpointManager(
+            directory.absolute(),
+            options=ocp.CheckpointManagerOptions(max_to_keep=2, enable_async_checkpointing=False),
+        )
+
+    def latest_step(self) -> int | None:
+        return self.manager.latest_step()
+
+    def save(self, runner, meta: dict) -> None:
+        ocp = self.ocp
+        self.manager.save(int(meta["update"]), args=ocp.args.Composite(
+            state=ocp.args.StandardSave(to_saveable(runner)), meta=ocp.args.JsonSave(meta)))
+        self.manager.wait_until_finished()
+
+    def restore(self, target, step: int | None = None):
+        """(runner, meta): arrays from the checkpoint in `target`'s structure (whose static
+        fields, the network's apply_fn and the optimizer, come from this process)."""
+        ocp = self.ocp
+        step = self.latest_step() if step is None else step
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, to_saveable(target))
+        restored = self.manager.restore(step, args=ocp.args.Composite(
+            state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
+        target_leaves, treedef = jax.tree.flatten(target)
+        leaves = jax.tree.leaves(restored.state)
+        if len(leaves) != len(target_leaves):
+            raise TrainError(f"checkpoint {step} does not match this run's state "
+                             f"({len(leaves)} arrays, expected {len(target_leaves)})")
+        leaves = [jax.random.wrap_key_data(leaf, impl=jax.random.key_impl(ref)) if _is_key(ref)
+                  else jnp.asarray(leaf) for ref, leaf in zip(target_leaves, leaves)]
+        return jax.tree.unflatten(treedef, leaves), dict(restored.meta)
+
+    def close(self) -> None:
+        self.manager.close()
+
+
+def load_checkpoint(run_dir, step: int | None = None, *, compiler_options: dict | None = None):
+    """`(runner, meta)` of a run directory's latest (or given) checkpoint: the vmapped
+    `RunnerState` (params at `runner.train_state.params`, one slice per seed)."""
+    run_dir = Path(run_dir)
+    spec = RunSpec.from_json(json.loads((run_dir / "config.json").read_text())["spec"])
+    program = compiled_program(spec, compiler_options)
+    checkpoints = Checkpoints(run_dir / "checkpoints")
+    try:
+        if checkpoints.latest_step() is None:
+            raise TrainError(f"{run_dir} has no checkpoint yet")
+        return checkpoints.restore(program.init(program.keys()), step)
+    finally:
+        checkpoints.close()

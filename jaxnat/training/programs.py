@@ -1,0 +1,135 @@
+"""The envs and the compiled programs of a run spec (init, a chunk of updates, evaluation), cached per process."""
+
+from __future__ import annotations
+
+import collections
+import functools
+import importlib
+import inspect
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+import jaxnat
+from jaxnat.agents import ALGORITHMS
+from jaxnat.agents.evaluate import make_evaluate
+from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
+from jaxnat.registration import MissingDependencyError, UnknownEnvError
+from jaxnat.training.args import TrainError
+from jaxnat.training.spec import RunSpec
+
+EVAL_STREAM = 0x6576616C  # fold_in constant: evaluation keys never collide with training keys
+
+
+
+def accepts(env_id: str, name: str) -> bool:
+    """Whether the env's entry point takes the constructor argument `name` (e.g. "split")."""
+    entry = jaxnat.spec(env_id).entry_point
+    if isinstance(entry, str):
+        module, _, attr = entry.partition(":")
+        try:
+            entry = getattr(importlib.import_module(module), attr)
+        except ImportError:  # jaxnat.make says which dependency is missing
+            return False
+    target = entry.__init__ if inspect.isclass(entry) else entry
+    try:
+        return name in inspect.signature(target).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def make_envs(spec: RunSpec):
+    """(train env, params, test env, params, whether the test env is the test split)."""
+    kwargs = dict(spec.env_kwargs)
+    if "split" in kwargs:
+        raise TrainError("env kwarg 'split' is set by jaxnat train: split=train for training and "
+                         "split=test for evaluation")
+    try:
+        has_split = accepts(spec.env_id, "split")
+        split = {"split": "train"} if has_split else {}
+        env, params = jaxnat.make(spec.env_id, **split, **kwargs)
+        test_split = {"split": "test"} if has_split else {}
+        test_env, test_params = jaxnat.make(spec.env_id, autoreset=False, **test_split, **kwargs)
+    except UnknownEnvError as err:
+        raise TrainError(str(err)) from None
+    except (MissingDependencyError, DatasetNotFoundError, DatasetFormatError) as err:
+        raise TrainError(str(err)) from None
+    except (TypeError, ValueError) as err:  # bad kwarg names or values
+        message = str(err)
+        raise TrainError(message if spec.env_id in message else f"{spec.env_id}: {message}") from None
+    return env, params, test_env, test_params, has_split
+
+
+def _update_callback(update, metrics) -> None:
+    """The one host callback every compiled chunk calls (once per update per seed); it forwards
+    to the current run's progress display, so compiled programs can be reused across runs."""
+    sink = _SINK
+    if sink is not None:
+        sink(update, metrics)
+
+
+_SINK = None
+
+
+def set_progress_sink(sink) -> None:
+    """Route the compiled chunks' per-update callbacks to `sink(update, metrics)` (None: drop)."""
+    global _SINK
+    _SINK = sink
+
+
+class _Program:
+    """The compiled functions of one run spec: init, a chunk of updates, evaluation."""
+
+    def __init__(self, spec: RunSpec, compiler_options: dict | None):
+        self.spec = spec
+        self.compiler_options = compiler_options
+        env, params, test_env, test_params, self.test_split = make_envs(spec)
+        self.observation_space = env.observation_space(params)
+        _, make_learner = ALGORITHMS[spec.algo]
+        try:
+            self.learner = make_learner(spec.config, env, params)
+        except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
+            raise TrainError(str(err)) from None
+        evaluate = make_evaluate(self.learner.network, test_env, test_params, spec.eval_episodes)
+        keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
+        init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
+        self.runner_shape = jax.eval_shape(init, keys)
+        self.init = self._compile(init, keys)
+        self.evaluate = self._compile(jax.jit(jax.vmap(evaluate)),
+                                      self.runner_shape.train_state.params, keys)
+        self._chunks: dict[int, Any] = {}
+
+    def _compile(self, jitted, *args):
+        try:
+            return jitted.lower(*args).compile(self.compiler_options)
+        except ValueError as err:  # e.g. a batch that the minibatches do not divide
+            raise TrainError(str(err)) from None
+
+    def chunk(self, num_updates: int):
+        """`runner -> (runner, metrics [seeds, num_updates])`, compiled once per length."""
+        if num_updates not in self._chunks:
+            run = functools.partial(self.learner.run, config=self.spec.config,
+                                    num_updates=num_updates, callback=_update_callback)
+            self._chunks[num_updates] = self._compile(jax.jit(jax.vmap(run)), self.runner_shape)
+        return self._chunks[num_updates]
+
+    def keys(self):
+        return jax.vmap(jax.random.key)(jnp.asarray(self.spec.seed_values, jnp.uint32))
+
+    def eval_keys(self):
+        return jax.vmap(lambda k: jax.random.fold_in(k, EVAL_STREAM))(self.keys())
+
+
+_PROGRAMS: collections.OrderedDict = collections.OrderedDict()
+
+
+def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> _Program:
+    """Build (or reuse, within this process) the compiled programs for `spec`."""
+    key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
+    if key not in _PROGRAMS:
+        _PROGRAMS[key] = _Program(spec, compiler_options)
+        while len(_PROGRAMS) > 2:
+            _PROGRAMS.popitem(last=False)
+    _PROGRAMS.move_to_end(key)
+    return _PROGRAMS[key]

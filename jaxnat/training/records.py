@@ -1,0 +1,195 @@
+"""What a run writes and shows at the end: metrics/eval JSONL, the learning-curve PNG, the summary table."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from jaxnat.training.spec import RunSpec
+
+
+def json_value(x):
+    x = np.asarray(x)
+    if np.issubdtype(x.dtype, np.integer) or x.dtype == bool:
+        return int(x)
+    value = float(x)
+    return value if math.isfinite(value) else None
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def write_jsonl(path: Path, rows, mode: str = "a") -> None:
+    with path.open(mode) as f:
+        for row in rows:
+            f.write(json.dumps(row) + "\n")
+
+
+class History:
+    """What the curve and the summary need, kept in memory (and re-read on --resume)."""
+
+    def __init__(self, spec: RunSpec):
+        self.spec = spec
+        self.train: dict[str, list[np.ndarray]] = {"update": [], "episode_return": [],
+                                                   "terminated_fraction": []}
+        self.evals: list[dict] = []  # one per evaluation: update + arrays over seeds
+        self.chunk_sps: list[float] = []
+
+    def add_train(self, first_update: int, metrics: dict) -> None:
+        n = np.asarray(metrics["episode_return"]).shape[1]
+        self.train["update"].append(np.arange(first_update + 1, first_update + n + 1))
+        for name in ("episode_return", "terminated_fraction"):
+            self.train[name].append(np.asarray(metrics[name], np.float64).T)  # [n, seeds]
+
+    def add_eval(self, update: int, scores: dict, sps: float | None) -> None:
+        self.evals.append({"update": update, **{k: np.asarray(v, np.float64) for k, v in scores.items()}})
+        if sps is not None:
+            self.chunk_sps.append(sps)
+
+    @classmethod
+    def load(cls, spec: RunSpec, metrics_rows: list[dict], eval_rows: list[dict]) -> History:
+        history = cls(spec)
+        index = {seed: i for i, seed in enumerate(spec.seed_values)}
+        by_update: dict[int, np.ndarray] = {}
+        for row in metrics_rows:
+            arrays = by_update.setdefault(row["update"], np.full((2, spec.seeds), np.nan))
+            for j, name in enumerate(("episode_return", "terminated_fraction")):
+                value = row.get(name)
+                arrays[j, index[row["seed"]]] = np.nan if value is None else value
+        if by_update:
+            updates = np.array(sorted(by_update))
+            stacked = np.stack([by_update[u] for u in updates])  # [n, 2, seeds]
+            history.train["update"].append(updates)
+            history.train["episode_return"].append(stacked[:, 0])
+            history.train["terminated_fraction"].append(stacked[:, 1])
+        evals: dict[int, dict] = {}
+        for row in eval_rows:
+            entry = evals.setdefault(row["update"], {"update": row["update"], "sps": row.get("steps_per_second")})
+            for k, v in row.items():
+                if k.startswith(("greedy_", "sampled_")):
+                    entry.setdefault(k, np.full(spec.seeds, np.nan))[index[row["seed"]]] = np.nan if v is None else v
+        for update in sorted(evals):
+            entry = evals[update]
+            sps = entry.pop("sps")
+            history.evals.append(entry)
+            if sps is not None:
+                history.chunk_sps.append(sps)
+        return history
+
+    def train_arrays(self):
+        if not self.train["update"]:
+            return np.zeros(0), np.zeros((0, self.spec.seeds)), np.zeros((0, self.spec.seeds))
+        return tuple(np.concatenate(self.train[k]) for k in ("update", "episode_return", "terminated_fraction"))
+
+
+def mean_std(values) -> tuple[float, float]:
+    values = np.asarray(values, np.float64)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return float("nan"), float("nan")
+    return float(values.mean()), float(values.std())
+
+
+def nanmean(x, axis):
+    x = np.asarray(x, np.float64)
+    count = np.isfinite(x).sum(axis)
+    total = np.where(np.isfinite(x), x, 0.0).sum(axis)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def plot(path: Path, spec: RunSpec, history: History) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    updates, returns, accuracy = history.train_arrays()
+    steps = updates * spec.steps_per_update
+    eval_steps = np.array([e["update"] for e in history.evals]) * spec.steps_per_update
+    fig = Figure(figsize=(11, 4.2), constrained_layout=True)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2)
+
+    def band(ax, x, per_seed, label, **style):
+        if len(x) == 0:
+            return
+        mean = nanmean(per_seed, 1)
+        centred = np.where(np.isfinite(per_seed), per_seed - mean[:, None], np.nan)
+        std = np.sqrt(nanmean(centred**2, 1))
+        line, = ax.plot(x, mean, label=label, **style)
+        ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color(), linewidth=0)
+
+    band(axes[0], steps, returns, "train (episodes ending in each rollout)", color="C0")
+    band(axes[1], steps, accuracy, "train (episodes ending in each rollout)", color="C0")
+    if history.evals:
+        for ax, key in zip(axes, ("greedy_return", "greedy_terminated_fraction")):
+            band(ax, eval_steps, np.stack([e[key] for e in history.evals]), "test split, greedy",
+                 color="C1", marker="o", markersize=3)
+    titles = ("Episode return", "Accuracy (fraction of episodes terminated)")
+    for ax, title in zip(axes, titles):
+        ax.set_title(title)
+        ax.set_xlabel("env steps per seed")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
+    fig.suptitle(f"{spec.env_id}  {spec.algo}  (mean ± std over {spec.seeds} seeds)")
+    fig.savefig(path, dpi=110)
+
+
+def run_summary(spec: RunSpec, history: History, wall_time: float, complete: bool) -> dict:
+    updates, returns, accuracy = history.train_arrays()
+    window = max(1, min(spec.eval_every, len(updates)))  # the last chunk's updates
+    per_seed = {
+        "train_return": nanmean(returns[-window:], 0) if len(updates) else np.full(spec.seeds, np.nan),
+        "train_accuracy": nanmean(accuracy[-window:], 0) if len(updates) else np.full(spec.seeds, np.nan),
+    }
+    last = history.evals[-1] if history.evals else {}
+    for name, key in [("test_greedy_return", "greedy_return"),
+                      ("test_greedy_accuracy", "greedy_terminated_fraction"),
+                      ("test_sampled_return", "sampled_return"),
+                      ("test_sampled_accuracy", "sampled_terminated_fraction")]:
+        per_seed[name] = last.get(key, np.full(spec.seeds, np.nan))
+    metrics = {}
+    for name, values in per_seed.items():
+        mean, std = mean_std(values)
+        metrics[name] = {"mean": json_value(mean), "std": json_value(std),
+                         "per_seed": [json_value(v) for v in values]}
+    sps_mean, sps_std = mean_std(history.chunk_sps)
+    return {
+        "env_id": spec.env_id, "algo": spec.algo, "seeds": spec.seed_values,
+        "complete": complete,
+        "updates": int(updates[-1]) if len(updates) else 0,
+        "env_steps_per_seed": int(updates[-1]) * spec.steps_per_update if len(updates) else 0,
+        "metrics": metrics,
+        "steps_per_second": {"mean": json_value(sps_mean), "std": json_value(sps_std),
+                             "note": "env steps/s over all seeds, mean ± std over chunks"},
+        "wall_time_s": wall_time,
+    }
+
+
+def print_summary(console, summary: dict) -> None:
+    from rich.table import Table
+
+    table = Table(title=f"{summary['env_id']} · {summary['algo']} · {len(summary['seeds'])} seeds · "
+                        f"{summary['env_steps_per_seed']:,} env steps per seed")
+    table.add_column("metric")
+    table.add_column("mean", justify="right")
+    table.add_column("± std", justify="right")
+    labels = {"train_return": "train return (last chunk)", "train_accuracy": "train accuracy (last chunk)",
+              "test_greedy_return": "test greedy return", "test_greedy_accuracy": "test greedy accuracy",
+              "test_sampled_return": "test sampled return", "test_sampled_accuracy": "test sampled accuracy"}
+
+    def fmt(x, pattern):
+        return "—" if x is None else format(x, pattern)
+
+    for name, label in labels.items():
+        m = summary["metrics"][name]
+        pattern = ".1%" if "accuracy" in name else "+.4f"
+        table.add_row(label, fmt(m["mean"], pattern), fmt(m["std"], pattern.lstrip("+")))
+    sps = summary["steps_per_second"]
+    table.add_row("env steps/s (all seeds, over chunks)", fmt(sps["mean"], ",.0f"), fmt(sps["std"], ",.0f"))
+    table.add_row("wall time", f"{summary['wall_time_s']:.1f} s", "")
+    console.print(table)
