@@ -128,3 +128,14 @@ def _tree_equal(a, b) -> bool:
         np.array_equal(np.asarray(x), np.asarray(y))
         for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b))
     )
+
+
+def has_dataset(name: str, split: str = "test") -> bool:
+    """Whether a dataset split is installed (for skipping tests that need real data)."""
+    from jaxnat.datasets import DatasetNotFoundError, load
+
+    try:
+        load(name, split)
+    except DatasetNotFoundError:
+        return False
+    return True

@@ -55,14 +55,20 @@ def _conv_im2col(x, kernel, stride: int):
     grouped convolution) trained PPO 7x slower than this form (`bench/results/`).
     """
     kh, kw, cin, cout = kernel.shape
+    return im2col_patches(x, kh, kw, stride) @ kernel.reshape(kh * kw * cin, cout)
+
+
+def im2col_patches(x, kh: int, kw: int, stride: int):
+    """`[..., H, W, C] -> [..., OH, OW, kh * kw * C]`: the input patch of every output pixel of
+    a VALID convolution, in the order of an HWIO kernel reshaped to `[kh * kw * C, features]`
+    (K-FAC reads a conv layer's inputs in this form)."""
     oh = (x.shape[-3] - kh) // stride + 1
     ow = (x.shape[-2] - kw) // stride + 1
-    patches = jnp.concatenate(
+    return jnp.concatenate(
         [x[..., i : i + stride * (oh - 1) + 1 : stride, j : j + stride * (ow - 1) + 1 : stride, :]
          for i in range(kh) for j in range(kw)],
         axis=-1,
     )
-    return patches @ kernel.reshape(kh * kw * cin, cout)
 
 
 class ValidConv(nn.Module):

@@ -91,6 +91,26 @@ def _env_step(env, key, state, action, params):
     return obs, state, reward, terminated, terminated | truncated, final_obs, info
 
 
+def count_updates(config) -> int:
+    """Updates in a run: `total_timesteps // (num_envs * num_steps)`, at least one."""
+    total_updates = config.total_timesteps // (config.num_envs * config.num_steps)
+    if total_updates < 1:
+        raise ValueError(
+            f"total_timesteps={config.total_timesteps} is less than one rollout "
+            f"(num_envs * num_steps = {config.num_envs * config.num_steps})"
+        )
+    return total_updates
+
+
+def vector_env(env) -> tuple[Callable, Callable]:
+    """`(reset(keys, params), step(keys, states, actions, params))` over a batch of envs, with
+    episode statistics (`LogWrapper`); `step` returns `_env_step`'s seven values."""
+    env = LogWrapper(env)
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    step = jax.vmap(lambda k, s, a, p: _env_step(env, k, s, a, p), in_axes=(0, 0, 0, None))
+    return reset, step
+
+
 def make_learner(config, env, env_params, *, make_optimizer: Callable, update_step: Callable) -> Learner:
     """Build the shared training loop around an algorithm's optimizer and update.
 
@@ -103,20 +123,13 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         update_step: `(config, network, train_state, transitions, advantages, targets, key)
             -> (train_state, loss_metrics)`.
     """
-    total_updates = config.total_timesteps // (config.num_envs * config.num_steps)
-    if total_updates < 1:
-        raise ValueError(
-            f"total_timesteps={config.total_timesteps} is less than one rollout "
-            f"(num_envs * num_steps = {config.num_envs * config.num_steps})"
-        )
+    total_updates = count_updates(config)
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)
     network = make_actor_critic(observation_space, action_space, config.trunk)
     scalar_action = not hasattr(action_space, "nvec")  # Discrete (jaxnat's or gymnax's)
 
-    env = LogWrapper(env)
-    reset = jax.vmap(env.reset, in_axes=(0, None))
-    step = jax.vmap(lambda k, s, a, p: _env_step(env, k, s, a, p), in_axes=(0, 0, 0, None))
+    reset, step = vector_env(env)
 
     def init(key, config=config) -> RunnerState:
         key, key_net, key_env = jax.random.split(key, 3)
@@ -141,14 +154,8 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         )
         _, final_value = network.apply(train_state.params, final_obs)
         next_value = jnp.where(terminated, 0.0, final_value)
-        metrics = {
-            "returned_episode": info["returned_episode"],
-            "returned_episode_returns": info["returned_episode_returns"],
-            "returned_episode_lengths": info["returned_episode_lengths"],
-            "terminated": terminated,
-        }
         transition = Transition(obs, action, log_prob, value, reward, done.astype(jnp.float32),
-                                next_value, metrics)
+                                next_value, step_info(info, terminated))
         return RunnerState(train_state, env_state, next_obs, key, update), transition
 
     def update(runner: RunnerState, config):
@@ -162,27 +169,46 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         return runner, {**episode_metrics(transitions.info), **losses}
 
     def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
-        # The optimizer closes over traced hyperparameters: rebuild it from this call's config,
-        # so chunked runs (init and run jitted separately) use their own, live values. The
-        # runner handed back keeps the caller's optimizer object (a static pytree field), so
-        # its structure matches the input and a compiled `run` can be fed its own output.
-        caller_tx = runner.train_state.tx
-        train_state = runner.train_state.replace(tx=make_optimizer(config, total_updates))
-        runner = runner._replace(train_state=train_state)
-
-        def body(runner, _):
-            runner, metrics = update(runner, config)
-            if callback is not None:
-                jax.debug.callback(callback, runner.update, metrics)
-            return runner, metrics
-
-        runner, metrics = jax.lax.scan(body, runner, None, num_updates)
-        return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
+        return scan_updates(update, runner, config, num_updates, callback,
+                            make_optimizer(config, total_updates))
 
     def train(key, config=config):
         return run(init(key, config), config)
 
     return Learner(init, run, train, network, total_updates)
+
+
+def scan_updates(update: Callable, runner, config, num_updates: int, callback, tx):
+    """`num_updates` times `update(runner, config) -> (runner, metrics)` in one `lax.scan`,
+    calling `callback(update count, metrics)` on the host after each; `runner` is a NamedTuple
+    with `train_state` and `update`.
+
+    The optimizer `tx` closes over traced hyperparameters, so it is rebuilt from each call's
+    config: chunked runs (init and run jitted separately) use their own, live values. The
+    runner handed back keeps the caller's optimizer object (a static pytree field), so its
+    structure matches the input and a compiled `run` can be fed its own output.
+    """
+    caller_tx = runner.train_state.tx
+    runner = runner._replace(train_state=runner.train_state.replace(tx=tx))
+
+    def body(runner, _):
+        runner, metrics = update(runner, config)
+        if callback is not None:
+            jax.debug.callback(callback, runner.update, metrics)
+        return runner, metrics
+
+    runner, metrics = jax.lax.scan(body, runner, None, num_updates)
+    return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
+
+
+def step_info(info: dict, terminated) -> dict:
+    """What `episode_metrics` needs from one vector step."""
+    return {
+        "returned_episode": info["returned_episode"],
+        "returned_episode_returns": info["returned_episode_returns"],
+        "returned_episode_lengths": info["returned_episode_lengths"],
+        "terminated": terminated,
+    }
 
 
 def episode_metrics(info: dict) -> dict:

@@ -59,7 +59,7 @@ ConfigOverrides = _make_overrides_class()
 
 @dataclasses.dataclass
 class TrainArgs:
-    """Train PPO or A2C on a jaxnat env over several seeds at once, evaluate on the test split,
+    """Train PPO, A2C, ACKTR or DQN on a jaxnat env over several seeds at once, evaluate on the test split,
     write metrics, a learning curve and checkpoints to a run directory."""
 
     env_id: str = "Classify/Digits-v0"
@@ -75,7 +75,7 @@ class TrainArgs:
     total_timesteps: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Env steps per seed (unset: the algorithm's default, 1e6)."""
     num_envs: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
-    """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16)."""
+    """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16, acktr 32, dqn 8)."""
     trunk: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(TRUNKS) + "}",
                                                   help_behavior_hint="")] = None
     """Network trunk (unset: the paper's trunk for the observation size)."""

@@ -1,0 +1,150 @@
+"""PPO, A2C, ACKTR and DQN side by side on one classification env: env steps/s with seeds
+vmapped, and wall time to a test return of 0.9.
+
+Each algorithm trains `--seeds` seeds in one jitted program (`jit(vmap(run))`, through the same
+`Learner` interface as `jaxnat train`), in chunks of updates for at most `--seconds`; after
+each chunk every seed is evaluated greedily on the test split (1000 episodes; 200 with --quick). Steps/s exclude
+compilation and evaluation. All algorithms get the same number of envs; their own defaults
+otherwise (PPO's 128-step rollouts shortened to 32 as in bench/train_throughput.py; DQN with one
+env step per update and a replay ratio of 2 samples per env step, see `_configs`).
+
+    python bench/offpolicy_throughput.py               # GPU: 2048 envs, 5 seeds, 90 s each
+    python bench/offpolicy_throughput.py --quick       # CPU: 16 envs, 2 seeds, 30 s each
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import time
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
+import common  # noqa: E402
+
+import jaxnat  # noqa: E402
+from jaxnat.agents import ALGORITHMS  # noqa: E402
+from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
+
+THRESHOLD = 0.9
+
+
+def _configs(num_envs: int, on_gpu: bool) -> dict:
+    """Per algorithm: the config (a budget far beyond the run) and one line describing it."""
+    big = 10**12
+    ppo, a2c, acktr, dqn = (ALGORITHMS[a][0] for a in ("ppo", "a2c", "acktr", "dqn"))
+    batch = 256 if on_gpu else 32
+    gradient_steps = max(1, 2 * num_envs // batch)  # 2 replayed samples per env step
+    return {
+        "ppo": (ppo(total_timesteps=big, num_envs=num_envs, num_steps=32, anneal_lr=False),
+                "32 steps, 4 epochs x 4 minibatches, Adam 2.5e-4"),
+        "a2c": (a2c(total_timesteps=big, num_envs=num_envs),
+                "5 steps, RMSprop 7e-4"),
+        "acktr": (acktr(total_timesteps=big, num_envs=num_envs, anneal_lr=False),
+                  "20 steps, K-FAC lr 0.25, KL clip 0.001"),
+        "dqn": (dqn(total_timesteps=big, num_envs=num_envs, num_steps=1, batch_size=batch,
+                    gradient_steps=gradient_steps, buffer_size=100_000 if on_gpu else 20_000),
+                f"1 step, {gradient_steps} x batch {batch} gradient steps, RMSprop 2.5e-4, "
+                f"buffer {100_000 if on_gpu else 20_000}"),
+    }
+
+
+def bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds, eval_episodes):
+    _, make_learner = ALGORITHMS[algo]
+    learner = make_learner(config, env, params)
+    evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, eval_episodes)))
+    run = jax.jit(jax.vmap(functools.partial(learner.run, num_updates=chunk)))
+    keys = jax.random.split(jax.random.key(0), seeds)
+    per_update = config.num_envs * config.num_steps
+
+    t0 = time.perf_counter()
+    runner = jax.jit(functools.partial(jax.lax.map, learner.init))(keys)
+    run = run.lower(runner).compile()
+    evaluate = evaluate.lower(runner.train_state.params, keys).compile()
+    compile_s = time.perf_counter() - t0
+
+    train_s, reached, last = 0.0, None, None
+    while train_s < seconds:
+        t0 = time.perf_counter()
+        runner, metrics = jax.block_until_ready(run(runner))
+        train_s += time.perf_counter() - t0
+        scores = jax.device_get(evaluate(runner.train_state.params, keys))
+        updates = int(runner.update[0])
+        last = {
+            "algo": algo,
+            "updates": updates,
+            "env_steps_per_seed": updates * per_update,
+            "train_s": train_s,
+            "steps_per_s": seeds * updates * per_update / train_s,
+            "test_return": float(np.mean(scores["greedy_return"])),
+            "test_return_std": float(np.std(scores["greedy_return"])),
+            "test_accuracy": float(np.mean(scores["greedy_terminated_fraction"])),
+            "compile_s": compile_s,
+        }
+        print(f"  {algo:5s} {updates:6d} updates, {last['env_steps_per_seed']:>11,} steps/seed, "
+              f"{train_s:6.1f}s: {last['steps_per_s']:.3e} steps/s, test return {last['test_return']:+.3f}, "
+              f"accuracy {last['test_accuracy']:.1%}", flush=True)
+        if reached is None and last["test_return"] >= THRESHOLD:
+            reached = dict(last)
+    last["threshold_s"] = reached["train_s"] if reached else None
+    last["threshold_steps"] = reached["env_steps_per_seed"] if reached else None
+    return last
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env-id", default="Classify/Digits-v0")
+    parser.add_argument("--algos", default="ppo,a2c,acktr,dqn")
+    parser.add_argument("--quick", action="store_true", help="CPU sizes: 16 envs, 2 seeds, 30 s per algorithm")
+    parser.add_argument("--seeds", type=int, default=None, help="default: 5 (2 with --quick)")
+    parser.add_argument("--num-envs", type=int, default=None, help="default: 2048 on GPU, 16 with --quick")
+    parser.add_argument("--seconds", type=float, default=None, help="training budget per algorithm; default 90 (30 with --quick)")
+    parser.add_argument("--chunk-steps", type=int, default=None,
+                        help="env steps per seed between evaluations; default num_envs * 160")
+    parser.add_argument("--eval-episodes", type=int, default=None, help="test episodes per seed per evaluation; default 1000 (200 with --quick)")
+    parser.add_argument("--no-record", action="store_true")
+    args = parser.parse_args(argv)
+
+    info = common.machine()
+    on_gpu = info["backend"] != "cpu"
+    seeds = args.seeds or (2 if args.quick else 5)
+    num_envs = args.num_envs or (16 if args.quick or not on_gpu else 2048)
+    seconds = args.seconds or (30.0 if args.quick else 90.0)
+    chunk_steps = args.chunk_steps or num_envs * 160
+    eval_episodes = args.eval_episodes or (200 if args.quick else 1000)
+    env, params = jaxnat.make(args.env_id)
+    test_env, test_params = jaxnat.make(args.env_id, split="test", autoreset=False)
+    configs = _configs(num_envs, on_gpu)
+
+    rows = []
+    for algo in args.algos.split(","):
+        config, _ = configs[algo]
+        chunk = max(1, chunk_steps // (config.num_envs * config.num_steps))
+        rows.append(bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds,
+                               eval_episodes))
+    table = common.markdown_table(rows, [
+        ("algo", "algorithm", "s"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
+        ("threshold_s", f"s to test return >= {THRESHOLD}", ".1f"),
+        ("threshold_steps", "steps/seed to it", ","), ("train_s", "trained s", ".1f"),
+        ("env_steps_per_seed", "steps/seed", ","), ("test_return", "final test return", "+.3f"),
+        ("test_return_std", "std over seeds", ".3f"), ("test_accuracy", "final accuracy", ".1%"),
+        ("compile_s", "compile s", ".1f"),
+    ])
+    summary = {
+        "env": args.env_id,
+        "setup": f"{seeds} seeds vmapped, {num_envs} envs each; at most {seconds:.0f} s training per algorithm, "
+                 f"greedy evaluation on the test split ({eval_episodes} episodes) every {chunk_steps:,} env steps per seed",
+        **{f"{algo} settings": configs[algo][1] for algo in args.algos.split(",")},
+    }
+    if args.no_record:
+        print(table)
+        print(summary)
+    else:
+        common.record("offpolicy_throughput", info, table, summary, rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,171 @@
+"""DQN: the TD target by hand (plain and double), epsilon schedule, target-network period,
+learning start, replay ring buffer, and probe environments under vmap over seeds."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from jaxnat.agents.dqn import DQNConfig, epsilon, make_dqn, td_loss
+from jaxnat.agents.probes import make_probe
+from jaxnat.agents.replay import replay_add, replay_init, replay_sample
+
+_jit = functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0})
+
+SEEDS = 5
+
+
+# --- the pieces -------------------------------------------------------------------------------
+
+
+class QTable:
+    """A stand-in network: `apply(params, states) -> (Q per factor [B, n_f], unused value)`."""
+
+    def apply(self, params, states):
+        return tuple(q[states] for q in params), jnp.zeros(states.shape)
+
+
+@pytest.mark.parametrize("double", [False, True])
+@pytest.mark.parametrize("terminated", [0.0, 1.0])
+def test_td_target_by_hand(double, terminated):
+    # Two factors (2 and 3 actions), states 0 and 1; the transition 0 -> 1 took action (0, 1).
+    online = (jnp.array([[0.5, 0.0], [0.0, 5.0]]), jnp.array([[0.0, -1.0, 0.0], [2.0, 1.0, 0.0]]))
+    target = (jnp.array([[9.0, 9.0], [3.0, 1.0]]), jnp.array([[9.0, 9.0, 9.0], [0.0, 4.0, 1.0]]))
+    batch = {"obs": jnp.array([0]), "action": jnp.array([[0, 1]]), "reward": jnp.array([1.0]),
+             "next_obs": jnp.array([1]), "terminated": jnp.array([terminated])}
+    config = DQNConfig(gamma=0.5, double_dqn=double)
+    # Plain: each head's best target value, 3 and 4; double: the target's values of the online
+    # network's best actions (1 and 0), 1 and 0. The next-state value is their mean.
+    next_value = 0.5 if double else 3.5
+    y = 1.0 + 0.5 * (1.0 - terminated) * next_value
+    expected = np.mean([optax.huber_loss(0.5 - y), optax.huber_loss(-1.0 - y)])
+    loss, info = td_loss(config, QTable(), online, target, batch)
+    np.testing.assert_allclose(float(loss), expected, rtol=1e-6)
+    np.testing.assert_allclose(float(info["q_mean"]), -0.25)
+
+
+def test_epsilon_schedule():
+    config = DQNConfig(eps_start=1.0, eps_end=0.1, exploration_steps=1000)
+    values = [float(epsilon(config, t)) for t in (0, 250, 500, 1000, 5000)]
+    np.testing.assert_allclose(values, [1.0, 0.775, 0.55, 0.1, 0.1], rtol=1e-6)
+
+
+def test_replay_buffer_is_a_ring():
+    buffer = replay_init({"x": jnp.zeros((2,), jnp.uint8), "r": jnp.float32(0)}, capacity=5)
+    batch = lambda lo, hi: {"x": jnp.arange(lo, hi, dtype=jnp.uint8)[:, None].repeat(2, 1),  # noqa: E731
+                            "r": jnp.arange(lo, hi, dtype=jnp.float32)}
+    buffer = replay_add(buffer, batch(0, 3))
+    assert int(buffer.size) == 3 and int(buffer.position) == 3
+    buffer = jax.jit(replay_add)(buffer, batch(3, 7))  # wraps: 5 and 6 overwrite 0 and 1
+    assert int(buffer.size) == 5 and int(buffer.position) == 2
+    np.testing.assert_array_equal(buffer.data["r"], [5, 6, 2, 3, 4])
+    assert buffer.data["x"].dtype == jnp.uint8
+    sample = replay_sample(buffer, jax.random.key(0), 200)
+    assert set(np.asarray(sample["r"]).tolist()) == {2.0, 3.0, 4.0, 5.0, 6.0}
+    np.testing.assert_array_equal(sample["x"][:, 0], sample["r"])
+    with pytest.raises(ValueError, match="capacity 5"):
+        replay_add(buffer, batch(0, 6))
+
+
+def test_target_network_update_period_and_learning_start():
+    """One gradient step per update; the target copies the online network after gradient steps
+    3 and 6 and stays put in between; nothing learns before `learning_starts` env steps."""
+    env, params = make_probe("sign")
+    config = DQNConfig(total_timesteps=64, num_envs=2, num_steps=1, gradient_steps=1, batch_size=4,
+                       buffer_size=64, optimizer="adam", lr=1e-2, learning_starts=4,
+                       target_update_period=3, trunk="mlp")
+    learner = make_dqn(config, env, params)
+    run = _jit(functools.partial(learner.run, num_updates=1))
+    runner = learner.init(jax.random.key(0))
+    initial = runner.train_state.params
+    same = lambda a, b: all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))  # noqa: E731
+    steps, copies = [], []
+    for update in range(1, 9):
+        previous_target = runner.target_params
+        runner, _ = run(runner)
+        steps.append(int(runner.train_state.step))
+        copies.append(not same(runner.target_params, previous_target))
+        if int(runner.train_state.step) % 3 == 0 and int(runner.train_state.step) > 0:
+            assert same(runner.target_params, runner.train_state.params)
+    # Env steps after update u: 2u; learning starts at 4 env steps (update 2).
+    assert steps == [0, 1, 2, 3, 4, 5, 6, 7]
+    assert copies == [False, False, False, True, False, False, True, False]
+    assert int(runner.buffer.size) == 16
+    assert not same(runner.train_state.params, initial)
+
+
+def test_bad_config_is_a_clear_error():
+    env, params = make_probe("sign")
+    with pytest.raises(ValueError, match="optimizer 'sgd'"):
+        make_dqn(DQNConfig(optimizer="sgd", trunk="mlp"), env, params)
+    with pytest.raises(ValueError, match="buffer_size=4 is smaller"):
+        make_dqn(DQNConfig(buffer_size=4, trunk="mlp"), env, params)
+
+
+# --- learning the probes ----------------------------------------------------------------------
+# Not the two-step probe: its step-2 observation hides whether the step-1 action was right, so
+# one-step Q-learning values both step-1 actions alike (it needs multi-step returns).
+
+# mlp trunk, 4 envs x 4 steps, 2 gradient steps per update (a replay ratio of 8 samples per
+# env step), Adam 3e-3, double DQN, epsilon 1 -> 0 over 1024 env steps, 256 updates.
+CONFIG = DQNConfig(total_timesteps=4096, num_envs=4, num_steps=4, gradient_steps=2, buffer_size=1024,
+                   optimizer="adam", lr=3e-3, eps_end=0.0, exploration_steps=1024, learning_starts=128,
+                   target_update_period=25, double_dqn=True, trunk="mlp")
+PROBE_CONFIG = {"endless": {"gamma": 0.9}}
+
+
+@functools.cache
+def trained(probe: str):
+    env, params = make_probe(probe)
+    learner = make_dqn(CONFIG, env, params)
+    config = CONFIG.replace(**PROBE_CONFIG.get(probe, {}))
+    runner, metrics = _jit(jax.vmap(learner.train, in_axes=(0, None)))(jax.random.split(jax.random.key(0), SEEDS), config)
+    return learner, runner.train_state.params, jax.tree_util.tree_map(np.asarray, metrics)
+
+
+def q_values(learner, params, obs):
+    """Q per factor `[S, B, n]` for every seed."""
+    q, _ = jax.vmap(lambda p: learner.network.apply(p, jnp.asarray(obs, jnp.float32)))(params)
+    return [np.asarray(x) for x in q]
+
+
+def final_return(metrics, last=10):
+    return np.nanmean(metrics["episode_return"][:, -last:], axis=1)
+
+
+def test_q_learns_constant_reward():
+    learner, params, metrics = trained("constant_reward")
+    (q,) = q_values(learner, params, [[1.0]])
+    np.testing.assert_allclose(q[:, 0, 0], 1.0, atol=0.05)
+
+
+def test_greedy_policy_reads_the_observation():
+    learner, params, metrics = trained("sign")
+    (q,) = q_values(learner, params, [[1.0], [-1.0]])
+    np.testing.assert_array_equal(q.argmax(-1), [[1, 0]] * SEEDS)
+    np.testing.assert_allclose(q.max(-1), 1.0, atol=0.1)
+    assert np.all(final_return(metrics) >= 0.95), final_return(metrics)
+
+
+def test_factored_heads():
+    learner, params, metrics = trained("factored")
+    targets = [(a, b) for a in range(2) for b in range(3)]
+    obs = [np.concatenate([np.eye(2)[a], np.eye(3)[b]]) for a, b in targets]
+    q_a, q_b = q_values(learner, params, obs)
+    greedy = np.stack([q_a.argmax(-1), q_b.argmax(-1)], axis=-1)
+    np.testing.assert_array_equal(greedy, np.broadcast_to(targets, greedy.shape))
+    assert np.all(final_return(metrics) >= 0.95), final_return(metrics)
+
+
+def test_q_bootstraps_through_time_limits():
+    """Reward 1 per step, truncated (never terminated) after 5 steps, gamma 0.9: Q = 10. A target
+    that stopped at truncations would give about 2.7 (see test_agents.py)."""
+    learner, params, metrics = trained("endless")
+    (q,) = q_values(learner, params, [[1.0]])
+    assert np.all(q[:, 0, 0] > 8.0) and np.all(q[:, 0, 0] < 12.0), q[:, 0, 0]
+    # Updates of 4 steps and episodes of 5: some updates see no episode end (NaN).
+    np.testing.assert_array_equal(np.nanmax(metrics["terminated_fraction"][:, -10:], axis=1), 0.0)
+    np.testing.assert_array_equal(np.nanmean(metrics["episode_return"][:, -10:], axis=1), 5.0)
