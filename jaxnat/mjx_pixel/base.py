@@ -45,6 +45,8 @@ from jaxnat.mjx_pixel.models import load_model, torso_body_id
 
 __all__ = ["MJXState", "MJXEnv"]
 
+_PLANE, _CAPSULE = int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_CAPSULE)
+
 
 @struct.dataclass
 class MJXState(EnvState):
@@ -120,9 +122,14 @@ class MJXEnv(Environment):
 
     def _physics_step(self, data: mjx.Data) -> mjx.Data:
         """One `mj_step`."""
+        forward = mjx.forward
+        if {_PLANE, _CAPSULE} <= set(self.model.geom_type.tolist()):
+            forward = _forward_with_c_capsule_frames
         if self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
-            return _rk4_step(self.mjx_model, data)
-        return mjx.step(self.mjx_model, data)
+            return _rk4_step(self.mjx_model, data, forward)
+        if self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER:
+            return mjx.euler(self.mjx_model, forward(self.mjx_model, data))
+        raise NotImplementedError(f"integrator {self.model.opt.integrator} is not used here")
 
     def _forward_reward_and_ctrl_cost(self, position_change, action, params):
         """`(forward_reward_weight * velocity, ctrl_cost_weight * |action|^2, velocity)`, the
@@ -137,7 +144,7 @@ def _full_precision():
     return jax.default_matmul_precision("float32")
 
 
-def _rk4_step(m: mjx.Model, d0: mjx.Data) -> mjx.Data:
+def _rk4_step(m: mjx.Model, d0: mjx.Data, forward) -> mjx.Data:
     """`mjx.step` for the RK4 integrator with one forward pass in the compiled program.
 
     Stage `i` (0..3) evaluates the dynamics at `x0 + a_i * h * k_{i-1}` with `a = (0, 1/2, 1/2,
@@ -161,7 +168,7 @@ def _rk4_step(m: mjx.Model, d0: mjx.Data) -> mjx.Data:
         kqvel = jnp.where(is_first, d0.qvel, d0.qvel + a_i * d.qacc * h)
         kact = jnp.where(is_first, d0.act, d0.act + a_i * d.act_dot * h)
         kqpos = jnp.where(is_first, d0.qpos, integrate(d0.qpos, a_i * d.qvel))
-        d = mjx.forward(m, d.replace(qpos=kqpos, qvel=kqvel, act=kact, time=t_i))
+        d = forward(m, d.replace(qpos=kqpos, qvel=kqvel, act=kact, time=t_i))
         sums = jax.tree.map(lambda s, k: s + b_i * k, sums, (kqvel, d.qacc, d.act_dot))
         return (sums, d), None
 
@@ -170,3 +177,41 @@ def _rk4_step(m: mjx.Model, d0: mjx.Data) -> mjx.Data:
     qvel, qacc, act_dot = sums
     d = d1.replace(qpos=d0.qpos, qvel=d0.qvel, act=d0.act, time=d0.time)
     return mjx_forward._advance(m, d, act_dot, qacc, qvel)
+
+
+def _forward_with_c_capsule_frames(m: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mjx.forward`, with plane-capsule contact frames as MuJoCo C makes them.
+
+    Both align a plane-capsule contact's first tangent with the capsule's axis projected on the
+    plane, but MJX falls back to a fixed world axis when that projection is shorter than 0.5
+    (a capsule within 30 degrees of the plane's normal, e.g. a steep Ant shin), while MuJoCo C
+    projects any axis not parallel to the normal. Under the pyramidal friction cones of these
+    models the tangents orient the friction pyramid, so the two give different contact
+    forces and Ant's rollouts part from MuJoCo C's at the first steep foot contact. The frames
+    are rebuilt as C does before the constraints are made; the rest is `mjx.forward`'s stages.
+    """
+    d = mjx.fwd_position(m, d)
+    contact = d._impl.contact
+    plane, capsule = contact.geom[:, 0], contact.geom[:, 1]
+    geom_type = jnp.asarray(m.geom_type)
+    is_plane_capsule = (geom_type[plane] == _PLANE) & (geom_type[capsule] == _CAPSULE)
+    normal = contact.frame[:, 0]
+    axis = d.geom_xmat[capsule][:, :, 2]
+    tangent = axis - normal * jnp.sum(normal * axis, axis=-1, keepdims=True)
+    length = jnp.linalg.norm(tangent, axis=-1, keepdims=True)
+    use = (is_plane_capsule & (length[:, 0] > 1e-6))[:, None, None]
+    tangent = tangent / jnp.maximum(length, 1e-6)
+    frame = jnp.stack([normal, tangent, jnp.cross(normal, tangent)], axis=1)
+    d = d.tree_replace({"_impl.contact.frame": jnp.where(use, frame, contact.frame)})
+    # The constraints made inside fwd_position from the old frames are dead code to XLA.
+    d = mjx.make_constraint(m, d)
+    # The rest of mjx.forward.
+    d = mjx.sensor_pos(m, d)
+    d = mjx.fwd_velocity(m, d)
+    d = mjx.sensor_vel(m, d)
+    d = mjx.fwd_actuation(m, d)
+    d = mjx.fwd_acceleration(m, d)
+    if d._impl.efc_J.size == 0:
+        return d.replace(qacc=d.qacc_smooth)
+    d = mjx.solve(m, d)
+    return mjx.sensor_acc(m, d)
