@@ -2,16 +2,17 @@
 
 Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper and Swimmer:
 - env steps/s of `jit(vmap(step))` under `lax.scan` with uniformly random actions, for each
-  batch size (GPU default: 1,024, 4,096, 16,384 envs), raw and autoresetting (what
-  `jaxnat.make` returns: under `vmap` every step also computes a reset); physics steps/s is
-  env steps/s x `frame_skip` (`mj_step` calls);
+  batch size (GPU default: 1,024, 4,096, 16,384 envs), raw; at the largest size also
+  autoresetting (what `jaxnat.make` returns: under `vmap` every step also computes a reset)
+  and raw with `ls_iterations=--fast-ls` (MJX's line search bound; see `mjx_pixel/base.py`);
+  physics steps/s is env steps/s x `frame_skip` (`mj_step` calls);
 - MuJoCo C's own `mj_step` on one CPU core (Gymnasium's physics), and the ratio;
 - how far MJX rollouts drift from MuJoCo C (max |qpos| error after 10 and `--drift-steps` env
   steps from the same state under the same random actions; CPU runs only, unless
   `--drift-steps` is given).
 
     python bench/mjx_physics.py                    # GPU: the sizes above
-    python bench/mjx_physics.py --sizes 16 64      # CPU (also the default on CPU)
+    python bench/mjx_physics.py --sizes 16 64      # CPU (default there: 64)
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
+_BENCH = __import__("pathlib").Path(__file__).resolve().parent
+sys.path[:0] = [str(_BENCH), str(_BENCH.parent)]  # bench/common.py; this checkout's jaxnat
 import common  # noqa: E402
 
 import jaxnat  # noqa: E402
@@ -101,18 +103,20 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", nargs="+", default=list(ROBOTS), choices=ROBOTS)
     parser.add_argument("--sizes", nargs="+", type=int, default=None,
-                        help="batch sizes (default: 1024 4096 16384 on GPU, 16 64 on CPU)")
+                        help="batch sizes (default: 1024 4096 16384 on GPU, 64 on CPU)")
     parser.add_argument("--steps", type=int, default=None,
                         help="env steps per timed scan (default: 100 on GPU, 10 on CPU)")
     parser.add_argument("--drift-steps", type=int, default=None,
                         help="MJX vs MuJoCo C drift over this many steps (default: 100 on CPU, "
                              "skipped on GPU)")
+    parser.add_argument("--fast-ls", type=int, default=8,
+                        help="ls_iterations of the fast variant (0: skip it)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
     info = common.machine()
     on_gpu = info["backend"] != "cpu"
-    sizes = args.sizes or ([1024, 4096, 16384] if on_gpu else [16, 64])
+    sizes = args.sizes or ([1024, 4096, 16384] if on_gpu else [64])
     num_steps = args.steps or (100 if on_gpu else 10)
     drift_steps = args.drift_steps if args.drift_steps is not None else (0 if on_gpu else 100)
     print(f"MJX physics on {info['device']}: robots {args.robots}, sizes {sizes}, "
@@ -126,8 +130,11 @@ def main(argv=None):
         drift = {}
         if drift_steps:
             drift = drift_from_mujoco_c(raw, params, drift_steps, {10, drift_steps})
-        # Autoreset at the largest size only (each size and variant is a separate compile).
+        # Variants at the largest size only (each size and variant is a separate compile).
         variants = [(n, "raw", raw) for n in sizes] + [(sizes[-1], "autoreset", auto)]
+        if args.fast_ls:
+            fast, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, ls_iterations=args.fast_ls)
+            variants.append((sizes[-1], f"raw, ls_iterations={args.fast_ls}", fast))
         for num_envs, label, env in variants:
             run = physics_rollout(env, params, num_envs, num_steps)
             key = jax.random.key(0)

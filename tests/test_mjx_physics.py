@@ -209,6 +209,12 @@ def test_make_routes_kwargs_and_rejects_bad_ones():
     assert env.frame_skip == 2 and env.dt == pytest.approx(0.004)
     assert params.ctrl_cost_weight == 0.5
     assert env.observation_space(params).shape == (12,)
+    fast, _ = jaxnat.make("MuJoCo/Ant-v0", ls_iterations=8)
+    assert fast.unwrapped.model.opt.ls_iterations == fast.unwrapped.mjx_model.opt.ls_iterations == 8
+    assert env.model.opt.ls_iterations == 50  # the model's own, as Gymnasium
+    assert models.load_model("ant").opt.ls_iterations == 50  # the cached model is untouched
+    with pytest.raises(ValueError, match="ls_iterations must be >= 1"):
+        jaxnat.make("MuJoCo/Hopper-v0", ls_iterations=0)
     with pytest.raises(TypeError, match="unknown keyword"):
         jaxnat.make("MuJoCo/Hopper-v0", frame_skipp=2)
     with pytest.raises(ValueError, match="frame_skip must be >= 1"):

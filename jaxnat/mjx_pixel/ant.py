@@ -72,6 +72,8 @@ class Ant(MJXEnv):
         exclude_current_positions_from_observation: leave `qpos[:2]` (x, y) out (Gymnasium's
             True).
         include_cfrc_ext_in_observation: append the clipped contact forces (Gymnasium's True).
+        ls_iterations: bound on the contact solver's line-search iterations (default: the
+            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
     """
 
     robot = "ant"
@@ -84,8 +86,10 @@ class Ant(MJXEnv):
         frame_skip: int = 5,
         exclude_current_positions_from_observation: bool = True,
         include_cfrc_ext_in_observation: bool = True,
+        ls_iterations: int | None = None,
     ):
-        super().__init__(frame_skip, 2 if exclude_current_positions_from_observation else 0)
+        skip_qpos = 2 if exclude_current_positions_from_observation else 0
+        super().__init__(frame_skip, skip_qpos, ls_iterations)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
 
     @property

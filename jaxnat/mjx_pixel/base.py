@@ -23,6 +23,11 @@ its reward and termination (and observation where it differs from `(qpos, qvel)`
   that is over a minute for Hopper. `_rk4_step` runs the same four stages as one `lax.scan`
   (one copy of the forward dynamics), with MJX's own tableau and state advance, so the
   arithmetic is MJX's. Tests check it against MuJoCo C's `mj_step`.
+- **Line search**: MJX's contact solver runs its line search as a `lax.scan` of
+  `ls_iterations` (the model's 50) steps that go idle once converged; under `vmap` idle steps
+  still cost a full evaluation, so every solver iteration pays for 50. MuJoCo C needs at most
+  8 on these tasks. The robots' `ls_iterations` argument lowers the bound (default: the
+  model's, as Gymnasium).
 - **Precision**: MJX runs in float32 (MuJoCo C in float64). Its matrix products are traced
   at full float32 precision: JAX's default on recent NVIDIA GPUs (TF32) makes the contact
   solver visibly less accurate.
@@ -63,15 +68,20 @@ class MJXEnv(Environment):
     state_type: type  # the robot's MJXState subclass
     qvel_noise: str  # reset noise on qvel: "uniform" U(-s, s) or "normal" s * N(0, 1)
 
-    def __init__(self, frame_skip: int, skip_qpos: int):
+    def __init__(self, frame_skip: int, skip_qpos: int, ls_iterations: int | None = None):
         if int(frame_skip) < 1:
             raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
         self.frame_skip = int(frame_skip)
         self.skip_qpos = skip_qpos  # leading qpos entries (the root's x or x, y) left out of obs
         self.model = load_model(self.robot)  # mujoco.MjModel, for MuJoCo C and the renderer
+        if ls_iterations is not None:
+            if int(ls_iterations) < 1:
+                raise ValueError(f"ls_iterations must be >= 1, got {ls_iterations}")
+            self.model.opt.ls_iterations = int(ls_iterations)
         self.torso_body_id = torso_body_id(self.model)
         with _full_precision():
-            self.mjx_model = mjx.put_model(self.model)
+            # The JAX implementation explicitly: the frames fix reads its data layout.
+            self.mjx_model = mjx.put_model(self.model, impl="jax")
         self.dt = float(self.model.opt.timestep) * self.frame_skip  # seconds per env step
         self.init_qpos = np.asarray(self.model.qpos0, np.float32)
         self.init_qvel = np.zeros(self.model.nv, np.float32)

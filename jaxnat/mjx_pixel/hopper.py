@@ -68,6 +68,8 @@ class Hopper(MJXEnv):
     Args:
         frame_skip: physics steps per env step (Gymnasium's 4).
         exclude_current_positions_from_observation: leave `qpos[0]` (x) out (Gymnasium's True).
+        ls_iterations: bound on the contact solver's line-search iterations (default: the
+            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
     """
 
     robot = "hopper"
@@ -75,8 +77,14 @@ class Hopper(MJXEnv):
     state_type = HopperState
     qvel_noise = "uniform"
 
-    def __init__(self, frame_skip: int = 4, exclude_current_positions_from_observation: bool = True):
-        super().__init__(frame_skip, 1 if exclude_current_positions_from_observation else 0)
+    def __init__(
+        self,
+        frame_skip: int = 4,
+        exclude_current_positions_from_observation: bool = True,
+        ls_iterations: int | None = None,
+    ):
+        skip_qpos = 1 if exclude_current_positions_from_observation else 0
+        super().__init__(frame_skip, skip_qpos, ls_iterations)
 
     @property
     def default_params(self) -> HopperParams:

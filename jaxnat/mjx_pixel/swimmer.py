@@ -60,6 +60,8 @@ class Swimmer(MJXEnv):
         frame_skip: physics steps per env step (Gymnasium's 4).
         exclude_current_positions_from_observation: leave `qpos[:2]` (x, y) out (Gymnasium's
             True).
+        ls_iterations: bound on the contact solver's line-search iterations (default: the
+            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
     """
 
     robot = "swimmer"
@@ -67,8 +69,14 @@ class Swimmer(MJXEnv):
     state_type = SwimmerState
     qvel_noise = "uniform"
 
-    def __init__(self, frame_skip: int = 4, exclude_current_positions_from_observation: bool = True):
-        super().__init__(frame_skip, 2 if exclude_current_positions_from_observation else 0)
+    def __init__(
+        self,
+        frame_skip: int = 4,
+        exclude_current_positions_from_observation: bool = True,
+        ls_iterations: int | None = None,
+    ):
+        skip_qpos = 2 if exclude_current_positions_from_observation else 0
+        super().__init__(frame_skip, skip_qpos, ls_iterations)
 
     @property
     def default_params(self) -> SwimmerParams:
