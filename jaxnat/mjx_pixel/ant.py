@@ -67,34 +67,27 @@ class AntParams(EnvParams):
 class Ant(MJXEnv):
     """Gymnasium's `Ant-v5` in MJX (see the module docstring for the spec).
 
-    Args:
-        frame_skip: physics steps per env step (Gymnasium's 5).
-        exclude_current_positions_from_observation: leave `qpos[:2]` (x, y) out (Gymnasium's
-            True).
+    Args: as `MJXEnv` (`frame_skip` 5, `exclude_current_positions_from_observation`,
+    `ls_iterations`), and
         include_cfrc_ext_in_observation: append the clipped contact forces (Gymnasium's True).
-        ls_iterations: bound on the contact solver's line-search iterations (default: the
-            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
     """
 
     robot = "ant"
     params_type = AntParams
     state_type = AntState
     qvel_noise = "normal"
+    default_frame_skip = 5
+    root_position_size = 2
 
     def __init__(
         self,
-        frame_skip: int = 5,
+        frame_skip: int | None = None,
         exclude_current_positions_from_observation: bool = True,
         include_cfrc_ext_in_observation: bool = True,
         ls_iterations: int | None = None,
     ):
-        skip_qpos = 2 if exclude_current_positions_from_observation else 0
-        super().__init__(frame_skip, skip_qpos, ls_iterations)
+        super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
-
-    @property
-    def default_params(self) -> AntParams:
-        return AntParams()
 
     @property
     def observation_size(self) -> int:

@@ -62,17 +62,35 @@ class MJXState(EnvState):
 
 class MJXEnv(Environment):
     """A Gymnasium-v5-style MuJoCo task stepped by MJX. Subclasses set the class attributes
-    below and implement `step_env` (and `get_obs`, `observation_size` if theirs differ)."""
+    below and implement `step_env` (and `get_obs`, `observation_size` if theirs differ).
+
+    Args:
+        frame_skip: physics steps (`mj_step`) per env step (default: Gymnasium's, per robot).
+        exclude_current_positions_from_observation: leave the root's position in the plane
+            (x, or x and y) out of the observation (Gymnasium's True).
+        ls_iterations: bound on the contact solver's line-search iterations (default: the
+            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
+    """
 
     robot: str  # a key of `jaxnat.mjx_pixel.models.ROBOTS`
+    params_type: type  # the robot's EnvParams subclass
     state_type: type  # the robot's MJXState subclass
     qvel_noise: str  # reset noise on qvel: "uniform" U(-s, s) or "normal" s * N(0, 1)
+    default_frame_skip: int  # Gymnasium v5's
+    root_position_size: int  # leading qpos entries that hold the root's x (or x, y)
 
-    def __init__(self, frame_skip: int, skip_qpos: int, ls_iterations: int | None = None):
+    def __init__(
+        self,
+        frame_skip: int | None = None,
+        exclude_current_positions_from_observation: bool = True,
+        ls_iterations: int | None = None,
+    ):
+        frame_skip = self.default_frame_skip if frame_skip is None else frame_skip
         if int(frame_skip) < 1:
             raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
         self.frame_skip = int(frame_skip)
-        self.skip_qpos = skip_qpos  # leading qpos entries (the root's x or x, y) left out of obs
+        # Leading qpos entries left out of the observation.
+        self.skip_qpos = self.root_position_size if exclude_current_positions_from_observation else 0
         self.model = load_model(self.robot)  # mujoco.MjModel, for MuJoCo C and the renderer
         if ls_iterations is not None:
             if int(ls_iterations) < 1:
@@ -85,6 +103,10 @@ class MJXEnv(Environment):
         self.dt = float(self.model.opt.timestep) * self.frame_skip  # seconds per env step
         self.init_qpos = np.asarray(self.model.qpos0, np.float32)
         self.init_qvel = np.zeros(self.model.nv, np.float32)
+
+    @property
+    def default_params(self):
+        return self.params_type()
 
     @property
     def observation_size(self) -> int:

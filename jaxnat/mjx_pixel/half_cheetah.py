@@ -51,30 +51,16 @@ class HalfCheetahParams(EnvParams):
 class HalfCheetah(MJXEnv):
     """Gymnasium's `HalfCheetah-v5` in MJX (see the module docstring for the spec).
 
-    Args:
-        frame_skip: physics steps per env step (Gymnasium's 5).
-        exclude_current_positions_from_observation: leave `qpos[0]` (x) out (Gymnasium's True).
-        ls_iterations: bound on the contact solver's line-search iterations (default: the
-            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
+    Args: as `MJXEnv` (`frame_skip` 5, `exclude_current_positions_from_observation`,
+    `ls_iterations`).
     """
 
     robot = "half_cheetah"
     params_type = HalfCheetahParams
     state_type = HalfCheetahState
     qvel_noise = "normal"
-
-    def __init__(
-        self,
-        frame_skip: int = 5,
-        exclude_current_positions_from_observation: bool = True,
-        ls_iterations: int | None = None,
-    ):
-        skip_qpos = 1 if exclude_current_positions_from_observation else 0
-        super().__init__(frame_skip, skip_qpos, ls_iterations)
-
-    @property
-    def default_params(self) -> HalfCheetahParams:
-        return HalfCheetahParams()
+    default_frame_skip = 5
+    root_position_size = 1
 
     def step_env(self, key, state: HalfCheetahState, action, params: HalfCheetahParams):
         data = self._step_data(state.data, action)

@@ -65,30 +65,16 @@ class HopperParams(EnvParams):
 class Hopper(MJXEnv):
     """Gymnasium's `Hopper-v5` in MJX (see the module docstring for the spec).
 
-    Args:
-        frame_skip: physics steps per env step (Gymnasium's 4).
-        exclude_current_positions_from_observation: leave `qpos[0]` (x) out (Gymnasium's True).
-        ls_iterations: bound on the contact solver's line-search iterations (default: the
-            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
+    Args: as `MJXEnv` (`frame_skip` 4, `exclude_current_positions_from_observation`,
+    `ls_iterations`).
     """
 
     robot = "hopper"
     params_type = HopperParams
     state_type = HopperState
     qvel_noise = "uniform"
-
-    def __init__(
-        self,
-        frame_skip: int = 4,
-        exclude_current_positions_from_observation: bool = True,
-        ls_iterations: int | None = None,
-    ):
-        skip_qpos = 1 if exclude_current_positions_from_observation else 0
-        super().__init__(frame_skip, skip_qpos, ls_iterations)
-
-    @property
-    def default_params(self) -> HopperParams:
-        return HopperParams()
+    default_frame_skip = 4
+    root_position_size = 1
 
     def get_obs(self, state: HopperState, params: HopperParams) -> jax.Array:
         data = state.data

@@ -56,31 +56,16 @@ class SwimmerParams(EnvParams):
 class Swimmer(MJXEnv):
     """Gymnasium's `Swimmer-v5` in MJX (see the module docstring for the spec).
 
-    Args:
-        frame_skip: physics steps per env step (Gymnasium's 4).
-        exclude_current_positions_from_observation: leave `qpos[:2]` (x, y) out (Gymnasium's
-            True).
-        ls_iterations: bound on the contact solver's line-search iterations (default: the
-            model's 50). Under `vmap` MJX pays for all of them; MuJoCo C needs at most ~8 here.
+    Args: as `MJXEnv` (`frame_skip` 4, `exclude_current_positions_from_observation`,
+    `ls_iterations`).
     """
 
     robot = "swimmer"
     params_type = SwimmerParams
     state_type = SwimmerState
     qvel_noise = "uniform"
-
-    def __init__(
-        self,
-        frame_skip: int = 4,
-        exclude_current_positions_from_observation: bool = True,
-        ls_iterations: int | None = None,
-    ):
-        skip_qpos = 2 if exclude_current_positions_from_observation else 0
-        super().__init__(frame_skip, skip_qpos, ls_iterations)
-
-    @property
-    def default_params(self) -> SwimmerParams:
-        return SwimmerParams()
+    default_frame_skip = 4
+    root_position_size = 2
 
     def step_env(self, key, state: SwimmerState, action, params: SwimmerParams):
         data = self._step_data(state.data, action)
