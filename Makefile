@@ -23,7 +23,7 @@ run: setup
 	$(PY) -m jaxnat.demo
 
 test: setup
-	JAX_PLATFORMS=cpu $(PY) -m pytest -q -n 2
+	JAX_PLATFORMS=cpu $(PY) -m pytest -q -n 2 --dist loadgroup
 
 bench: setup
 	$(PY) bench/classify_throughput.py

@@ -84,7 +84,7 @@ class Ant(MJXEnv):
         frame_skip: int | None = None,
         exclude_current_positions_from_observation: bool = True,
         include_cfrc_ext_in_observation: bool = True,
-        ls_iterations: int | None = None,
+        ls_iterations: int | None = 10,
     ):
         super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
