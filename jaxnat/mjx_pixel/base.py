@@ -1,17 +1,19 @@
 """What the four MJX robots share: the model, the state, reset noise and frame-skipped stepping.
 
-Each robot (`ant.py`, `half_cheetah.py`, `hopper.py`, `swimmer.py`) subclasses `MJXEnv` and adds
-its reward and termination (and observation where it differs from `(qpos, qvel)`) (Gymnasium MuJoCo v5's, see each docstring).
+Each robot (`ant.py`, `half_cheetah.py`, `hopper.py`, `swimmer.py`) subclasses `MJXEnv` and
+adds Gymnasium MuJoCo v5's reward and termination (and observation where it is not
+`(qpos, qvel)`), specified in its docstring.
 
 - **State**: `state.data` is the full `mjx.Data` (the renderer reads `geom_xpos`, `geom_xmat`
   and `xpos[torso_body_id]` from it). `reset` and `step` return the same pytree type, shapes
   and dtypes, so `AutoResetWrapper`'s select between them needs no second trace.
 - **Reset** (Gymnasium's `reset_model`): `qpos = qpos0 + U(-s, s)`, `qvel = U(-s, s)` or
-  `s * N(0, 1)` (per robot) with `s = params.reset_noise_scale`, everything else as `mj_resetData` leaves it (zero `ctrl`,
-  `act`, warm start), then the position stage of `mj_forward` (body, geom and camera poses,
-  centres of mass): all that an observation or the renderer reads. The first step's forward
-  pass computes the rest from `qpos`, `qvel` alone, so trajectories are those after a full
-  `mj_forward`, and reset compiles in seconds, not half a minute (it also runs inside every
+  `s * N(0, 1)` (per robot) with `s = params.reset_noise_scale`, everything else as
+  `mj_resetData` leaves it (zero `ctrl`, `act`, warm start), then the position stage of
+  `mj_forward` (body, geom and camera poses, centres of mass; free-joint quaternions come
+  back normalised, as C leaves them): all that an observation or the renderer reads. The
+  first step's forward pass computes the rest from `qpos`, `qvel` alone, so trajectories are
+  those after a full `mj_forward`, and reset compiles ~3x faster (it also runs inside every
   autoresetting step).
 - **Step** (Gymnasium's `do_simulation`): `ctrl = action` (MuJoCo clamps it to `ctrlrange`),
   `frame_skip` calls of `mj_step`, then `mj_rnePostConstraint` where the robot reads
@@ -19,10 +21,12 @@ its reward and termination (and observation where it differs from `(qpos, qvel)`
   (`xpos`, `geom_xpos`, contacts) are those of the last forward pass (the step's start for
   Euler, the last Runge-Kutta stage for RK4), not of the new `qpos`.
 - **Compile time**: MJX's `rungekutta4` unrolls its three inner stages, so XLA compiles four
-  copies of the forward dynamics (with the contact solver) per physics step; on a 2-core CPU
-  that is over a minute for Hopper. `_rk4_step` runs the same four stages as one `lax.scan`
+  copies of the forward dynamics (with the contact solver) per physics step (Hopper's step:
+  69 s to compile on the shared 2-core CPU). `_rk4_step` runs the same four stages as one `lax.scan`
   (one copy of the forward dynamics), with MJX's own tableau and state advance, so the
-  arithmetic is MJX's. Tests check it against MuJoCo C's `mj_step`.
+  arithmetic is MJX's (35 s). Tests check it against MuJoCo C's `mj_step`.
+- **Contact frames**: plane-capsule contacts get MuJoCo C's frame (`_forward_with_c_capsule_
+  frames`); MJX's differs for steep capsules, which changes pyramidal friction (Ant).
 - **Line search**: MJX's contact solver runs its line search as a `lax.scan` of
   `ls_iterations` steps (the models say 50) that go idle once converged; under `vmap` an idle
   step still costs a full evaluation, so every solver iteration pays for all of them. MuJoCo C
@@ -31,8 +35,8 @@ its reward and termination (and observation where it differs from `(qpos, qvel)`
   default bound is 10 (3-7x faster batched physics on CPU); `ls_iterations=None` restores the
   model's 50. The Newton iterations themselves keep the model's bound and tolerance.
 - **Precision**: MJX runs in float32 (MuJoCo C in float64). Its matrix products are traced
-  at full float32 precision: JAX's default on recent NVIDIA GPUs (TF32) makes the contact
-  solver visibly less accurate.
+  at full float32 precision: JAX's default on recent NVIDIA GPUs is TF32 (10-bit mantissa),
+  too coarse for a contact solver.
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ from mujoco.mjx._src import forward as mjx_forward  # RK4 tableau and state adva
 from mujoco.mjx._src import scan as mjx_scan
 
 from jaxnat import spaces
-from jaxnat.core import Environment, EnvParams, EnvState
+from jaxnat.core import Environment, EnvState
 from jaxnat.mjx_pixel.models import load_model, torso_body_id
 
 __all__ = ["MJXState", "MJXEnv"]
@@ -92,7 +96,8 @@ class MJXEnv(Environment):
             raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
         self.frame_skip = int(frame_skip)
         # Leading qpos entries left out of the observation.
-        self.skip_qpos = self.root_position_size if exclude_current_positions_from_observation else 0
+        exclude = exclude_current_positions_from_observation
+        self.skip_qpos = self.root_position_size if exclude else 0
         self.model = load_model(self.robot)  # mujoco.MjModel, for MuJoCo C and the renderer
         if ls_iterations is not None:
             if int(ls_iterations) < 1:
@@ -129,7 +134,8 @@ class MJXEnv(Environment):
         """Gymnasium's `reset_model`: noisy `qpos0` and zero velocity (see the module doc)."""
         key_qpos, key_qvel = jax.random.split(key)
         scale = params.reset_noise_scale
-        qpos = self.init_qpos + jax.random.uniform(key_qpos, (self.model.nq,), jnp.float32, -scale, scale)
+        qpos_noise = jax.random.uniform(key_qpos, (self.model.nq,), jnp.float32, -scale, scale)
+        qpos = self.init_qpos + qpos_noise
         if self.qvel_noise == "normal":
             qvel_noise = scale * jax.random.normal(key_qvel, (self.model.nv,), jnp.float32)
         else:
