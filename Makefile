@@ -3,7 +3,7 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-EXTRAS ?= dev,agents,gym,video,atari
+EXTRAS ?= dev,agents,gym,video,atari,mujoco
 STAMP := $(VENV)/.jaxnat-installed
 
 .PHONY: setup data run demo test bench clean
@@ -34,7 +34,7 @@ demo: setup
 	$(PY) -m jaxnat.demo
 
 test: setup
-	JAX_PLATFORMS=cpu $(PY) -m pytest -q -n 2
+	JAX_PLATFORMS=cpu $(PY) -m pytest -q -n 2 --dist loadgroup
 
 bench: setup
 	$(PY) bench/classify_throughput.py

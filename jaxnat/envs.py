@@ -28,3 +28,11 @@ for _game in _ATARI_GAMES:
         batched=True,
         game=_game,
     )
+# MuJoCo robots in MJX with Gymnasium v5 semantics, state observations (jaxnat[mujoco]).
+for _name, _module in [
+    ("Ant", "ant"),
+    ("HalfCheetah", "half_cheetah"),
+    ("Hopper", "hopper"),
+    ("Swimmer", "swimmer"),
+]:
+    register(f"MuJoCo/{_name}-v0", f"jaxnat.mjx_pixel.{_module}:{_name}", extra="mujoco")

@@ -1,8 +1,15 @@
 """Shared test set-up: CPU JAX, and a small hand-built image dataset."""
 
 import os
+import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# A persistent XLA compilation cache, shared by the xdist workers: MJX envs take tens of
+# seconds to compile on a small CPU, and the same program (e.g. check_env's jitted step and a
+# test's) is then compiled once per run. Keys are hashes of the program and versions.
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), "jaxnat-tests-xla-cache")
+)
 
 import numpy as np
 import pytest

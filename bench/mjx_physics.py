@@ -1,0 +1,187 @@
+"""MJX physics throughput of the MuJoCo robots (state observations, no rendering).
+
+Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper and Swimmer:
+- env steps/s of `jit(vmap(step))` under `lax.scan` with uniformly random actions, for each
+  batch size (GPU default: 1,024, 4,096, 16,384 envs), raw; at the largest size also
+  autoresetting (what `jaxnat.make` returns: under `vmap` every step also computes a reset)
+  and raw with `ls_iterations=--other-ls` (the models' own line-search bound, 50, against
+  jaxnat's default 10; see `mjx_pixel/base.py`);
+  physics steps/s is env steps/s x `frame_skip` (`mj_step` calls);
+- MuJoCo C's own `mj_step` on one CPU core (Gymnasium's physics), and the ratio;
+- how far MJX rollouts drift from MuJoCo C (max |qpos| error after 10 and `--drift-steps` env
+  steps from the same state under the same random actions; CPU runs only, unless
+  `--drift-steps` is given), next to how far MuJoCo C drifts from itself when its initial
+  `qpos` is moved by 1e-7 (float32's resolution): contact-rich robots are chaotic, so a drift
+  of the same size is rounding amplified, not a modelling difference.
+
+    python bench/mjx_physics.py                    # GPU: the sizes above
+    python bench/mjx_physics.py --sizes 16 64      # CPU (default there: 64)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+_BENCH = __import__("pathlib").Path(__file__).resolve().parent
+sys.path[:0] = [str(_BENCH), str(_BENCH.parent)]  # bench/common.py; this checkout's jaxnat
+import common  # noqa: E402
+
+import jaxnat  # noqa: E402
+
+ROBOTS = ("Ant", "HalfCheetah", "Hopper", "Swimmer")
+
+
+def physics_rollout(env, params, num_envs: int, num_steps: int):
+    """A jitted `run(key, params)`: reset `num_envs` envs, then `num_steps` vmapped steps with
+    uniformly random actions; returns the summed rewards (so nothing is dead code)."""
+    space = env.action_space(params)
+    low, high = jnp.asarray(space.low), jnp.asarray(space.high)
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+
+    def run(key, params):
+        _, state = reset(jax.random.split(key, num_envs), params)
+
+        def body(state, key):
+            key_act, key_step = jax.random.split(key)
+            actions = jax.random.uniform(key_act, (num_envs, *space.shape), minval=low, maxval=high)
+            _, state, reward, *_ = step(jax.random.split(key_step, num_envs), state, actions, params)
+            return state, reward.sum()
+
+        _, rewards = jax.lax.scan(body, state, jax.random.split(key, num_steps))
+        return rewards.sum()
+
+    return jax.jit(run)
+
+
+def mujoco_c_steps_per_second(env, seconds: float = 2.0) -> float:
+    """Env steps/s of MuJoCo C (`frame_skip` x `mj_step`) on one core, random actions."""
+    model = env.model
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    low, high = model.actuator_ctrlrange.T
+    steps, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(100):
+            data.ctrl[:] = rng.uniform(low, high)
+            mujoco.mj_step(model, data, nstep=env.frame_skip)
+        steps += 100
+    return steps / (time.perf_counter() - t0)
+
+
+def drift_from_mujoco_c(env, params, num_steps: int, checkpoints) -> dict[str, float]:
+    """Max |qpos| difference between MJX and MuJoCo C (`mjx@t`), and between MuJoCo C and
+    MuJoCo C started 1e-7 away (`c@t`), after each checkpoint step `t`, from the same reset
+    state under the same random actions."""
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(*env.model.actuator_ctrlrange.T, size=(num_steps, env.model.nu))
+    _, state = jax.jit(env.reset)(jax.random.key(0), params)
+    data, nudged = mujoco.MjData(env.model), mujoco.MjData(env.model)
+    for d, offset in [(data, 0.0), (nudged, 1e-7 * rng.choice([-1.0, 1.0], env.model.nq))]:
+        d.qpos[:] = np.asarray(state.data.qpos, np.float64) + offset
+        d.qvel[:] = np.asarray(state.data.qvel, np.float64)
+        mujoco.mj_forward(env.model, d)
+
+    def body(state, action):
+        _, state, *_ = env.step(jax.random.key(0), state, action, params)
+        return state, state.data.qpos
+
+    _, qpos = jax.jit(lambda s, a: jax.lax.scan(body, s, a))(state, jnp.asarray(actions, jnp.float32))
+    qpos = np.asarray(qpos)
+    errors = {}
+    for t in range(num_steps):
+        for d in (data, nudged):
+            d.ctrl[:] = actions[t]
+            mujoco.mj_step(env.model, d, nstep=env.frame_skip)
+        if t + 1 in checkpoints:
+            errors[f"mjx@{t + 1}"] = float(np.abs(qpos[t] - data.qpos).max())
+            errors[f"c@{t + 1}"] = float(np.abs(nudged.qpos - data.qpos).max())
+    return errors
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="+", default=list(ROBOTS), choices=ROBOTS)
+    parser.add_argument("--sizes", nargs="+", type=int, default=None,
+                        help="batch sizes (default: 1024 4096 16384 on GPU, 64 on CPU)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="env steps per timed scan (default: 100 on GPU, 10 on CPU)")
+    parser.add_argument("--drift-steps", type=int, default=None,
+                        help="MJX vs MuJoCo C drift over this many steps (default: 100 on CPU, "
+                             "skipped on GPU)")
+    parser.add_argument("--other-ls", type=int, default=50,
+                        help="ls_iterations of the compared variant (0: skip it)")
+    parser.add_argument("--no-record", action="store_true")
+    args = parser.parse_args(argv)
+
+    info = common.machine()
+    on_gpu = info["backend"] != "cpu"
+    sizes = args.sizes or ([1024, 4096, 16384] if on_gpu else [64])
+    num_steps = args.steps or (100 if on_gpu else 10)
+    drift_steps = args.drift_steps if args.drift_steps is not None else (0 if on_gpu else 100)
+    print(f"MJX physics on {info['device']}: robots {args.robots}, sizes {sizes}, "
+          f"{num_steps} steps per scan", flush=True)
+
+    rows = []
+    for name in args.robots:
+        raw, params = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False)
+        auto, _ = jaxnat.make(f"MuJoCo/{name}-v0")
+        c_sps = mujoco_c_steps_per_second(raw)
+        drift = {}
+        if drift_steps:
+            drift = drift_from_mujoco_c(raw, params, drift_steps, {10, drift_steps})
+        # Variants at the largest size only (each size and variant is a separate compile).
+        variants = [(n, "raw", raw) for n in sizes] + [(sizes[-1], "autoreset", auto)]
+        if args.other_ls:
+            other, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, ls_iterations=args.other_ls)
+            variants.append((sizes[-1], f"raw, ls_iterations={args.other_ls}", other))
+        for num_envs, label, env in variants:
+            run = physics_rollout(env, params, num_envs, num_steps)
+            key = jax.random.key(0)
+            t0 = time.perf_counter()
+            jax.block_until_ready(run(key, params))
+            compile_s = time.perf_counter() - t0
+            seconds = common.median_seconds(lambda: jax.block_until_ready(run(key, params)), 3)
+            sps = num_envs * num_steps / seconds
+            row = {
+                "robot": name, "envs": num_envs, "variant": label, "steps": num_steps,
+                "sps": sps, "physics_sps": sps * raw.frame_skip, "compile_s": compile_s,
+                "c_sps": c_sps, "vs_c": sps / c_sps,
+                "drift_10": drift.get("mjx@10"), "drift_n": drift.get(f"mjx@{drift_steps}"),
+                "c_drift_10": drift.get("c@10"), "c_drift_n": drift.get(f"c@{drift_steps}"),
+            }
+            rows.append(row)
+            print(f"  {name} {label} {num_envs} envs: {sps:.3e} env steps/s "
+                  f"({sps / c_sps:.1f}x MuJoCo C on one core), compile {compile_s:.1f}s", flush=True)
+
+    columns = [
+        ("robot", "robot", ""), ("variant", "variant", ""), ("envs", "envs", ","),
+        ("sps", "env steps/s", ".3e"), ("physics_sps", "mj_step/s", ".3e"),
+        ("c_sps", "MuJoCo C env steps/s (1 core)", ".3e"), ("vs_c", "MJX / C", ".1f"),
+        ("compile_s", "compile s", ".1f"), ("drift_10", "MJX-C qpos @10", ".1e"),
+        ("drift_n", f"MJX-C qpos @{drift_steps}", ".1e"), ("c_drift_10", "C-C' qpos @10", ".1e"),
+        ("c_drift_n", f"C-C' qpos @{drift_steps}", ".1e"),
+    ]
+    table = common.markdown_table(rows, columns)
+    summary = {
+        "what": "physics only (state observations), jit(vmap(step)) in lax.scan, random actions",
+        "steps_per_scan": num_steps,
+        "drift": "max |qpos| error of MJX (float32) vs MuJoCo C (float64) after N env steps, "
+                 "same reset state and actions; C-C': MuJoCo C vs MuJoCo C started with qpos "
+                 "moved by 1e-7 (chaos: rounding amplified)",
+    }
+    if args.no_record:
+        print(table)
+    else:
+        common.record("mjx_physics", info, table, summary, rows)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,257 @@
+"""What the four MJX robots share: the model, the state, reset noise and frame-skipped stepping.
+
+Each robot (`ant.py`, `half_cheetah.py`, `hopper.py`, `swimmer.py`) subclasses `MJXEnv` and
+adds Gymnasium MuJoCo v5's reward and termination (and observation where it is not
+`(qpos, qvel)`), specified in its docstring.
+
+- **State**: `state.data` is the full `mjx.Data` (the renderer reads `geom_xpos`, `geom_xmat`
+  and `xpos[torso_body_id]` from it). `reset` and `step` return the same pytree type, shapes
+  and dtypes, so `AutoResetWrapper`'s select between them needs no second trace.
+- **Reset** (Gymnasium's `reset_model`): `qpos = qpos0 + U(-s, s)`, `qvel = U(-s, s)` or
+  `s * N(0, 1)` (per robot) with `s = params.reset_noise_scale`, everything else as
+  `mj_resetData` leaves it (zero `ctrl`, `act`, warm start), then the position stage of
+  `mj_forward` (body, geom and camera poses, centres of mass; free-joint quaternions come
+  back normalised, as C leaves them): all that an observation or the renderer reads. The
+  first step's forward pass computes the rest from `qpos`, `qvel` alone, so trajectories are
+  those after a full `mj_forward`, and reset compiles ~3x faster (it also runs inside every
+  autoresetting step).
+- **Step** (Gymnasium's `do_simulation`): `ctrl = action` (MuJoCo clamps it to `ctrlrange`),
+  `frame_skip` calls of `mj_step`, then `mj_rnePostConstraint` where the robot reads
+  `cfrc_ext` (Ant). As in MuJoCo C, the position-dependent fields of the data after a step
+  (`xpos`, `geom_xpos`, contacts) are those of the last forward pass (the step's start for
+  Euler, the last Runge-Kutta stage for RK4), not of the new `qpos`.
+- **Compile time**: MJX's `rungekutta4` unrolls its three inner stages, so XLA compiles four
+  copies of the forward dynamics (with the contact solver) per physics step (Hopper's step:
+  69 s to compile on the shared 2-core CPU). `_rk4_step` runs the same four stages as one `lax.scan`
+  (one copy of the forward dynamics), with MJX's own tableau and state advance, so the
+  arithmetic is MJX's (35 s). Tests check it against MuJoCo C's `mj_step`.
+- **Contact frames**: plane-capsule contacts get MuJoCo C's frame (`_forward_with_c_capsule_
+  frames`); MJX's differs for steep capsules, which changes pyramidal friction (Ant).
+- **Line search**: MJX's contact solver runs its line search as a `lax.scan` of
+  `ls_iterations` steps (the models say 50) that go idle once converged; under `vmap` an idle
+  step still costs a full evaluation, so every solver iteration pays for all of them. MuJoCo C
+  needed at most 8 line-search evaluations per iteration over 3,000 random-action steps of
+  each robot, and MJX rollouts with a bound of 8 are identical to those with 50. jaxnat's
+  default bound is 10 (3-7x faster batched physics on CPU); `ls_iterations=None` restores the
+  model's 50. The Newton iterations themselves keep the model's bound and tolerance.
+- **Precision**: MJX runs in float32 (MuJoCo C in float64). Its matrix products are traced
+  at full float32 precision: JAX's default on recent NVIDIA GPUs is TF32 (10-bit mantissa),
+  too coarse for a contact solver.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+from mujoco.mjx._src import forward as mjx_forward  # RK4 tableau and state advance, see _rk4_step
+from mujoco.mjx._src import scan as mjx_scan
+
+from jaxnat import spaces
+from jaxnat.core import Environment, EnvState
+from jaxnat.mjx_pixel.models import load_model, torso_body_id
+
+__all__ = ["MJXState", "MJXEnv"]
+
+_PLANE, _CAPSULE = int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_CAPSULE)
+
+
+@struct.dataclass
+class MJXState(EnvState):
+    """`time` (steps this episode) and the simulator's `data` (an `mjx.Data`)."""
+
+    data: mjx.Data
+
+
+class MJXEnv(Environment):
+    """A Gymnasium-v5-style MuJoCo task stepped by MJX. Subclasses set the class attributes
+    below and implement `step_env` (and `get_obs`, `observation_size` if theirs differ).
+
+    Args:
+        frame_skip: physics steps (`mj_step`) per env step (default: Gymnasium's, per robot).
+        exclude_current_positions_from_observation: leave the root's position in the plane
+            (x, or x and y) out of the observation (Gymnasium's True).
+        ls_iterations: bound on the contact solver's line-search iterations: 10 by default,
+            `None` for the model's own (50). See the module docstring.
+    """
+
+    robot: str  # a key of `jaxnat.mjx_pixel.models.ROBOTS`
+    params_type: type  # the robot's EnvParams subclass
+    state_type: type  # the robot's MJXState subclass
+    qvel_noise: str  # reset noise on qvel: "uniform" U(-s, s) or "normal" s * N(0, 1)
+    default_frame_skip: int  # Gymnasium v5's
+    root_position_size: int  # leading qpos entries that hold the root's x (or x, y)
+
+    def __init__(
+        self,
+        frame_skip: int | None = None,
+        exclude_current_positions_from_observation: bool = True,
+        ls_iterations: int | None = 10,
+    ):
+        frame_skip = self.default_frame_skip if frame_skip is None else frame_skip
+        if int(frame_skip) < 1:
+            raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
+        self.frame_skip = int(frame_skip)
+        # Leading qpos entries left out of the observation.
+        exclude = exclude_current_positions_from_observation
+        self.skip_qpos = self.root_position_size if exclude else 0
+        self.model = load_model(self.robot)  # mujoco.MjModel, for MuJoCo C and the renderer
+        if ls_iterations is not None:
+            if int(ls_iterations) < 1:
+                raise ValueError(f"ls_iterations must be >= 1, got {ls_iterations}")
+            self.model.opt.ls_iterations = int(ls_iterations)
+        self.torso_body_id = torso_body_id(self.model)
+        with _full_precision():
+            # The JAX implementation explicitly: the frames fix reads its data layout.
+            self.mjx_model = mjx.put_model(self.model, impl="jax")
+        self.dt = float(self.model.opt.timestep) * self.frame_skip  # seconds per env step
+        self.init_qpos = np.asarray(self.model.qpos0, np.float32)
+        self.init_qvel = np.zeros(self.model.nv, np.float32)
+
+    @property
+    def default_params(self):
+        return self.params_type()
+
+    @property
+    def observation_size(self) -> int:
+        return self.model.nq - self.skip_qpos + self.model.nv
+
+    def get_obs(self, state: MJXState, params) -> jax.Array:
+        """`(qpos[skip_qpos:], qvel)`, Gymnasium's observation for most robots."""
+        return jnp.concatenate([state.data.qpos[self.skip_qpos :], state.data.qvel])
+
+    def observation_space(self, params) -> spaces.Box:
+        return spaces.Box(-np.inf, np.inf, (self.observation_size,), jnp.float32)
+
+    def action_space(self, params) -> spaces.Box:
+        low, high = np.asarray(self.model.actuator_ctrlrange, np.float32).T
+        return spaces.Box(low, high, (self.model.nu,), jnp.float32)
+
+    def reset_env(self, key, params):
+        """Gymnasium's `reset_model`: noisy `qpos0` and zero velocity (see the module doc)."""
+        key_qpos, key_qvel = jax.random.split(key)
+        scale = params.reset_noise_scale
+        qpos_noise = jax.random.uniform(key_qpos, (self.model.nq,), jnp.float32, -scale, scale)
+        qpos = self.init_qpos + qpos_noise
+        if self.qvel_noise == "normal":
+            qvel_noise = scale * jax.random.normal(key_qvel, (self.model.nv,), jnp.float32)
+        else:
+            qvel_noise = jax.random.uniform(key_qvel, (self.model.nv,), jnp.float32, -scale, scale)
+        data = self._reset_data(qpos, self.init_qvel + qvel_noise)
+        state = self.state_type(time=jnp.zeros((), jnp.int32), data=data)
+        return self.get_obs(state, params), state
+
+    def _reset_data(self, qpos: jax.Array, qvel: jax.Array) -> mjx.Data:
+        """Fresh data (as `mj_resetData`) with `qpos`, `qvel` set and positions computed."""
+        m = self.mjx_model
+        with _full_precision():
+            data = mjx.make_data(m).replace(qpos=qpos, qvel=qvel)
+            return mjx.camlight(m, mjx.com_pos(m, mjx.kinematics(m, data)))
+
+    def _step_data(self, data: mjx.Data, action: jax.Array, *, post_constraint: bool = False):
+        """Gymnasium's `do_simulation(action, frame_skip)`."""
+        with _full_precision():
+            data = data.replace(ctrl=jnp.asarray(action, data.ctrl.dtype))
+            data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._physics_step(d), data)
+            if post_constraint:  # fills cfrc_ext (and cacc, cfrc_int), as Gymnasium does
+                data = mjx.rne_postconstraint(self.mjx_model, data)
+        return data
+
+    def _physics_step(self, data: mjx.Data) -> mjx.Data:
+        """One `mj_step`."""
+        forward = mjx.forward
+        if {_PLANE, _CAPSULE} <= set(self.model.geom_type.tolist()):
+            forward = _forward_with_c_capsule_frames
+        if self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
+            return _rk4_step(self.mjx_model, data, forward)
+        if self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER:
+            return mjx.euler(self.mjx_model, forward(self.mjx_model, data))
+        raise NotImplementedError(f"integrator {self.model.opt.integrator} is not used here")
+
+    def _forward_reward_and_ctrl_cost(self, position_change, action, params):
+        """`(forward_reward_weight * velocity, ctrl_cost_weight * |action|^2, velocity)`, the
+        velocity being `position_change / dt`, as every Gymnasium locomotion task computes."""
+        velocity = position_change / self.dt
+        ctrl_cost = params.ctrl_cost_weight * jnp.sum(jnp.square(action))
+        return params.forward_reward_weight * velocity, ctrl_cost, velocity
+
+
+def _full_precision():
+    """Trace matrix products at full float32 precision (see the module docstring)."""
+    return jax.default_matmul_precision("float32")
+
+
+def _rk4_step(m: mjx.Model, d0: mjx.Data, forward) -> mjx.Data:
+    """`mjx.step` for the RK4 integrator with one forward pass in the compiled program.
+
+    Stage `i` (0..3) evaluates the dynamics at `x0 + a_i * h * k_{i-1}` with `a = (0, 1/2, 1/2,
+    1)` (stage 0 is `x0` itself, as `mjx.step`'s first `forward`), and the weighted sums with
+    `b = (1/6, 1/3, 1/3, 1/6)` advance the state, as `mjx.rungekutta4` does.
+    """
+    h = m.opt.timestep
+    a = jnp.concatenate([jnp.zeros(1), jnp.diag(jnp.asarray(mjx_forward._RK4_A))])
+    b = jnp.asarray(mjx_forward._RK4_B)
+    times = d0.time + h * jnp.concatenate([jnp.zeros(1), jnp.tril(mjx_forward._RK4_A).sum(0)])
+    first = jnp.arange(4) == 0
+
+    def integrate(qpos, qvel):
+        fn = lambda *args: mjx_forward._integrate_pos(*args, dt=h)
+        return mjx_scan.flat(m, fn, "jqv", "q", m.jnt_type, qpos, qvel)
+
+    def stage(carry, x):
+        sums, d = carry  # d: the previous stage's dynamics
+        a_i, b_i, t_i, is_first = x
+        # Stage 0 is x0 exactly (a select, not x0 + 0 * k, which a NaN would poison).
+        kqvel = jnp.where(is_first, d0.qvel, d0.qvel + a_i * d.qacc * h)
+        kact = jnp.where(is_first, d0.act, d0.act + a_i * d.act_dot * h)
+        kqpos = jnp.where(is_first, d0.qpos, integrate(d0.qpos, a_i * d.qvel))
+        d = forward(m, d.replace(qpos=kqpos, qvel=kqvel, act=kact, time=t_i))
+        sums = jax.tree.map(lambda s, k: s + b_i * k, sums, (kqvel, d.qacc, d.act_dot))
+        return (sums, d), None
+
+    zeros = jax.tree.map(jnp.zeros_like, (d0.qvel, d0.qacc, d0.act_dot))
+    (sums, d1), _ = jax.lax.scan(stage, (zeros, d0), (a, b, times, first))
+    qvel, qacc, act_dot = sums
+    d = d1.replace(qpos=d0.qpos, qvel=d0.qvel, act=d0.act, time=d0.time)
+    return mjx_forward._advance(m, d, act_dot, qacc, qvel)
+
+
+def _forward_with_c_capsule_frames(m: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mjx.forward`, with plane-capsule contact frames as MuJoCo C makes them.
+
+    Both align a plane-capsule contact's first tangent with the capsule's axis projected on the
+    plane, but MJX falls back to a fixed world axis when that projection is shorter than 0.5
+    (a capsule within 30 degrees of the plane's normal, e.g. a steep Ant shin), while MuJoCo C
+    projects any axis not parallel to the normal. Under the pyramidal friction cones of these
+    models the tangents orient the friction pyramid, so the two give different contact
+    forces and Ant's rollouts part from MuJoCo C's at the first steep foot contact. The frames
+    are rebuilt as C does before the constraints are made; the rest is `mjx.forward`'s stages.
+    """
+    d = mjx.fwd_position(m, d)
+    contact = d._impl.contact
+    plane, capsule = contact.geom[:, 0], contact.geom[:, 1]
+    geom_type = jnp.asarray(m.geom_type)
+    is_plane_capsule = (geom_type[plane] == _PLANE) & (geom_type[capsule] == _CAPSULE)
+    normal = contact.frame[:, 0]
+    axis = d.geom_xmat[capsule][:, :, 2]
+    tangent = axis - normal * jnp.sum(normal * axis, axis=-1, keepdims=True)
+    length = jnp.linalg.norm(tangent, axis=-1, keepdims=True)
+    use = (is_plane_capsule & (length[:, 0] > 1e-6))[:, None, None]
+    tangent = tangent / jnp.maximum(length, 1e-6)
+    frame = jnp.stack([normal, tangent, jnp.cross(normal, tangent)], axis=1)
+    d = d.tree_replace({"_impl.contact.frame": jnp.where(use, frame, contact.frame)})
+    # The constraints made inside fwd_position from the old frames are dead code to XLA.
+    d = mjx.make_constraint(m, d)
+    # The rest of mjx.forward.
+    d = mjx.sensor_pos(m, d)
+    d = mjx.fwd_velocity(m, d)
+    d = mjx.sensor_vel(m, d)
+    d = mjx.fwd_actuation(m, d)
+    d = mjx.fwd_acceleration(m, d)
+    if d._impl.efc_J.size == 0:
+        return d.replace(qacc=d.qacc_smooth)
+    d = mjx.solve(m, d)
+    return mjx.sensor_acc(m, d)
