@@ -3,6 +3,9 @@
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# mujoco.Renderer (the PixelMuJoCo renderer's reference) draws off-screen with OSMesa on a CPU
+# machine; the variable is read when mujoco is first imported.
+os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import numpy as np
 import pytest
