@@ -3,7 +3,7 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-EXTRAS ?= dev,agents,gym
+EXTRAS ?= dev,agents,gym,mujoco
 STAMP := $(VENV)/.jaxnat-installed
 
 .PHONY: setup data run test bench clean
