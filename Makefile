@@ -3,7 +3,7 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-EXTRAS ?= dev,agents,gym,mujoco
+EXTRAS ?= dev,agents,gym,video,mujoco
 STAMP := $(VENV)/.jaxnat-installed
 
 .PHONY: setup data run test bench clean

@@ -22,12 +22,13 @@ import warnings
 import zipfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from jaxnat.datasets.base import ImageDataset
 
-__all__ = ["FORMAT_VERSION", "cache_dir", "entry_path", "cached"]
+__all__ = ["FORMAT_VERSION", "cache_dir", "entry_path", "cached", "read_arrays", "write_arrays"]
 
 # Bump when a decoder's output changes for the same source files.
 FORMAT_VERSION = 1
@@ -51,39 +52,52 @@ def entry_path(name: str, split: str, files: Iterable[Path], extra: Iterable[str
     return cache_dir() / f"{name}-{split}-{digest}.npz"
 
 
-def _read(path: Path, name: str, split: str) -> ImageDataset | None:
+def read_arrays(path: Path, keys: Iterable[str], build: Callable[..., Any]) -> Any | None:
+    """`build(**arrays)` of the entry at `path`, or None when it is absent or unreadable."""
     try:
         # Open the file ourselves: np.load leaks its own handle when the archive is corrupt.
         with open(path, "rb") as f:
             entry = np.load(f, allow_pickle=False)
             if not isinstance(entry, np.lib.npyio.NpzFile):
                 raise ValueError("not an .npz archive")
-            images, labels, names = entry["images"], entry["labels"], entry["class_names"]
-        return ImageDataset(name=name, split=split, images=images, labels=labels,
-                            class_names=tuple(str(c) for c in names))
+            arrays = {k: entry[k] for k in keys}
+        return build(**arrays)
     except FileNotFoundError:
         return None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
-        # ValueError also covers an entry whose arrays break the ImageDataset contract.
+        # ValueError also covers an entry whose arrays break the dataset type's contract.
         warnings.warn(f"ignoring unreadable dataset cache entry {path} ({e}); rewriting it",
                       stacklevel=3)
         return None
 
 
-def _write(path: Path, dataset: ImageDataset) -> None:
+def _read(path: Path, name: str, split: str) -> ImageDataset | None:
+    def build(images, labels, class_names):
+        return ImageDataset(name=name, split=split, images=images, labels=labels,
+                            class_names=tuple(str(c) for c in class_names))
+
+    return read_arrays(path, ("images", "labels", "class_names"), build)
+
+
+def write_arrays(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Store `arrays` at `path` atomically; a failure is a warning (the cache is optional)."""
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, images=dataset.images, labels=dataset.labels,
-                     class_names=np.array(dataset.class_names, dtype=str))
+            np.savez(f, **arrays)
         os.replace(tmp, path)
     except OSError as e:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
         warnings.warn(f"could not write dataset cache entry {path} ({e}); set JAXNAT_CACHE_DIR "
                       "to a writable folder to cache decoded datasets", stacklevel=3)
+
+
+def _write(path: Path, dataset: ImageDataset) -> None:
+    write_arrays(path, {"images": dataset.images, "labels": dataset.labels,
+                        "class_names": np.array(dataset.class_names, dtype=str)})
 
 
 def cached(name: str, split: str, files: Iterable[Path], decode: Callable[[], ImageDataset],

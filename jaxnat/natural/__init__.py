@@ -1,0 +1,70 @@
+"""Natural signal sources: video and photo frame banks, a frame sampler, and noise backgrounds.
+
+    import jax
+    from jaxnat import natural
+
+    bank = natural.load_videos(shape=(84, 84), split="train")   # FrameBank, numpy, on the host
+    print(bank.describe())           # "3 videos, 1080 frames of 84x84x3 uint8 = 22.3 MiB"
+    dev = bank.to_device()           # jax arrays, to carry in env params
+    cursor = natural.cursor_reset(jax.random.key(0), dev)
+    frame = natural.cursor_frame(dev, cursor)                 # uint8 [84, 84, 3]
+    cursor = natural.cursor_step(jax.random.key(1), cursor, dev)
+
+- Sources (`sources.py`): None = the natural videos (or photos) of Debian's `opencv-doc`, else a
+  file, a directory, a glob, or a list of these (e.g. a Kinetics download).
+- Split: by whole files, by content hash, disjoint by construction; `split="all"` uses every
+  file for both, as the paper did.
+- Decoding (`decode.py`): OpenCV, PyAV where OpenCV fails; gzipped files handled; frames resized
+  to (H, W), RGB or grayscale.
+- `FrameBank` (`bank.py`): uint8 [N, H, W, C] with per-video `starts` and `lengths`; cached on
+  disk by content, shape and colour mode; `max_frames` bounds memory.
+- Sampling (`sampler.py`): `VideoCursor` with `cursor_reset` / `cursor_step` / `cursor_frame`
+  (jit, vmap) and `HostVideoSampler` for batched host envs.
+- Noise (`noise.py`): `gaussian_noise` (N(0,1)*50 clipped at 0, the paper repository's law) and
+  `constant_color`, each with a NumPy twin.
+"""
+
+from jaxnat.natural.bank import (
+    DEFAULT_SHAPE,
+    DEFAULT_TEST_FRACTION,
+    FrameBank,
+    load_images,
+    load_videos,
+)
+from jaxnat.natural.decode import VideoDecodeWarning
+from jaxnat.natural.noise import (
+    NOISE_SCALE,
+    constant_color,
+    constant_color_np,
+    gaussian_noise,
+    gaussian_noise_np,
+)
+from jaxnat.natural.sampler import (
+    HostVideoSampler,
+    VideoCursor,
+    cursor_frame,
+    cursor_reset,
+    cursor_step,
+)
+from jaxnat.natural.sources import default_image_paths, default_video_paths
+
+__all__ = [
+    "FrameBank",
+    "load_videos",
+    "load_images",
+    "default_video_paths",
+    "default_image_paths",
+    "DEFAULT_SHAPE",
+    "DEFAULT_TEST_FRACTION",
+    "VideoDecodeWarning",
+    "VideoCursor",
+    "cursor_reset",
+    "cursor_step",
+    "cursor_frame",
+    "HostVideoSampler",
+    "NOISE_SCALE",
+    "gaussian_noise",
+    "gaussian_noise_np",
+    "constant_color",
+    "constant_color_np",
+]

@@ -1,0 +1,113 @@
+"""Play a `FrameBank` one frame per agent step: a jittable cursor and a batched host sampler.
+
+Both follow one law: at reset, a video drawn uniformly and a start frame drawn uniformly within
+it; each step, the next frame; after a video's last frame, a new video drawn uniformly, played
+from its first frame.
+
+Jittable (JAX envs keep the cursor in their state; all functions vmap):
+
+    cursor = cursor_reset(key, bank)          # bank = load_videos(...).to_device()
+    frame = cursor_frame(bank, cursor)        # uint8 [H, W, C]
+    cursor = cursor_step(key, cursor, bank)
+
+Host (batched host envs such as ALE): `HostVideoSampler(bank, num_envs, seed)`.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxnat.natural.bank import FrameBank
+
+__all__ = ["VideoCursor", "cursor_reset", "cursor_step", "cursor_frame", "HostVideoSampler"]
+
+
+@struct.dataclass
+class VideoCursor:
+    """Where one env is in the bank: video `video`, frame `offset` within it (int32 scalars)."""
+
+    video: jax.Array
+    offset: jax.Array
+
+
+def _random_video(key: jax.Array, bank: FrameBank) -> jax.Array:
+    return jax.random.randint(key, (), 0, bank.lengths.shape[0], dtype=jnp.int32)
+
+
+def cursor_reset(key: jax.Array, bank: FrameBank) -> VideoCursor:
+    """A random video and a random start frame within it."""
+    key_video, key_offset = jax.random.split(key)
+    video = _random_video(key_video, bank)
+    offset = jax.random.randint(key_offset, (), 0, jnp.asarray(bank.lengths)[video],
+                                dtype=jnp.int32)
+    return VideoCursor(video=video, offset=offset)
+
+
+def cursor_step(key: jax.Array, cursor: VideoCursor, bank: FrameBank) -> VideoCursor:
+    """The next frame; after the video's last frame, the first frame of a new random video."""
+    offset = cursor.offset + 1
+    ended = offset >= jnp.asarray(bank.lengths)[cursor.video]
+    video = jnp.where(ended, _random_video(key, bank), cursor.video)
+    return VideoCursor(video=video, offset=jnp.where(ended, 0, offset).astype(jnp.int32))
+
+
+def cursor_frame(bank: FrameBank, cursor: VideoCursor) -> jax.Array:
+    """The frame under the cursor, uint8 [H, W, C]."""
+    return jnp.asarray(bank.frames)[jnp.asarray(bank.starts)[cursor.video] + cursor.offset]
+
+
+class HostVideoSampler:
+    """`num_envs` cursors over a host (numpy) bank, advanced together, one frame per env per step.
+
+        sampler = HostVideoSampler(bank, num_envs=8, seed=0)
+        frames = sampler.reset()            # uint8 [8, H, W, C]: every env's first frame
+        frames = sampler.step()             # every env's next frame
+        frames = sampler.reset(done_mask)   # new video and start for the envs where mask is True
+
+    `frames()` returns the current frames without moving. `out=` (an array of the right shape
+    and dtype) avoids allocating a new batch each step. Random draws come from
+    `np.random.default_rng(seed)`.
+    """
+
+    def __init__(self, bank: FrameBank, num_envs: int, seed: int | None = 0):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        bank = bank.to_host()
+        self.bank = bank
+        self.num_envs = num_envs
+        self.rng = np.random.default_rng(seed)
+        self.video = np.zeros(num_envs, np.int64)
+        self.offset = np.zeros(num_envs, np.int64)
+        self.reset()
+
+    def reset(self, mask: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
+        """Re-draw video and start for the envs where `mask` is True (all when None); return
+        every env's current frame."""
+        index = (np.arange(self.num_envs) if mask is None
+                 else np.flatnonzero(np.asarray(mask, bool).reshape(self.num_envs)))
+        video = self.rng.integers(0, self.bank.num_videos, size=index.size)
+        self.video[index] = video
+        # floor(u * length) is uniform over [0, length) for each env's own length.
+        self.offset[index] = (self.rng.random(index.size) * self.bank.lengths[video]).astype(
+            np.int64)
+        return self.frames(out)
+
+    def step(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Advance every env by one frame (a new random video after a video's last frame) and
+        return the frames, uint8 [num_envs, H, W, C]."""
+        self.offset += 1
+        ended = np.flatnonzero(self.offset >= self.bank.lengths[self.video])
+        if ended.size:
+            self.video[ended] = self.rng.integers(0, self.bank.num_videos, size=ended.size)
+            self.offset[ended] = 0
+        return self.frames(out)
+
+    def frames(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Every env's current frame, uint8 [num_envs, H, W, C]."""
+        # mode="clip" (the indices are always in range) lets numpy write into `out` directly;
+        # the default mode="raise" buffers the whole batch first (3.5x slower here).
+        return np.take(self.bank.frames, self.bank.starts[self.video] + self.offset, axis=0,
+                       out=out, mode="clip")

@@ -1,0 +1,167 @@
+"""Which files feed a frame bank: the embedded defaults, user sources, and the train/test split.
+
+Sources are a file, a directory (searched recursively for files with a known extension), a glob
+pattern (`**` allowed), or a list of these. Files are identified by a SHA-256 of their bytes, so
+the split and the cache follow the content, not the path: renaming or moving a video changes
+nothing, and the same clip under two names is used once.
+
+The split is by whole files: sort the files by content hash; the first `test_fraction * n`
+(rounded half up) are `test`, the rest `train` (with at least one of each when there are two or
+more files and 0 < test_fraction < 1). Both splits come from one partition of one sorted list,
+so they are disjoint by construction, and they are the same on every machine. `split="all"` uses
+every file, as the paper did (it trained and tested on one set of Kinetics clips).
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from jaxnat.datasets.base import DatasetNotFoundError
+
+__all__ = ["VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS", "SPLITS", "OPENCV_DOC_DIRS",
+           "DEFAULT_VIDEOS", "DEFAULT_IMAGES", "default_video_paths", "default_image_paths",
+           "resolve", "content_digest", "split_files"]
+
+VIDEO_EXTENSIONS = (".avi", ".mp4", ".m4v", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".wmv",
+                    ".flv", ".ogv")
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+SPLITS = ("train", "test", "all")
+
+# Where Debian's opencv-doc puts its sample data. A module constant so tests can point it
+# elsewhere.
+OPENCV_DOC_DIRS = (Path("/usr/share/doc/opencv-doc/examples/data"),
+                   Path("/usr/share/doc/opencv-doc/opencv4/html"))
+
+# The natural videos of opencv-doc (Megamind_bugy.avi, a deliberately broken copy, is left out).
+DEFAULT_VIDEOS = ("vtest.avi", "tree.avi", "Megamind.avi", "box.mp4.gz", "cup.mp4.gz")
+# Its camera photos of natural scenes and objects (logos, drawings, charts, calibration boards,
+# text and synthetic test patterns left out; of each stereo or sequence pair, one image).
+DEFAULT_IMAGES = ("aero1.jpg", "aloeL.jpg", "apple.jpg", "baboon.jpg", "basketball1.png",
+                  "board.jpg", "building.jpg", "butterfly.jpg", "chicky_512.png",
+                  "ela_original.jpg", "fruits.jpg", "graf1.png", "home.jpg", "leuvenA.jpg",
+                  "licenseplate_motion.jpg", "messi5.jpg", "orange.jpg", "rubberwhale1.png",
+                  "smarties.png", "squirrel_cls.jpg")
+
+_MISSING_OPENCV_DOC = (
+    "the default natural {kind} come from Debian's opencv-doc package, which is not installed "
+    "(looked in {dirs} for {names}).\n"
+    "  - install it: sudo apt-get install opencv-doc (or run `make data` as root)\n"
+    "  - or pass your own files: sources='/path/to/clips/' (a folder), '/path/**/*.mp4' (a glob) "
+    "or a list of files")
+
+
+def _default_paths(names: Sequence[str], kind: str) -> list[Path]:
+    found = []
+    for name in names:
+        path = next((d / name for d in OPENCV_DOC_DIRS if (d / name).is_file()), None)
+        if path is not None:
+            found.append(path)
+    if not found:
+        raise DatasetNotFoundError(_MISSING_OPENCV_DOC.format(
+            kind=kind, dirs=", ".join(map(str, OPENCV_DOC_DIRS)), names=", ".join(names)))
+    return found
+
+
+def default_video_paths() -> list[Path]:
+    """The natural videos shipped by Debian's opencv-doc (`DEFAULT_VIDEOS`) that are present;
+    `DatasetNotFoundError` saying how to install them when none is."""
+    return _default_paths(DEFAULT_VIDEOS, "videos")
+
+
+def default_image_paths() -> list[Path]:
+    """The natural photos shipped by Debian's opencv-doc (`DEFAULT_IMAGES`) that are present;
+    `DatasetNotFoundError` saying how to install them when none is."""
+    return _default_paths(DEFAULT_IMAGES, "images")
+
+
+def _has_extension(path: Path, extensions: Sequence[str]) -> bool:
+    name = path.name.lower()
+    if name.endswith(".gz"):
+        name = name[:-3]
+    return name.endswith(tuple(extensions)) and not path.name.startswith(".")
+
+
+def _is_glob(text: str) -> bool:
+    return any(c in text for c in "*?[")
+
+
+def resolve(sources: str | os.PathLike | Iterable[str | os.PathLike],
+            extensions: Sequence[str]) -> list[Path]:
+    """The files named by `sources` (files, directories, glob patterns), in a stable order.
+
+    A directory contributes its files with one of `extensions` (optionally gzipped), searched
+    recursively; a glob contributes every file it matches. A named file that does not exist, a
+    directory without such files, or a glob matching nothing raises `DatasetNotFoundError`
+    naming it.
+    """
+    if isinstance(sources, (str, os.PathLike)):
+        sources = [sources]
+    files: list[Path] = []
+    for source in sources:
+        text = os.fspath(source)
+        path = Path(text).expanduser()
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.is_file()
+                           and _has_extension(p, extensions))
+            if not found:
+                raise DatasetNotFoundError(
+                    f"no files with extension {', '.join(extensions)} (or the same + .gz) in "
+                    f"directory {path}")
+        elif path.is_file():
+            found = [path]
+        elif _is_glob(text):
+            found = sorted(Path(p) for p in glob.glob(os.path.expanduser(text), recursive=True)
+                           if Path(p).is_file())
+            if not found:
+                raise DatasetNotFoundError(f"the glob pattern {text!r} matches no file")
+        else:
+            raise DatasetNotFoundError(f"no such file or directory: {text!r}")
+        files += found
+    if not files:
+        raise DatasetNotFoundError("no source files given (an empty list)")
+    return files
+
+
+# (resolved path, size, mtime) -> digest: the split hashes every file on every load; a
+# Kinetics folder is gigabytes, so remember each file's digest while the file is unchanged.
+_DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+def content_digest(path: Path) -> str:
+    """SHA-256 of the file's bytes (hex)."""
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key not in _DIGESTS:
+        with open(path, "rb") as f:
+            _DIGESTS[key] = hashlib.file_digest(f, "sha256").hexdigest()
+    return _DIGESTS[key]
+
+
+def split_files(files: Sequence[Path], split: str, test_fraction: float
+                ) -> list[tuple[Path, str]]:
+    """The (file, content digest) pairs of `split`, in content-hash order, duplicates dropped.
+
+    See the module docstring for the rule.
+    """
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(SPLITS)}")
+    if not 0.0 <= test_fraction <= 1.0:
+        raise ValueError(f"test_fraction must be in [0, 1], got {test_fraction}")
+    unique: dict[str, Path] = {}
+    for path in files:
+        unique.setdefault(content_digest(path), path)
+    ranked = sorted((digest, path) for digest, path in unique.items())
+    num_test = int(test_fraction * len(ranked) + 0.5)  # rounded half up
+    if len(ranked) >= 2 and 0.0 < test_fraction < 1.0:
+        num_test = min(max(num_test, 1), len(ranked) - 1)
+    chosen = {"test": ranked[:num_test], "train": ranked[num_test:], "all": ranked}[split]
+    if not chosen:
+        raise DatasetNotFoundError(
+            f"split {split!r} is empty: {len(ranked)} distinct file(s) with "
+            f"test_fraction={test_fraction}; add files, change test_fraction, or use "
+            "split='all' to use every file for both training and testing")
+    return [(path, digest) for digest, path in chosen]
