@@ -431,6 +431,10 @@ class Renderer:
             if k == 0:
                 cos = cos * hit.lit
             light = light + cos[..., None] * jnp.asarray(table.light_diffuse[k])
+        if table.floor >= 0:
+            # A lit floor shows its texture unchanged (a video or noise keeps its values);
+            # only shadows darken it.
+            light = jnp.where((g == table.floor)[..., None], jnp.minimum(light, 1.0), light)
         colour = jnp.clip(rgb * light, 0.0, 1.0)
         colour = jnp.where((g < 0)[..., None], self._sky(), colour)
         return self._to_uint8(colour)
