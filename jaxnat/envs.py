@@ -12,3 +12,12 @@ for _name, _dataset in [
     ("ImageFolder", "image_folder"),
 ]:
     register(f"Classify/{_name}-v0", _CLASSIFY, dataset=_dataset)
+
+# MuJoCo robots in MJX with Gymnasium v5 semantics, state observations (jaxnat[mujoco]).
+for _name, _module in [
+    ("Ant", "ant"),
+    ("HalfCheetah", "half_cheetah"),
+    ("Hopper", "hopper"),
+    ("Swimmer", "swimmer"),
+]:
+    register(f"MuJoCo/{_name}-v0", f"jaxnat.mjx_pixel.{_module}:{_name}", extra="mujoco")
