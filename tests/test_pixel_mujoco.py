@@ -255,3 +255,16 @@ def test_bad_arguments_are_clear_errors(physics):
         make_env(physics, frame_skip=0)
     with pytest.raises(ValueError, match="robot must be one of"):
         PixelMuJoCo(robot="humanoid")
+
+
+def test_registered_env_with_mjx_physics_keeps_the_contract():
+    """The real thing once: `jaxnat.make` with MJX physics, autoreset, pixels (Swimmer: the
+    fewest geoms and no contacts, so the fastest to compile; the other robots share the code)."""
+    import jaxnat
+
+    env, params = jaxnat.make("PixelMuJoCo/Swimmer-v0", height=SIZE, width=SIZE)
+    assert env.unwrapped.physics.model.nbody == 4 and params.max_steps_in_episode == 250
+    check_env(env, params, num_steps=3, num_envs=2)
+    for robot in ("Ant", "HalfCheetah", "Hopper"):  # built (no compile): registered and wired
+        other, other_params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", autoreset=False)
+        assert other.observation_space(other_params).shape == (84, 84, 4)
