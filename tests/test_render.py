@@ -256,14 +256,16 @@ def test_vmap_gives_each_env_its_own_frame_deterministically(cheetah):
     np.testing.assert_array_equal(batched(*args), frames)
     assert not np.array_equal(frames[0], frames[1])
     (p, m), d = poses[1], datas[1]
-    np.testing.assert_array_equal(renderer.render(p, m, d.geom_xpos, d.geom_xmat), frames[1])
+    # Eager (op by op) against compiled: float rounding may move a value by one level.
+    np.testing.assert_allclose(renderer.render(p, m, d.geom_xpos, d.geom_xmat), frames[1], atol=1)
 
 
 def test_shading_normals_and_shadows(cheetah):
     model, table, camera = cheetah
     data = posed(model, 0)
     pos, mat = camera.pose(data)
-    hit = Renderer(table, 84, 84, fovy=camera.fovy).cast(pos, mat, data.geom_xpos, data.geom_xmat)
+    hit = Renderer(table, 84, 84, fovy=camera.fovy, shadows=True).cast(
+        pos, mat, data.geom_xpos, data.geom_xmat)
     normal = np.asarray(hit.normal)
     hits = np.asarray(hit.geom) >= 0
     np.testing.assert_allclose(np.linalg.norm(normal[hits], axis=-1), 1.0, atol=1e-4)

@@ -23,6 +23,9 @@ Semantics: `shared/spec/environments.md` section 4.
   step; `video_split` "train"/"test" picks disjoint videos) or `"noise"` (fresh Gaussian
   noise each frame). See `floor.py`.
 - **Info**: the physics env's info of the last repeat that ran.
+- **Cost**: the stack lives in the state and `get_obs` returns it. A batched autoresetting step
+  (`jaxnat.make`'s default) therefore renders twice per agent step under `vmap`: the stepped
+  frame and the reset's first frame, selected afterwards (see docs/design.md).
 
 Example::
 

@@ -181,19 +181,22 @@ class Hit:
 
 
 def _nearest_root(a, b, c):
-    """Smaller positive root of a t^2 + 2 b t + c = 0 (inf if none)."""
+    """Smaller positive root of a t^2 + 2 b t + c = 0 (inf if none). `a` is the Python float
+    1.0 for unit directions, which saves the division."""
     disc = b * b - a * c
     sq = jnp.sqrt(jnp.maximum(disc, 0.0))
-    safe_a = jnp.where(a > 0, a, 1.0)
-    near = (-b - sq) / safe_a
-    far = (-b + sq) / safe_a
+    if isinstance(a, float):
+        near, far, valid = (-b - sq) / a, (-b + sq) / a, disc >= 0
+    else:
+        inv_a = 1.0 / jnp.where(a > 0, a, 1.0)
+        near, far, valid = (-b - sq) * inv_a, (-b + sq) * inv_a, (disc >= 0) & (a > 0)
     t = jnp.where(near > _EPS, near, far)
-    return jnp.where((disc >= 0) & (a > 0) & (t > _EPS), t, _MISS)
+    return jnp.where(valid & (t > _EPS), t, _MISS)
 
 
-def _sphere(o, d, radius, z_offset=0.0):
+def _sphere(o, d, radius, z_offset=0.0, unit=False):
     ox, oy, oz = o[0], o[1], o[2] - z_offset
-    a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    a = 1.0 if unit else d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     b = ox * d[0] + oy * d[1] + oz * d[2]
     c = ox * ox + oy * oy + oz * oz - radius * radius
     return _nearest_root(a, b, c)
@@ -208,7 +211,7 @@ def _side(o, d, radius, half):
     return jnp.where(jnp.abs(o[2] + t * d[2]) <= half, t, _MISS)
 
 
-def _capsule(o, d, size):
+def _capsule(o, d, size, unit=False):
     """Two square roots, not three: the ray can only enter the capsule through the lateral
     surface, where it enters the infinite cylinder, or else through the end cap on the side
     where it enters that cylinder (or, starting inside it, on its own side)."""
@@ -223,17 +226,17 @@ def _capsule(o, d, size):
     side = ~parallel & (disc >= 0) & (t_side > _EPS) & (jnp.abs(z_side) <= half)
     inside = parallel | (c < 0)
     cap_z = jnp.where(inside, jnp.sign(o[2]), jnp.sign(z_side)) * half
-    t_cap = jnp.where(inside | (disc >= 0), _sphere(o, d, radius, cap_z), _MISS)
+    t_cap = jnp.where(inside | (disc >= 0), _sphere(o, d, radius, cap_z, unit), _MISS)
     return jnp.where(side, t_side, t_cap)
 
 
-def _ellipsoid(o, d, size):
+def _ellipsoid(o, d, size, unit=False):
     scaled_o = tuple(o[i] / size[i] for i in range(3))
     scaled_d = tuple(d[i] / size[i] for i in range(3))
     return _sphere(scaled_o, scaled_d, 1.0)
 
 
-def _cylinder(o, d, size):
+def _cylinder(o, d, size, unit=False):
     radius, half = size[0], size[1]
     t = _side(o, d, radius, half)
     safe_dz = jnp.where(d[2] == 0, 1e-30, d[2])
@@ -245,7 +248,7 @@ def _cylinder(o, d, size):
     return t
 
 
-def _box(o, d, size):
+def _box(o, d, size, unit=False):
     near, far = -_MISS, _MISS
     for i in range(3):
         safe = jnp.where(d[i] == 0, 1e-30, d[i])
@@ -256,7 +259,7 @@ def _box(o, d, size):
     return jnp.where((far >= near) & (t > _EPS), t, _MISS)
 
 
-def _plane(o, d, size):
+def _plane(o, d, size, unit=False):
     """The local z = 0 plane, seen from above only (as MuJoCo draws it); size[0:2] > 0 bounds
     it to |x| <= size[0], |y| <= size[1]."""
     safe_dz = jnp.where(d[2] == 0, 1e-30, d[2])
@@ -268,7 +271,9 @@ def _plane(o, d, size):
     return jnp.where(ok, t, _MISS)
 
 
-_INTERSECT = {PLANE: _plane, SPHERE: lambda o, d, s: _sphere(o, d, s[0]), CAPSULE: _capsule,
+# Each takes (o, d, size, unit): `unit=True` promises |d| = 1 (the renderer's rays).
+_INTERSECT = {PLANE: _plane, SPHERE: lambda o, d, s, unit=False: _sphere(o, d, s[0], 0.0, unit),
+              CAPSULE: _capsule,
               ELLIPSOID: _ellipsoid, CYLINDER: _cylinder, BOX: _box}
 
 
@@ -377,7 +382,7 @@ class Renderer:
         for g in range(table.num_geoms):  # unrolled: G is small and static
             o_local = _to_local(tuple(cam_pos[i] - xpos[g, i] for i in range(3)), xmat[g])
             t = _INTERSECT[int(table.types[g])](o_local, _to_local(d, xmat[g]),
-                                                tuple(float(s) for s in table.sizes[g]))
+                                                tuple(float(s) for s in table.sizes[g]), True)
             closer = t < best_t
             best_t = jnp.where(closer, t, best_t)
             best_g = jnp.where(closer, g, best_g)
@@ -408,7 +413,7 @@ class Renderer:
             o_local = _to_local(tuple(point[i] - xpos[g, i] for i in range(3)), xmat[g])
             d_local = _to_local(tuple(jnp.full((), c, jnp.float32) for c in to_light), xmat[g])
             t = _INTERSECT[int(self.table.types[g])](o_local, d_local,
-                                                     tuple(float(s) for s in self.table.sizes[g]))
+                                                     tuple(float(s) for s in self.table.sizes[g]), True)
             blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
         return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
 
