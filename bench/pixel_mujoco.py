@@ -170,6 +170,7 @@ def main(argv=None):
                              "noise at the largest)")
     parser.add_argument("--steps", type=int, default=None, help="scan steps per timed rollout")
     parser.add_argument("--no-env", action="store_true", help="renderer and MuJoCo only")
+    parser.add_argument("--shadows", action="store_true", help="render shadows (env default: off)")
     parser.add_argument("--strip-only", action="store_true")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
@@ -189,11 +190,12 @@ def main(argv=None):
     for robot in args.robots:
         env_id = f"PixelMuJoCo/{IDS[robot]}-v0"
         try:
-            env, params = jaxnat.make(env_id, floor="video", video_max_frames=2000)
+            env, params = jaxnat.make(env_id, floor="video", video_max_frames=2000,
+                                      shadows=args.shadows)
             video_floor = "video"
         except Exception as err:  # no natural videos on this machine (opencv-doc)
             print(f"  no video floor ({type(err).__name__}: {str(err).splitlines()[0]}); using noise")
-            env, params = jaxnat.make(env_id, floor="noise")
+            env, params = jaxnat.make(env_id, floor="noise", shadows=args.shadows)
             video_floor = "noise"
         poses = stored_poses(env.unwrapped.physics.model, 64)
         mujoco_fps = mujoco_renderer_fps(env.unwrapped.physics.model, poses, 84, 84)
@@ -209,7 +211,8 @@ def main(argv=None):
                                          else [video_floor])
                 for floor in dict.fromkeys(floors):
                     floor_env, floor_params = ((env, params) if floor == video_floor
-                                               else jaxnat.make(env_id, floor=floor))
+                                               else jaxnat.make(env_id, floor=floor,
+                                                                shadows=args.shadows))
                     row[f"{floor}_sps"], row[f"{floor}_compile_s"] = rollout_sps(
                         floor_env, floor_params, num_envs, steps)
                     row[f"{floor}_vs_physics"] = row[f"{floor}_sps"] / row["physics_sps"]
@@ -232,7 +235,8 @@ def main(argv=None):
     best = {robot: max((r for r in rows if r["robot"] == robot), key=lambda r: r["render_fps"])
             for robot in args.robots}
     summary = {
-        "frame": "84x84 grayscale, shadows off (env default), frame skip 4, stack 4",
+        "frame": f"84x84 grayscale, shadows {'on' if args.shadows else 'off (env default)'}, "
+                 "frame skip 4, stack 4, autoreset",
         "renderer_peak_frames_per_s": {r: f"{b['render_fps']:.3e} at {b['envs']} envs"
                                        for r, b in best.items()},
         "target_renderer_2M": {r: b["render_fps"] >= 2e6 for r, b in best.items()},

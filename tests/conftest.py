@@ -1,11 +1,13 @@
 """Shared test set-up: CPU JAX, and a small hand-built image dataset."""
 
+import ctypes.util
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # mujoco.Renderer (the PixelMuJoCo renderer's reference) draws off-screen with OSMesa on a CPU
-# machine; the variable is read when mujoco is first imported.
-os.environ.setdefault("MUJOCO_GL", "osmesa")
+# machine (scripts/install_data.sh installs libosmesa6); mujoco reads the variable on import.
+if ctypes.util.find_library("OSMesa"):
+    os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import numpy as np
 import pytest
