@@ -36,3 +36,14 @@ for _name, _module in [
     ("Swimmer", "swimmer"),
 ]:
     register(f"MuJoCo/{_name}-v0", f"jaxnat.mjx_pixel.{_module}:{_name}", extra="mujoco")
+
+# The same robots seen through the tracking camera: pixels (pure-JAX ray caster), a checker,
+# natural-video or noise floor, or a pure-noise observation (jaxnat[mujoco]).
+for _name, _robot in [
+    ("Ant", "ant"),
+    ("HalfCheetah", "half_cheetah"),
+    ("Hopper", "hopper"),
+    ("Swimmer", "swimmer"),
+]:
+    register(f"PixelMuJoCo/{_name}-v0", "jaxnat.mjx_pixel.pixel:PixelMuJoCo", extra="mujoco",
+             robot=_robot)

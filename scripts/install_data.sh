@@ -8,6 +8,9 @@ FASHION=/usr/share/datasets/fashion-mnist/t10k-labels-idx1-ubyte.gz
 missing=()
 [ -f "$DIGITS" ] || missing+=(opencv-doc)
 [ -f "$FASHION" ] || missing+=(dataset-fashion-mnist)
+# OSMesa: off-screen OpenGL for mujoco.Renderer, the reference the PixelMuJoCo renderer is
+# tested against on CPU machines (MUJOCO_GL=osmesa).
+ldconfig -p 2>/dev/null | grep -q libOSMesa || missing+=(libosmesa6)
 [ ${#missing[@]} -eq 0 ] && exit 0
 
 if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then

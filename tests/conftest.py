@@ -1,5 +1,6 @@
 """Shared test set-up: CPU JAX, and a small hand-built image dataset."""
 
+import ctypes.util
 import os
 import tempfile
 
@@ -10,6 +11,10 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), "jaxnat-tests-xla-cache")
 )
+# mujoco.Renderer (the PixelMuJoCo renderer's reference) draws off-screen with OSMesa on a CPU
+# machine (scripts/install_data.sh installs libosmesa6); mujoco reads the variable on import.
+if ctypes.util.find_library("OSMesa"):
+    os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import numpy as np
 import pytest

@@ -7,9 +7,13 @@ from jaxnat.datasets import DatasetNotFoundError
 from jaxnat.testing import check_env
 
 
-# Host-batched envs (NaturalAtari/*) have their own contract tests (tests/test_atari.py).
+# Covered by their own contract tests instead: host-batched envs (NaturalAtari/*,
+# tests/test_atari.py), and the MJX envs, which compile for minutes on a CI CPU
+# (tests/test_mjx_physics.py runs check_env on every MuJoCo/* robot once; tests/test_pixel_mujoco.py
+# on the registered Swimmer and on every observation/floor mode with light physics).
 _JAX_IDS = [
-    i for i in jaxnat.registered_envs() if not i.startswith("Test/") and not jaxnat.spec(i).batched
+    i for i in jaxnat.registered_envs()
+    if not i.startswith(("Test/", "PixelMuJoCo/", "MuJoCo/")) and not jaxnat.spec(i).batched
 ]
 
 

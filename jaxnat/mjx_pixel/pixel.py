@@ -1,0 +1,249 @@
+"""PixelMuJoCo: an MJX robot seen through its tracking camera: `PixelMuJoCo/*-v0`.
+
+Semantics: `shared/spec/environments.md` section 4.
+
+- **Physics**: the robot's MJX env (`jaxnat.mjx_pixel.{ant,half_cheetah,hopper,swimmer}`,
+  Gymnasium MuJoCo v5 dynamics, rewards, termination and reset noise).
+- **Frame skip**: one agent step repeats the action for `frame_skip` (4) physics-env steps and
+  sums their rewards (unclipped); when a step terminates the episode, the remaining repeats are
+  skipped (the state and the reward stay those of the terminating step).
+- **Time limit**: `1000 // frame_skip` agent steps (Gymnasium's 1000 env steps), `truncated`.
+- **Observation** (`observation=`):
+  - `"pixels"`: uint8 `[H, W, C * frame_stack]`, the last `frame_stack` (4) frames, oldest
+    first, `C` = 1 (grayscale, default) or 3. One frame is rendered per agent step, after the
+    last repeat (frames inside a skip are never rendered). At reset the stack holds copies of
+    the first frame. Frames come from `render.Renderer` (pure JAX ray casting, 84x84 by
+    default) through the model's `track` camera (`camera.TrackingCamera`).
+  - `"noise"`: uint8 of the same shape, every value i.i.d. N(0, 1) * 50 clipped at 0 (the
+    paper's open-loop test), fresh each step; nothing is rendered.
+  - `"state"`: the physics env's float32 observation after the last repeat (no stacking).
+- **Floor** (`floor=`, pixels only): the pixels whose nearest hit is the floor plane take
+  `"checker"` (the model's checker), `"video"` (the current frame of a natural video laid on
+  the floor in world x-y, `video_tile` metres per copy; the video advances one frame per agent
+  step; `video_split` "train"/"test" picks disjoint videos) or `"noise"` (fresh Gaussian
+  noise each frame). See `floor.py`.
+- **Info**: the physics env's info of the last repeat that ran.
+- **Cost**: the stack lives in the state and `get_obs` returns it. A batched autoresetting step
+  (`jaxnat.make`'s default) therefore renders twice per agent step under `vmap`: the stepped
+  frame and the reset's first frame, selected afterwards (see docs/design.md).
+
+Example::
+
+    import jax, jaxnat
+    env, params = jaxnat.make("PixelMuJoCo/HalfCheetah-v0", floor="video")
+    obs, state = env.reset(jax.random.key(0), params)        # uint8 [84, 84, 4]
+    action = env.action_space(params).sample(jax.random.key(1))
+    obs, state, reward, terminated, truncated, info = env.step(
+        jax.random.key(2), state, action, params)
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxnat import spaces
+from jaxnat.core import Environment, EnvParams, EnvState
+from jaxnat.mjx_pixel.camera import TrackingCamera
+from jaxnat.mjx_pixel.floor import FLOOR_MODES, floor_rgb
+from jaxnat.mjx_pixel.render import GeomTable, Renderer
+
+__all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "PHYSICS", "OBSERVATIONS"]
+
+# Robot name -> its MJX physics env ("module:class").
+PHYSICS = {
+    "ant": "jaxnat.mjx_pixel.ant:Ant",
+    "half_cheetah": "jaxnat.mjx_pixel.half_cheetah:HalfCheetah",
+    "hopper": "jaxnat.mjx_pixel.hopper:Hopper",
+    "swimmer": "jaxnat.mjx_pixel.swimmer:Swimmer",
+}
+OBSERVATIONS = ("pixels", "noise", "state")
+
+
+@struct.dataclass
+class PixelState(EnvState):
+    physics: Any  # the physics env's state; `physics.data` is its mjx.Data
+    obs: jax.Array  # the current observation (the frame stack for "pixels")
+    cursor: Any = None  # natural.VideoCursor with floor="video", else None
+
+
+@struct.dataclass(kw_only=True)
+class PixelParams(EnvParams):
+    physics: Any  # the physics env's params
+    video: Any = None  # natural.FrameBank on the device, with floor="video"
+    video_tile: float = 4.0  # metres of floor one video frame covers (x and y)
+    max_steps_in_episode: int = 250
+
+
+class PixelMuJoCo(Environment[PixelState, PixelParams]):
+    """An MJX robot observed as pixels, pure noise or state (see the module docstring).
+
+    Args:
+        robot: "ant", "half_cheetah", "hopper" or "swimmer" (ignored when `physics` is given).
+        observation: "pixels", "noise" or "state".
+        floor: "checker", "video" or "noise".
+        frame_skip: physics-env steps per agent step (4).
+        frame_stack: frames per observation (4).
+        height, width: frame size in pixels (84x84).
+        grayscale: 1 channel per frame (True, the paper's preprocessing) or RGB.
+        shadows: render the light's shadows (off by default: about twice the render work).
+        videos: natural video sources for floor="video" (None: opencv-doc's videos; else files,
+            a directory or a glob; see `jaxnat.natural.load_videos`).
+        video_split: "train", "test" (disjoint videos) or "all".
+        video_shape: (H, W) the videos are decoded to before being laid on the floor.
+        video_max_frames: cap on the frames held on the device (None: all).
+        physics: a physics env instance to wrap instead of `robot`'s (its state must carry an
+            `mjx.Data` as `.data` and the env its `mujoco.MjModel` as `.model`).
+    """
+
+    params_type = PixelParams
+
+    def __init__(
+        self,
+        robot: str = "half_cheetah",
+        observation: str = "pixels",
+        floor: str = "checker",
+        frame_skip: int = 4,
+        frame_stack: int = 4,
+        height: int = 84,
+        width: int = 84,
+        grayscale: bool = True,
+        shadows: bool = False,
+        videos=None,
+        video_split: str = "train",
+        video_shape: tuple[int, int] = (128, 128),
+        video_max_frames: int | None = None,
+        physics: Environment | None = None,
+    ):
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
+        if floor not in FLOOR_MODES:
+            raise ValueError(f"floor must be one of {FLOOR_MODES}, got {floor!r}")
+        if int(frame_skip) < 1 or int(frame_stack) < 1:
+            raise ValueError(f"frame_skip and frame_stack must be >= 1, got {frame_skip}, {frame_stack}")
+        if physics is None:
+            if robot not in PHYSICS:
+                raise ValueError(f"robot must be one of {sorted(PHYSICS)}, got {robot!r}")
+            module, _, cls = PHYSICS[robot].partition(":")
+            physics = getattr(importlib.import_module(module), cls)()
+        self.robot = robot
+        self.physics = physics
+        self.observation = observation
+        self.floor = floor
+        self.frame_skip, self.frame_stack = int(frame_skip), int(frame_stack)
+        self.camera = TrackingCamera.from_model(physics.model)
+        self.table = GeomTable.from_model(physics.model)
+        self.renderer = Renderer(self.table, height, width, fovy=self.camera.fovy,
+                                 grayscale=grayscale, shadows=shadows)
+        self._video = None
+        if observation == "pixels" and floor == "video":
+            from jaxnat import natural
+
+            bank = natural.load_videos(videos, shape=tuple(video_shape), grayscale=grayscale,
+                                       split=video_split, max_frames=video_max_frames)
+            self._video = bank.to_device()
+        self.video_split = video_split
+
+    @property
+    def name(self) -> str:
+        return f"PixelMuJoCo[{self.robot}, {self.observation}, floor={self.floor}]"
+
+    @property
+    def default_params(self) -> PixelParams:
+        return PixelParams(physics=self.physics.default_params, video=self._video,
+                           max_steps_in_episode=max(1, 1000 // self.frame_skip))
+
+    def action_space(self, params: PixelParams) -> spaces.Space:
+        return self.physics.action_space(params.physics)
+
+    def observation_space(self, params: PixelParams) -> spaces.Space:
+        if self.observation == "state":
+            return self.physics.observation_space(params.physics)
+        r = self.renderer
+        return spaces.Box(0, 255, (r.height, r.width, r.channels * self.frame_stack), jnp.uint8)
+
+    def get_obs(self, state: PixelState, params: PixelParams) -> jax.Array:
+        return state.obs
+
+    def render(self, key, physics_state, params: PixelParams, cursor=None) -> jax.Array:
+        """One uint8 `[H, W, C]` frame of `physics_state` with this env's floor. `key` draws the
+        noise floor; `cursor` picks the video frame (floor="video")."""
+        data = physics_state.data
+        cam_pos, cam_mat = self.camera.pose(data)
+        hit = self.renderer.cast(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat)
+        frame = None
+        if self.floor == "video":
+            from jaxnat.natural import cursor_frame
+
+            frame = cursor_frame(params.video, cursor)
+        colour = floor_rgb(self.floor, self.table, hit.point[..., :2], frame=frame,
+                           tile=(params.video_tile, params.video_tile), key=key,
+                           channels=self.renderer.channels)
+        return self.renderer.shade(hit, cam_mat, colour)
+
+    def reset_env(self, key, params: PixelParams):
+        key_physics, key_video, key_obs = jax.random.split(key, 3)
+        physics_obs, physics_state = self.physics.reset_env(key_physics, params.physics)
+        cursor = None
+        if self._video is not None:
+            from jaxnat.natural import cursor_reset
+
+            cursor = cursor_reset(key_video, params.video)
+        if self.observation == "pixels":
+            frame = self.render(key_obs, physics_state, params, cursor)
+            obs = jnp.concatenate([frame] * self.frame_stack, axis=-1)
+        else:
+            obs = self._non_pixel_obs(key_obs, physics_obs, params)
+        state = PixelState(time=jnp.zeros((), jnp.int32), physics=physics_state, obs=obs,
+                           cursor=cursor)
+        return obs, state
+
+    def step_env(self, key, state: PixelState, action, params: PixelParams):
+        key_physics, key_video, key_obs = jax.random.split(key, 3)
+        physics_obs, physics_state, reward, terminated, info = self._repeat(
+            key_physics, state.physics, action, params)
+        if self.observation == "pixels":
+            cursor = state.cursor
+            if cursor is not None:
+                from jaxnat.natural import cursor_step
+
+                cursor = cursor_step(key_video, cursor, params.video)
+            frame = self.render(key_obs, physics_state, params, cursor)
+            obs = jnp.concatenate([state.obs[..., frame.shape[-1]:], frame], axis=-1)
+            state = state.replace(cursor=cursor)
+        else:
+            obs = self._non_pixel_obs(key_obs, physics_obs, params)
+        state = state.replace(physics=physics_state, obs=obs)
+        return obs, state, reward, terminated, info
+
+    def _non_pixel_obs(self, key, physics_obs, params):
+        if self.observation == "state":
+            return physics_obs
+        from jaxnat.natural import gaussian_noise
+
+        return gaussian_noise(key, self.observation_space(params).shape)
+
+    def _repeat(self, key, physics_state, action, params: PixelParams):
+        """`frame_skip` physics steps with `action`; steps after a termination are void."""
+        physics = self.physics
+        step = physics.step_env
+        shapes = jax.eval_shape(step, key, physics_state, action, params.physics)
+        zeros = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), (shapes[0], shapes[4]))
+
+        def body(carry, key):
+            state, obs, total, done, info = carry
+            new_obs, new_state, reward, terminated, new_info = step(key, state, action, params.physics)
+            keep = lambda new, old: jnp.where(done, old, new)  # noqa: E731
+            state = jax.tree.map(keep, new_state, state)
+            obs, info = jax.tree.map(keep, (new_obs, new_info), (obs, info))
+            total = total + jnp.where(done, 0.0, reward)
+            return (state, obs, total, done | terminated, info), None
+
+        init = (physics_state, zeros[0], jnp.zeros((), jnp.float32), jnp.zeros((), jnp.bool_), zeros[1])
+        (state, obs, total, done, info), _ = jax.lax.scan(
+            body, init, jax.random.split(key, self.frame_skip))
+        return obs, state, total, done, info

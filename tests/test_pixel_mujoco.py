@@ -1,0 +1,301 @@
+"""PixelMuJoCo's pixel layer (jaxnat/mjx_pixel/pixel.py): frame skip and stack, floor modes,
+the noise observation, video split, and the env contract.
+
+Most tests drive the pixel layer with `Sliding`, a stand-in for the MJX physics: Gymnasium's
+HalfCheetah in one pose (placed by MuJoCo C) slid along x. It compiles in seconds on a 2-core
+CPU, where MJX's step takes minutes. The registered env with real MJX physics is run once, at
+the end, on a tiny batch.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import struct
+
+mujoco = pytest.importorskip("mujoco")
+
+from jaxnat import spaces  # noqa: E402
+from jaxnat.core import Environment, EnvParams, EnvState  # noqa: E402
+from jaxnat.mjx_pixel.pixel import PixelMuJoCo  # noqa: E402
+from jaxnat.testing import check_env  # noqa: E402
+
+SIZE = 32
+
+
+@struct.dataclass
+class Pose:
+    """The fields of mjx.Data the pixel layer reads."""
+
+    qpos: jax.Array
+    geom_xpos: jax.Array
+    geom_xmat: jax.Array
+    subtree_com: jax.Array
+
+
+@struct.dataclass
+class SlidingState(EnvState):
+    data: Pose
+
+
+@struct.dataclass
+class SlidingParams(EnvParams):
+    stop_x: float = 1e9
+
+
+class Sliding(Environment):
+    """Stand-in physics: Gymnasium's HalfCheetah, joints bent (a fixed pose from mj_forward),
+    starting at x ~ U(-1, 1) and moving +0.1 m along x per step whatever the action; reward =
+    x after the step; terminated once x > `params.stop_x`."""
+
+    def __init__(self):
+        import importlib.resources
+
+        path = importlib.resources.files("gymnasium") / "envs/mujoco/assets/half_cheetah.xml"
+        self.model = mujoco.MjModel.from_xml_path(str(path))
+        data = mujoco.MjData(self.model)
+        data.qpos[3:] = np.linspace(-0.5, 0.5, self.model.nq - 3)
+        mujoco.mj_forward(self.model, data)
+        self._pose = Pose(*(jnp.asarray(a, jnp.float32) for a in (
+            data.qpos, data.geom_xpos, data.geom_xmat.reshape(-1, 3, 3), data.subtree_com)))
+
+    @property
+    def default_params(self):
+        return SlidingParams()
+
+    def action_space(self, params):
+        return spaces.Box(-1.0, 1.0, (6,), jnp.float32)
+
+    def observation_space(self, params):
+        return spaces.Box(-np.inf, np.inf, (self.model.nq,), jnp.float32)
+
+    def place(self, x):
+        """The pose with the root at x (everything shifted by x along the world x axis)."""
+        shift = jnp.zeros(3).at[0].set(x)
+        p = self._pose
+        return Pose(p.qpos.at[0].set(x), p.geom_xpos + shift, p.geom_xmat, p.subtree_com + shift)
+
+    def reset_env(self, key, params):
+        data = self.place(jax.random.uniform(key, (), minval=-1.0, maxval=1.0))
+        return data.qpos, SlidingState(time=jnp.zeros((), jnp.int32), data=data)
+
+    def step_env(self, key, state, action, params):
+        x = state.data.qpos[0] + 0.1
+        data = self.place(x)
+        return data.qpos, state.replace(data=data), x, x > params.stop_x, {"x": x}
+
+
+@pytest.fixture(scope="module")
+def physics():
+    return Sliding()
+
+
+def make_env(physics, **kwargs):
+    kwargs.setdefault("height", SIZE)
+    kwargs.setdefault("width", SIZE)
+    return PixelMuJoCo(physics=physics, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def checker(physics):
+    env = make_env(physics)
+    params = env.default_params
+    return env, params, jax.jit(env.reset), jax.jit(env.step)
+
+
+def test_contract(physics):
+    env = make_env(physics)
+    check_env(env, env.default_params, num_steps=6, num_envs=2)
+
+
+def test_spaces_and_defaults(checker):
+    env, params, *_ = checker
+    assert env.observation_space(params).shape == (SIZE, SIZE, 4)  # gray, stack of 4
+    assert env.observation_space(params).dtype == jnp.uint8
+    assert params.max_steps_in_episode == 250  # Gymnasium's 1000 env steps / frame skip 4
+    rgb = make_env(env.physics, grayscale=False, frame_stack=2)
+    assert rgb.observation_space(rgb.default_params).shape == (SIZE, SIZE, 6)
+
+
+def test_frame_skip_sums_rewards_and_the_stack_shifts(checker):
+    env, params, reset, step = checker
+    obs, state = reset(jax.random.key(0), params)
+    # At reset the stack is four copies of the first frame.
+    for k in range(1, 4):
+        np.testing.assert_array_equal(obs[..., k], obs[..., 0])
+    frames = [obs[..., 0]]
+    for t in range(3):
+        x0 = float(state.physics.data.qpos[0])
+        obs, state, reward, *_ = step(jax.random.key(t), state, jnp.zeros(6), params)
+        # Four repeats of +0.1 m; the reward is the sum of the four x positions.
+        assert float(state.physics.data.qpos[0]) == pytest.approx(x0 + 0.4, abs=1e-5)
+        assert float(reward) == pytest.approx(sum(x0 + 0.1 * k for k in range(1, 5)), abs=1e-4)
+        frames.append(obs[..., 3])
+        np.testing.assert_array_equal(obs[..., :3], np.stack(
+            [frames[max(i, 0)] for i in range(len(frames) - 4, len(frames) - 1)], -1))
+    # The frame is a render of the state after the last repeat (eager here, so float rounding
+    # may move a value by one level).
+    np.testing.assert_allclose(obs[..., 3], env.render(None, state.physics, params)[..., 0], atol=1)
+
+
+def test_termination_stops_the_repeats(checker):
+    env, params, reset, step = checker
+    obs, state = reset(jax.random.key(0), params)
+    x0 = float(state.physics.data.qpos[0])
+    # Repeats reach x0 + 0.1, + 0.2, + 0.3 > stop_x: terminated; the fourth never runs.
+    params = params.replace(physics=params.physics.replace(stop_x=x0 + 0.25))
+    obs, state, reward, terminated, truncated, info = step(
+        jax.random.key(1), state, jnp.zeros(6), params)
+    assert bool(terminated) and not bool(truncated)
+    assert float(state.physics.data.qpos[0]) == pytest.approx(x0 + 0.3, abs=1e-5)
+    assert float(reward) == pytest.approx(3 * x0 + 0.6, abs=1e-4)
+    assert float(info["x"]) == pytest.approx(x0 + 0.3, abs=1e-5)
+
+
+def floor_mask(env, physics_state):
+    data = physics_state.data
+    pos, mat = env.camera.pose(data)
+    hit = env.renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat)
+    return np.asarray(hit.geom == env.table.floor)
+
+
+@pytest.fixture(scope="module")
+def video_env(physics):
+    natural = pytest.importorskip("jaxnat.natural")
+    try:
+        natural.default_video_paths()
+    except Exception as err:  # opencv-doc missing
+        pytest.skip(str(err))
+    return make_env(physics, floor="video", video_shape=(32, 32), video_max_frames=64)
+
+
+def test_floor_modes_change_only_floor_pixels(checker, video_env):
+    env, params, reset, _ = checker
+    _, state = reset(jax.random.key(3), params)
+    floor = floor_mask(env, state.physics)
+    assert 0.2 < floor.mean() < 0.9
+    base = np.asarray(env.render(None, state.physics, params))
+    noise_env = make_env(env.physics, floor="noise")
+    cursor = state.cursor
+    _, video_state = video_env.reset(jax.random.key(3), video_env.default_params)
+    others = [
+        np.asarray(noise_env.render(jax.random.key(1), state.physics, noise_env.default_params)),
+        np.asarray(video_env.render(None, state.physics, video_env.default_params, video_state.cursor)),
+    ]
+    assert cursor is None
+    for other in others:
+        changed = np.any(other != base, axis=-1)
+        assert changed.any()
+        assert not (changed & ~floor).any(), "a non-floor pixel changed with the floor mode"
+        assert changed[floor].mean() > 0.5
+
+
+def test_video_floor_is_fixed_to_the_world(video_env):
+    env, params = video_env, video_env.default_params
+    _, state = env.reset(jax.random.key(0), params)
+    tile = float(params.video_tile)
+
+    def frame_at(x):
+        physics = state.physics.replace(data=env.physics.place(x))
+        return np.asarray(env.render(None, physics, params, state.cursor))
+
+    # The camera follows the robot: moving by exactly one video tile shows the same picture
+    # (the floor repeats every tile); by half a tile, the same robot over a shifted floor.
+    np.testing.assert_array_equal(frame_at(2.0 + tile), frame_at(2.0))
+    half = frame_at(2.0 + tile / 2) != frame_at(2.0)
+    floor = floor_mask(env, state.physics)
+    assert half[..., 0][floor].mean() > 0.3 and not half[..., 0][~floor].any()
+
+
+def test_video_advances_one_frame_per_agent_step_and_splits_are_disjoint(video_env, physics):
+    env, params = video_env, video_env.default_params
+    _, state = env.reset(jax.random.key(0), params)
+    offset = int(state.cursor.offset)
+    length = int(params.video.lengths[int(state.cursor.video)])
+    _, state, *_ = env.step(jax.random.key(1), state, jnp.zeros(6), params)
+    assert int(state.cursor.offset) == (offset + 1 if offset + 1 < length else 0)
+    test_env = make_env(physics, floor="video", video_split="test", video_shape=(32, 32),
+                        video_max_frames=64)
+    train_names = set(params.video.names)
+    test_names = set(test_env.default_params.video.names)
+    assert train_names and test_names and not train_names & test_names
+
+
+def noise_law_checks(values):
+    """N(0, 1) * 50 clipped at 0, truncated to uint8: half zeros, mean 50 / sqrt(2 pi) - ~0.5."""
+    values = np.asarray(values, np.float64).ravel()
+    assert abs((values == 0).mean() - 0.5) < 0.03
+    assert abs(values.mean() - (50 / np.sqrt(2 * np.pi) - 0.5)) < 1.5
+    assert values.max() > 100
+
+
+def test_noise_observation_is_fresh_gaussian_noise(physics):
+    env = make_env(physics, observation="noise")
+    params = env.default_params
+    obs, state = env.reset(jax.random.key(0), params)
+    assert obs.shape == (SIZE, SIZE, 4) and obs.dtype == jnp.uint8
+    obs2, state, *_ = jax.jit(env.step)(jax.random.key(1), state, jnp.zeros(6), params)
+    noise_law_checks(np.concatenate([np.asarray(obs).ravel(), np.asarray(obs2).ravel()]))
+    assert (np.asarray(obs) != np.asarray(obs2)).mean() > 0.4, "noise must be redrawn every step"
+    # Consecutive stacked frames are independent too (not a shifted stack).
+    assert (np.asarray(obs2[..., :3]) != np.asarray(obs[..., 1:])).mean() > 0.4
+
+
+def test_noise_floor_follows_the_noise_law(checker):
+    env, params, reset, _ = checker
+    _, state = reset(jax.random.key(3), params)
+    noise_env = make_env(env.physics, floor="noise")
+    floor = floor_mask(env, state.physics)
+    frames = [np.asarray(noise_env.render(jax.random.key(k), state.physics, params))[..., 0][floor]
+              for k in range(4)]
+    noise_law_checks(np.concatenate(frames))
+    assert (frames[0] != frames[1]).mean() > 0.4
+
+
+def test_state_observation(physics):
+    env = make_env(physics, observation="state")
+    params = env.default_params
+    obs, state = env.reset(jax.random.key(0), params)
+    assert env.observation_space(params).shape == (physics.model.nq,)
+    np.testing.assert_array_equal(obs, state.physics.data.qpos)
+
+
+def test_bad_arguments_are_clear_errors(physics):
+    with pytest.raises(ValueError, match="observation must be one of"):
+        make_env(physics, observation="rgb")
+    with pytest.raises(ValueError, match="floor must be one of"):
+        make_env(physics, floor="grass")
+    with pytest.raises(ValueError, match="frame_skip"):
+        make_env(physics, frame_skip=0)
+    with pytest.raises(ValueError, match="robot must be one of"):
+        PixelMuJoCo(robot="humanoid")
+
+
+def test_registered_env_with_mjx_physics():
+    """The real thing once: `jaxnat.make` with MJX physics and autoreset, a batch of two,
+    pixels in the space, finite rewards, deterministic under a key, the camera on the torso
+    (Swimmer: the fewest geoms and no contacts, so the fastest to compile). Every mode's full
+    contract is checked above with the stand-in physics; the robots share this code."""
+    import jaxnat
+
+    env, params = jaxnat.make("PixelMuJoCo/Swimmer-v0", height=SIZE, width=SIZE)
+    assert env.unwrapped.physics.model.nbody == 4 and params.max_steps_in_episode == 250
+    space = env.observation_space(params)
+    keys = jax.random.split(jax.random.key(0), 2)
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    obs, state = reset(keys, params)
+    actions = jnp.array([[1.0, -1.0], [-1.0, 1.0]])
+    outputs = [step(keys, state, actions, params) for _ in range(2)]
+    obs1, state1, reward, terminated, truncated, _ = outputs[0]
+    for a, b in zip(jax.tree.leaves(outputs[0][:5]), jax.tree.leaves(outputs[1][:5])):
+        np.testing.assert_array_equal(a, b)
+    assert obs1.shape == (2, *space.shape) and obs1.dtype == space.dtype
+    assert reward.dtype == jnp.float32 and np.all(np.isfinite(reward))
+    assert not np.any(terminated) and not np.any(truncated)
+    # The swimmer moved: the newest frame differs from the reset frame, the older ones shifted.
+    assert np.any(obs1[..., 3] != obs[..., 3])
+    np.testing.assert_array_equal(obs1[..., :3], obs[..., 1:])
+    for robot in ("Ant", "HalfCheetah", "Hopper"):  # built (no compile): registered and wired
+        other, other_params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", autoreset=False)
+        assert other.observation_space(other_params).shape == (84, 84, 4)

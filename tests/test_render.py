@@ -1,0 +1,311 @@
+"""The pure-JAX ray caster (jaxnat/mjx_pixel/render.py), its camera and floor textures.
+
+Ray-primitive intersections against closed forms; the tracking camera against MuJoCo's own
+`mj_camlight`; silhouettes and floor masks against MuJoCo's renderer (segmentation mode, exact
+geom ids; OSMesa on CPU) for Gymnasium's four robots in random poses.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+
+from jaxnat.mjx_pixel import render  # noqa: E402
+from jaxnat.mjx_pixel.camera import TrackingCamera  # noqa: E402
+from jaxnat.mjx_pixel.floor import floor_rgb, texture_at  # noqa: E402
+from jaxnat.mjx_pixel.render import GeomTable, Renderer, intersect  # noqa: E402
+
+ROBOTS = ("ant", "half_cheetah", "hopper", "swimmer")
+
+
+def gym_model(robot):
+    import importlib.resources
+
+    path = importlib.resources.files("gymnasium") / "envs" / "mujoco" / "assets" / f"{robot}.xml"
+    return mujoco.MjModel.from_xml_path(str(path))
+
+
+def posed(model, seed, scale=0.3):
+    """MjData in a random pose (free/slide root coordinates kept, joints perturbed), placed by
+    MuJoCo's mj_forward."""
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    qpos = model.qpos0.copy()
+    qpos[2:] += rng.normal(0.0, scale, model.nq - 2)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    return data
+
+
+# --- intersections -----------------------------------------------------------------------------
+
+def t_of(geom_type, size, origin, direction):
+    return float(intersect(geom_type, size, np.asarray(origin, float), np.asarray(direction, float)))
+
+
+@pytest.mark.parametrize("geom_type, size, origin, direction, expected", [
+    # sphere r=0.5 from 3 m along -z: hits at 3 - 0.5
+    (render.SPHERE, (0.5, 0, 0), (0, 0, 3), (0, 0, -1), 2.5),
+    # grazing miss just outside the radius
+    (render.SPHERE, (0.5, 0, 0), (0.51, 0, 3), (0, 0, -1), math.inf),
+    # a non-unit direction: t is in units of |direction|
+    (render.SPHERE, (1.0, 0, 0), (0, 0, 5), (0, 0, -2), 2.0),
+    # capsule r=0.1, half-length 0.4 along z: side hit from x = 2
+    (render.CAPSULE, (0.1, 0.4, 0), (2, 0, 0.3), (-1, 0, 0), 1.9),
+    # capsule end cap: from above, hits the sphere at z = 0.4 + 0.1
+    (render.CAPSULE, (0.1, 0.4, 0), (0, 0, 2), (0, 0, -1), 1.5),
+    # capsule: passes beside the cap sphere (x = 0.09 at z = 0.45 is inside the cap's radius)
+    (render.CAPSULE, (0.1, 0.4, 0), (0.06, 0, 2), (0, 0, -1), 2 - (0.4 + math.sqrt(0.01 - 0.0036))),
+    # box half-sizes (1, 2, 3): faces at x = 1, y = 2, z = 3
+    (render.BOX, (1, 2, 3), (5, 0, 0), (-1, 0, 0), 4.0),
+    (render.BOX, (1, 2, 3), (0, -7, 0), (0, 1, 0), 5.0),
+    (render.BOX, (1, 2, 3), (0, 0, 10), (0, 0, -1), 7.0),
+    (render.BOX, (1, 2, 3), (1.5, 0, 10), (0, 0, -1), math.inf),
+    # box corner-on diagonal: enters at the vertex (1, 2, 3) of the (1, 2, 3) box
+    (render.BOX, (1, 2, 3), (2, 4, 6), (-1, -2, -3), 1.0),
+    # ellipsoid semi-axes (1, 2, 3) along each axis
+    (render.ELLIPSOID, (1, 2, 3), (4, 0, 0), (-1, 0, 0), 3.0),
+    (render.ELLIPSOID, (1, 2, 3), (0, 5, 0), (0, -1, 0), 3.0),
+    (render.ELLIPSOID, (1, 2, 3), (0, 0, 9), (0, 0, -1), 6.0),
+    # cylinder r=0.5, half-height 1: side, flat cap, and a miss past the rim of the cap
+    (render.CYLINDER, (0.5, 1.0, 0), (3, 0, 0.9), (-1, 0, 0), 2.5),
+    (render.CYLINDER, (0.5, 1.0, 0), (0.4, 0, 3), (0, 0, -1), 2.0),
+    (render.CYLINDER, (0.5, 1.0, 0), (0.6, 0, 3), (0, 0, -1), math.inf),
+    # infinite plane (size 0): from above at 45 degrees; from below it is not drawn
+    (render.PLANE, (0, 0, 1), (0, 0, 2), (1, 0, -1), 2.0),
+    (render.PLANE, (0, 0, 1), (0, 0, -2), (0, 0, 1), math.inf),
+    (render.PLANE, (0, 0, 1), (0, 0, 2), (0, 0, 1), math.inf),
+    # bounded plane 1 x 1: a hit at x = 3 is off the plane
+    (render.PLANE, (1, 1, 1), (0, 0, 2), (1.5, 0, -1), math.inf),
+])
+def test_intersection_closed_forms(geom_type, size, origin, direction, expected):
+    t = t_of(geom_type, size, origin, direction)
+    if math.isinf(expected):
+        assert math.isinf(t)
+    else:
+        assert t == pytest.approx(expected, rel=1e-5, abs=1e-5)
+
+
+IMPLICIT = {  # surface equation f(p) = 0 in the local frame, size (a, b, c)
+    render.SPHERE: lambda p, s: np.linalg.norm(p, axis=-1) - s[0],
+    render.ELLIPSOID: lambda p, s: np.linalg.norm(p / s, axis=-1) - 1.0,
+    render.CAPSULE: lambda p, s: np.linalg.norm(
+        p - np.stack([0 * p[..., 0], 0 * p[..., 0], np.clip(p[..., 2], -s[1], s[1])], -1), axis=-1) - s[0],
+    render.BOX: lambda p, s: np.max(np.abs(p) / s, axis=-1) - 1.0,
+}
+
+
+@pytest.mark.parametrize("geom_type", sorted(IMPLICIT))
+def test_random_rays_land_on_the_surface_and_nothing_is_nearer(geom_type):
+    """Random rays from outside: hits satisfy the surface equation, and sampling the ray before
+    the hit never finds a point inside (so the nearest root was taken)."""
+    rng = np.random.default_rng(geom_type)
+    size = np.array([0.5, 0.8, 0.3])
+    origin = rng.normal(0, 1, (2000, 3))
+    origin = 4 * origin / np.linalg.norm(origin, axis=1, keepdims=True)
+    target = rng.uniform(-0.6, 0.6, (2000, 3))
+    direction = target - origin
+    t = np.asarray(intersect(geom_type, size, origin, direction), np.float64)
+    f = IMPLICIT[geom_type]
+    hit = np.isfinite(t)
+    assert 0.2 < hit.mean() < 1.0, "the rays should both hit and miss"
+    points = origin + t[:, None] * direction
+    np.testing.assert_allclose(f(points[hit], size), 0.0, atol=2e-4)
+    before = origin[:, None] + np.linspace(0, 1, 50)[None, :, None] * (
+        np.where(hit, t, 1.0)[:, None, None] * direction[:, None]) * 0.999
+    assert np.all(f(before, size) > -1e-4), "a point before the reported hit is inside the geom"
+    # Misses: no sample along the whole segment to the target region is inside.
+    along = origin[~hit][:, None] + np.linspace(0, 2, 200)[None, :, None] * direction[~hit][:, None]
+    assert np.all(f(along, size) > -1e-3)
+
+
+# --- camera ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_tracking_camera_matches_mujoco(robot):
+    model = gym_model(robot)
+    camera = TrackingCamera.from_model(model)
+    assert camera.mode == 2 and model.body(camera.body).name == "torso"  # trackcom on the torso
+    for seed in range(3):
+        data = posed(model, seed)
+        data.qpos[0] += 7.0 * seed  # far away along x: the camera follows
+        mujoco.mj_forward(model, data)
+        pos, mat = camera.pose(data)
+        np.testing.assert_allclose(pos, data.cam_xpos[0], atol=1e-5)
+        np.testing.assert_allclose(np.asarray(mat).ravel(), data.cam_xmat[0], atol=1e-6)
+
+
+def test_track_and_fixed_camera_modes_match_mujoco():
+    xml = """<mujoco><worldbody><geom type="plane" size="5 5 .1"/>
+      <body name="b" pos="0 0 1"><freejoint/><geom type="box" size=".1 .2 .3"/>
+        <camera name="follow" mode="track" pos="0 -2 1" xyaxes="1 0 0 0 1 2"/>
+        <camera name="onboard" mode="fixed" pos=".1 .2 .3" euler="10 20 30"/>
+      </body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    data.qpos[:7] = [1.0, -2.0, 1.5, 0.9, 0.1, 0.3, 0.2]
+    mujoco.mj_forward(model, data)
+    for cam, name in enumerate(["follow", "onboard"]):
+        pos, mat = TrackingCamera.from_model(model, name).pose(data)
+        np.testing.assert_allclose(pos, data.cam_xpos[cam], atol=1e-5)
+        np.testing.assert_allclose(np.asarray(mat).ravel(), data.cam_xmat[cam], atol=1e-5)
+    with pytest.raises(ValueError, match="no camera named 'track'.*follow"):
+        TrackingCamera.from_model(model)
+
+
+def test_camera_keeps_the_torso_in_view_as_it_moves():
+    model = gym_model("half_cheetah")
+    table, camera = GeomTable.from_model(model), TrackingCamera.from_model(model)
+    renderer = Renderer(table, 48, 48, fovy=camera.fovy, shadows=False)
+    masks = []
+    for x in (0.0, 25.0, -40.0):
+        data = posed(model, 1)
+        data.qpos[0] = x
+        mujoco.mj_forward(model, data)
+        pos, mat = camera.pose(data)
+        hit = renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat)
+        masks.append(np.asarray((hit.geom >= 0) & (hit.geom != table.floor)))
+    assert masks[0].sum() > 30
+    # The robot moved 65 m but occupies the same pixels: only the floor slides under it.
+    for m in masks[1:]:
+        np.testing.assert_array_equal(m, masks[0])
+
+
+# --- against MuJoCo's renderer -------------------------------------------------------------------
+
+def mujoco_segmentation(model, data, height, width):
+    try:
+        renderer = mujoco.Renderer(model, height, width)
+    except Exception as err:  # no GL: setup installs libosmesa6 (scripts/install_data.sh)
+        pytest.skip(f"mujoco.Renderer unavailable (MUJOCO_GL={__import__('os').environ.get('MUJOCO_GL')}): {err}")
+    try:
+        renderer.enable_segmentation_rendering()
+        renderer.update_scene(data, camera="track")
+        seg = renderer.render().copy()
+    finally:
+        renderer.close()
+    return np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1)
+
+
+def iou(a, b):
+    return (a & b).sum() / max((a | b).sum(), 1)
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_silhouette_and_floor_agree_with_mujoco_renderer(robot):
+    model = gym_model(robot)
+    table, camera = GeomTable.from_model(model), TrackingCamera.from_model(model)
+    renderer = Renderer(table, 84, 84, fovy=camera.fovy)
+    cast = jax.jit(renderer.cast)
+    floor_id = table.geom_ids[table.floor]
+    for seed in range(3):
+        data = posed(model, seed)
+        pos, mat = camera.pose(data)
+        hit = cast(pos, mat, data.geom_xpos, data.geom_xmat)
+        ours = np.where(hit.geom >= 0, table.geom_ids[np.maximum(hit.geom, 0)], -1)
+        theirs = mujoco_segmentation(model, data, 84, 84)
+        robot_ours, robot_theirs = (ours >= 0) & (ours != floor_id), (theirs >= 0) & (theirs != floor_id)
+        assert robot_theirs.sum() > 50, "the robot should be in view"
+        assert iou(robot_ours, robot_theirs) >= 0.95, f"{robot} seed {seed}: silhouette IoU"
+        assert iou(ours == floor_id, theirs == floor_id) >= 0.95, f"{robot} seed {seed}: floor IoU"
+        # Per-geom agreement too: the nearest geom, not just "some robot part".
+        assert (ours == theirs).mean() >= 0.97
+
+
+# --- renderer behaviour -------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def cheetah():
+    model = gym_model("half_cheetah")
+    return model, GeomTable.from_model(model), TrackingCamera.from_model(model)
+
+
+def test_any_size_rgb_and_grayscale(cheetah):
+    model, table, camera = cheetah
+    data = posed(model, 0)
+    pos, mat = camera.pose(data)
+    rgb = Renderer(table, 30, 50, fovy=camera.fovy, shadows=False).render(
+        pos, mat, data.geom_xpos, data.geom_xmat)
+    gray = Renderer(table, 30, 50, fovy=camera.fovy, grayscale=True, shadows=False).render(
+        pos, mat, data.geom_xpos, data.geom_xmat)
+    assert rgb.shape == (30, 50, 3) and rgb.dtype == jnp.uint8
+    assert gray.shape == (30, 50, 1) and gray.dtype == jnp.uint8
+    luminance = np.asarray(rgb, np.float64) @ [0.299, 0.587, 0.114]
+    np.testing.assert_allclose(np.asarray(gray)[..., 0], luminance, atol=1.0)
+    with pytest.raises(ValueError, match="positive"):
+        Renderer(table, 0, 50)
+
+
+def test_vmap_gives_each_env_its_own_frame_deterministically(cheetah):
+    """One compiled batched render: permuting the batch permutes the frames (no cross-talk),
+    the same input gives the same bytes, and each frame is the unbatched render's."""
+    model, table, camera = cheetah
+    renderer = Renderer(table, 40, 40, fovy=camera.fovy, shadows=False)
+    datas = [posed(model, s) for s in range(3)]
+    poses = [camera.pose(d) for d in datas]
+    args = [jnp.stack([jnp.asarray(x) for x in xs]) for xs in zip(
+        *[(p, m, d.geom_xpos, d.geom_xmat) for (p, m), d in zip(poses, datas)])]
+    batched = jax.jit(jax.vmap(renderer.render))
+    frames = np.asarray(batched(*args))
+    order = np.array([2, 0, 1])
+    np.testing.assert_array_equal(batched(*[a[order] for a in args]), frames[order])
+    np.testing.assert_array_equal(batched(*args), frames)
+    assert not np.array_equal(frames[0], frames[1])
+    (p, m), d = poses[1], datas[1]
+    # Eager (op by op) against compiled: float rounding may move a value by one level.
+    np.testing.assert_allclose(renderer.render(p, m, d.geom_xpos, d.geom_xmat), frames[1], atol=1)
+
+
+def test_shading_normals_and_shadows(cheetah):
+    model, table, camera = cheetah
+    data = posed(model, 0)
+    pos, mat = camera.pose(data)
+    hit = Renderer(table, 84, 84, fovy=camera.fovy, shadows=True).cast(
+        pos, mat, data.geom_xpos, data.geom_xmat)
+    normal = np.asarray(hit.normal)
+    hits = np.asarray(hit.geom) >= 0
+    np.testing.assert_allclose(np.linalg.norm(normal[hits], axis=-1), 1.0, atol=1e-4)
+    floor = np.asarray(hit.geom) == table.floor
+    np.testing.assert_allclose(normal[floor], np.broadcast_to([0.0, 0.0, 1.0], normal[floor].shape), atol=1e-6)
+    # Normals face the camera.
+    rays = np.asarray(hit.point) - np.asarray(pos)
+    assert np.all(np.sum(normal[hits] * rays[hits], -1) < 1e-4)
+    # The light is straight above: the floor under the body is in shadow, the far floor is not.
+    lit = np.asarray(hit.lit)
+    assert 0 < (floor & (lit == 0)).sum() < 0.2 * floor.sum()
+    no_shadow = Renderer(table, 84, 84, fovy=camera.fovy, shadows=False).cast(
+        pos, mat, data.geom_xpos, data.geom_xmat)
+    assert np.all(np.asarray(no_shadow.lit) == 1)
+    np.testing.assert_array_equal(no_shadow.geom, hit.geom)
+
+
+def test_unsupported_geoms_are_a_clear_error():
+    xml = """<mujoco><asset><mesh name="m" vertex="0 0 0 1 0 0 0 1 0 0 0 1"/></asset>
+      <worldbody><geom type="mesh" mesh="m"/></worldbody></mujoco>"""
+    with pytest.raises(ValueError, match="mesh=7"):
+        GeomTable.from_model(mujoco.MjModel.from_xml_string(xml))
+
+
+# --- floor textures -------------------------------------------------------------------------
+
+def test_texture_is_fixed_to_the_world_and_upright():
+    texture = jnp.arange(4 * 6, dtype=jnp.uint8).reshape(4, 6, 1)
+    tile = jnp.array([3.0, 2.0])  # 6 columns over 3 m: 0.5 m each; 4 rows over 2 m
+    xy = jnp.array([[0.25, 1.99], [0.25, 0.01], [2.9, 1.0], [0.25 + 3.0, 0.01 - 2.0], [-0.25, 0.01]])
+    got = np.asarray(texture_at(texture, xy, tile))[:, 0]
+    # (x=0.25, y near the tile's top) -> row 0, col 0; y near 0 -> last row; periodic in both.
+    assert got.tolist() == [0, 18, 6 * 2 + 5, 18, 23]
+
+
+def test_checker_floor_is_the_models_texture(cheetah):
+    model, table, _ = cheetah
+    # Gymnasium: 100x100 checker, 60 copies over the 80 m plane -> 4/3 m per copy.
+    np.testing.assert_allclose(table.floor_tile, [80 / 60, 80 / 60], rtol=1e-6)
+    squares = np.asarray(floor_rgb("checker", table, jnp.array([[0.1, 0.1], [0.1 + 2 / 3, 0.1]])))
+    assert not np.allclose(squares[0], squares[1]), "adjacent checker squares differ"
+    with pytest.raises(ValueError, match="floor must be one of"):
+        floor_rgb("carpet", table, jnp.zeros((1, 2)))
