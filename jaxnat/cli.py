@@ -14,7 +14,7 @@ import sys
 
 # name -> (module with `main(argv) -> int | None`, one-line description)
 COMMANDS = {
-    "train": ("jaxnat.train", "train PPO or A2C over several seeds; metrics, curves, checkpoints"),
+    "train": ("jaxnat.train", "train PPO, A2C, ACKTR or DQN over several seeds; metrics, curves, checkpoints"),
     "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),
 }
 

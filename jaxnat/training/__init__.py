@@ -1,4 +1,4 @@
-"""The training command `jaxnat train` (also `python -m jaxnat.train`): train PPO or A2C on a jaxnat env over many seeds.
+"""The training command `jaxnat train` (also `python -m jaxnat.train`): train PPO, A2C, ACKTR or DQN on a jaxnat env over many seeds.
 
     jaxnat train                                   # PPO on Classify/Digits-v0, 5 seeds
     jaxnat train --env-id Classify/MNIST-v0 --algo a2c --lr 1e-3 --env-kwargs w=3 M=10
