@@ -171,11 +171,7 @@ def main(argv=None):
     if on_gpu:
         summary[f"word-wise / byte-wise observation writer at {largest['envs']:,} envs"] = (
             f"{largest['raw_sps'] / largest['bytewise_sps']:.2f}x")
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("classify_throughput", info | {"env": env_id}, table, summary, rows)
+    common.record("classify_throughput", info | {"env": env_id}, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

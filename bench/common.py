@@ -77,8 +77,10 @@ def markdown_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str
     return "\n".join([head, rule, *body])
 
 
-def record(name: str, info: dict, table: str, summary: dict, rows: list[dict]) -> pathlib.Path:
-    """Print and append one run's results to bench/results/<name>.{md,jsonl}."""
+def record(name: str, info: dict, table: str, summary: dict, rows: list[dict],
+           save: bool = True) -> pathlib.Path | None:
+    """Print one run's results and (unless `save` is False, e.g. `--no-record`) append them to
+    bench/results/<name>.{md,jsonl}."""
     RESULTS.mkdir(parents=True, exist_ok=True)
     header = (
         f"## {info['date']} | {info['backend']}: {info['device']} | CPU: {info['cpu']} "
@@ -89,6 +91,8 @@ def record(name: str, info: dict, table: str, summary: dict, rows: list[dict]) -
     lines += [f"- {k}: {v}" for k, v in summary.items()]
     text = "\n".join(lines) + "\n\n"
     print(text)
+    if not save:
+        return None
     with open(RESULTS / f"{name}.md", "a") as f:
         f.write(text)
     with open(RESULTS / f"{name}.jsonl", "a") as f:

@@ -106,11 +106,7 @@ def main(argv=None):
         "env steps/s end to end (all seeds, compile excluded)": f"{last['steps_per_s']:.3e}",
         "paper (Cityscapes)": "PPO fails to learn; A2C and ACKTR reach the object at most 40% of the time",
     }
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("localize_ppo", info, table, summary, rows)
+    common.record("localize_ppo", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

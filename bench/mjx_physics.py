@@ -177,10 +177,7 @@ def main(argv=None):
                  "same reset state and actions; C-C': MuJoCo C vs MuJoCo C started with qpos "
                  "moved by 1e-7 (chaos: rounding amplified)",
     }
-    if args.no_record:
-        print(table)
-    else:
-        common.record("mjx_physics", info, table, summary, rows)
+    common.record("mjx_physics", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

@@ -187,12 +187,8 @@ def main(argv=None):
             "ns per env)",
     }
     table = decode_table + "\n\n" + step_table
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("natural_sources", info, table, summary,
-                      {"decode": decode_rows, "steps": rows})
+    common.record("natural_sources", info, table, summary,
+                  {"decode": decode_rows, "steps": rows}, save=not args.no_record)
 
 
 if __name__ == "__main__":

@@ -139,11 +139,7 @@ def main(argv=None):
                  f"greedy evaluation on the test split ({eval_episodes} episodes) every {chunk_steps:,} env steps per seed",
         **{f"{algo} settings": configs[algo][1] for algo in args.algos.split(",")},
     }
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("offpolicy_throughput", info, table, summary, rows)
+    common.record("offpolicy_throughput", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

@@ -251,11 +251,7 @@ def main(argv=None):
         summary["renderer_over_mujoco_at_largest"] = {
             r["robot"]: f"{r['render_vs_mujoco']:.0f}x" for r in largest}
         summary["target_100x_mujoco"] = {r["robot"]: r["render_vs_mujoco"] >= 100 for r in largest}
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("pixel_mujoco", info, table, summary, rows)
+    common.record("pixel_mujoco", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

@@ -85,7 +85,7 @@ def main(argv=None):
                    "std": float(greedy[-1][i].std()), "accuracy": float(accuracy[-1][i].mean())}
             rows.append(row)
             print(f"{row['setting']:38s} lr {lr:.0e} {row['steps_per_seed']:>7,} steps/seed  greedy test "
-                  f"return by quarter {' '.join(f'{row[f'q{q + 1}']:+.2f}' for q in range(QUARTERS))}"
+                  f"return by quarter {' '.join(format(row['q%d' % (q + 1)], '+.2f') for q in range(QUARTERS))}"
                   f"  accuracy {row['accuracy']:.0%}", flush=True)
     table = common.markdown_table(rows, [
         ("setting", "setting", "s"), ("lr", "lr", ".0e"), ("steps_per_seed", "env steps per seed", ","),
@@ -98,11 +98,7 @@ def main(argv=None):
                          f"(forward {FORWARD_MS} ms, backward {BACKWARD_MS} ms per sample)",
                "best": f"{best['setting']}, lr {best['lr']:.0e}: greedy test return {best[f'q{QUARTERS}']:+.2f}, "
                        f"accuracy {best['accuracy']:.0%}"}
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("ppo_sweep", info, table, summary, rows)
+    common.record("ppo_sweep", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

@@ -31,8 +31,6 @@ fresh episodes, one per env, to the end.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import functools
 import os
 import sys
 import time
@@ -345,11 +343,7 @@ def main(argv=None):
         "host load average (1 min) at start / end": f"{load_start:.1f} / {os.getloadavg()[0]:.1f} "
             f"on {os.cpu_count()} cores (other processes share them)",
     }
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("sb3_compare", info, table, summary, rows)
+    common.record("sb3_compare", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

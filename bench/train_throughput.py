@@ -121,11 +121,7 @@ def main(argv=None):
                                             if reached else f"not reached in {train_s:.0f} s (target: <= 60 s)"),
         "final test return / accuracy (greedy)": f"{rows[-1]['test_return']:+.3f} / {rows[-1]['test_accuracy']:.1%}",
     }
-    if args.no_record:
-        print(table)
-        print(summary)
-    else:
-        common.record("train_throughput", info, table, summary, rows)
+    common.record("train_throughput", info, table, summary, rows, save=not args.no_record)
 
 
 if __name__ == "__main__":

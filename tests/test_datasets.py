@@ -27,7 +27,7 @@ import pytest
 
 import jaxnat.datasets as d
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError, ImageDataset
-from jaxnat.datasets import cifar, digits, idx, locate
+from jaxnat.datasets import cifar, idx, locate
 
 # `jaxnat.datasets.download` is the function (the public API); the module is this one.
 download_module = importlib.import_module("jaxnat.datasets.download")

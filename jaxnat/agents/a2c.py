@@ -8,7 +8,6 @@ returns (GAE lambda 1.0), max grad norm 0.5, 16 envs.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import optax
 from flax import struct
 
