@@ -2,9 +2,9 @@
 
 `make_background(kind, num_envs, ...)` gives an object with
 
-- `advance()`: move every env on to its next step's background (the next video frame). Called
-  once per agent step, on the env's thread while ALE emulates: it does not depend on how the
-  step ends;
+- `advance()`: move every env on to its next step's background (the next video frame, the
+  next noise, drawn on the host threads). Called once per agent step while ALE emulates: it
+  does not depend on how the step ends;
 - `reset(envs)`: envs (a bool mask, or all for None) start a new background: a new random
   video at a random offset (video), a new random photo (image); nothing for noise and none.
   Returns the backgrounds those envs had before (gray `[n, H, W]`, for the frames that ended
@@ -55,18 +55,39 @@ class NoBackground:
 class NoiseBackground(NoBackground):
     """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every step, drawn directly
     as its gray level (`GrayNoiseSampler`: the same law as graying RGB noise). Env `i` draws
-    from its own generator (seeded from `seed` and `i`), so a seed gives one sequence however
-    many threads draw."""
+    from its own generator (seeded from `seed` and `i`), once per step, so a seed gives one
+    sequence however many threads draw.
 
-    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0):
+    With a `runner` (the env's `ChunkRunner`), `advance` starts the step's draws on its pool
+    threads while ALE emulates, and `fill` waits for them; otherwise `fill` draws."""
+
+    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0,
+                 runner=None):
         self.buffer = np.empty((num_envs, *shape), np.uint8)
         self._sampler = GrayNoiseSampler(np.random.default_rng(seed), scale)
+        self._runner = runner
+        self._drawing = None  # futures of this step's draws, started by advance()
         self.seed(seed)
 
+    def advance(self) -> None:
+        if self._runner is not None:
+            self._drawing = self._runner.submit(self._draw) or None  # None: no pool
+
     def fill(self, lo: int, hi: int) -> np.ndarray:
+        if self._drawing is None:
+            self._draw(lo, hi)
+        else:
+            for future in self._drawing:  # every chunk's: a step draws once per env
+                future.result()
+        return self.buffer[lo:hi]
+
+    def reset(self, envs=None) -> None:
+        if envs is None:  # the env's reset(): draw in fill, as no step started draws
+            self._drawing = None
+
+    def _draw(self, lo: int, hi: int) -> None:
         for i in range(lo, hi):
             self._sampler.sample(self.buffer.shape[1:], self._rngs[i], out=self.buffer[i])
-        return self.buffer[lo:hi]
 
     def seed(self, seed: int) -> None:
         streams = np.random.SeedSequence(seed).spawn(len(self.buffer))
@@ -116,12 +137,14 @@ def make_background(
     sources=None,
     seed: int = 0,
     noise_scale: float = 50.0,
+    runner=None,
 ):
-    """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`."""
+    """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
+    `runner`: a `ChunkRunner` whose threads may draw noise ahead."""
     if kind == "none":
         return NoBackground()
     if kind == "noise":
-        return NoiseBackground(num_envs, shape, seed, noise_scale)
+        return NoiseBackground(num_envs, shape, seed, noise_scale, runner)
     if kind in ("video", "image"):
         from jaxnat import natural
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -51,6 +51,14 @@ class ChunkRunner:
         finally:
             for future in futures:
                 future.result()
+
+    def submit(self, work: Callable[[int, int], None]) -> list[Future]:
+        """Start `work` on every chunk on the pool threads and return at once (the caller's
+        thread goes on, e.g. into ALE); `[]` without a pool (the caller then does the work).
+        The pool takes tasks in order, so a `run` started later never waits on these."""
+        if self._pool is None:
+            return []
+        return [self._pool.submit(work, lo, hi) for lo, hi in self.chunks]
 
     def close(self) -> None:
         if self._pool is not None:

@@ -87,10 +87,11 @@ class NaturalAtariVecEnv:
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
     ale-py). The host work after it (background draws, compositing, resize, frame stack) is
     split into `host_threads` chunks of envs run in parallel (0: as many as ALE's threads; 1:
-    all on the calling thread; at most one chunk per env), and the next video frames are
-    fetched while ALE emulates. Observations do not depend on either count: each env draws
-    its noise from its own generator. `step_timings` adds up, over steps, the seconds spent
-    waiting for ALE (`ale_s`) and in the rest of `step` (`host_s`).
+    all on the calling thread; at most one chunk per env); the next video frames are fetched,
+    and the noise drawn, while ALE emulates. Observations do not depend on either count: each
+    env draws its noise from its own generator. `step_timings` adds up, over steps, the
+    seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
+    the emulation) and in the rest of `step` (`host_s`).
     """
 
     def __init__(
@@ -166,13 +167,13 @@ class NaturalAtariVecEnv:
             num_threads=int(num_threads),
             autoreset_mode=_AUTORESET_MODES[autoreset_mode],
         )
-        self._background = make_background(
-            background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
-            seed=self._seed, noise_scale=noise_scale,
-        )
-        self._stack = FrameStack(stack)
         ale_threads = int(num_threads) or default_threads(self.num_envs)
         self._runner = ChunkRunner(self.num_envs, int(host_threads) or ale_threads)
+        self._background = make_background(
+            background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
+            seed=self._seed, noise_scale=noise_scale, runner=self._runner,
+        )
+        self._stack = FrameStack(stack)
         self.step_timings = {"steps": 0, "ale_s": 0.0, "host_s": 0.0}
         n_actions = int(self._ale.single_action_space.n)
         self.single_action_space = spaces.Discrete(n_actions)
@@ -224,10 +225,11 @@ class NaturalAtariVecEnv:
             )
         start = time.perf_counter()
         self._ale.send(actions.astype(np.int64))
-        self._background.advance()  # the next video frames, while ALE emulates
-        waited = time.perf_counter()
+        sent = time.perf_counter()
+        self._background.advance()  # next video frames, noise draws: while ALE emulates
+        advanced = time.perf_counter()
         raw, reward, terminated, truncated, ale_info = self._ale.recv()
-        waited = time.perf_counter() - waited
+        waited = sent - start + time.perf_counter() - advanced  # in ALE's send and recv
         if not np.array_equal(ale_info["env_id"], np.arange(self.num_envs)):  # never seen; cheap
             raise RuntimeError(f"ale-py returned envs out of order: {ale_info['env_id']}")
         reward = reward.astype(np.float32)
