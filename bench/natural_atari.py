@@ -145,7 +145,8 @@ def main(argv=None):
     parser.add_argument("--no-rgb-pool", action="store_true", help="skip the pool='rgb' variant")
     parser.add_argument("--host-threads", type=int, nargs="*", default=None,
                         help="at the largest thread count, also time the video background with "
-                             "these host-thread counts (default: 1 and a quarter of the threads)")
+                             "these host-thread counts (default: 1, a quarter and a half of "
+                             "the threads)")
     parser.add_argument("--quick", action="store_true", help="few envs and steps, one thread count")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
@@ -153,7 +154,7 @@ def main(argv=None):
         args.num_envs, args.threads, args.steps, args.rounds = 4, [min(2, cores)], 20, 1
     most = max(args.threads)
     if args.host_threads is None:
-        args.host_threads = sorted({1, max(1, most // 4)})
+        args.host_threads = sorted({1, max(1, most // 4), max(1, most // 2)})
     if "video" in args.backgrounds:
         from jaxnat.datasets import DatasetNotFoundError
         from jaxnat.natural import load_videos
@@ -204,23 +205,25 @@ def main(argv=None):
     ])
     video = [r for r in rows if r["env"] == "jaxnat video" and r["threads"] == most]
     summary = {
-        "steps x rounds": f"{args.steps} x {args.rounds} batched steps per contender and thread count",
+        "steps x rounds": f"{args.steps} x {args.rounds} batched steps per contender and thread "
+                          "count",
         "game": args.game,
         "num_envs": args.num_envs,
-        "settings": "sticky 0.25, noop 30, frame skip 4 + max-pool, 84x84 gray, stack 4, no fire reset",
+        "settings": "sticky 0.25, noop 30, frame skip 4 + max-pool, 84x84 gray, stack 4, "
+                    "no fire reset",
         "target": "video >= 0.90 of ale-py at the same threads",
         f"video vs ale-py at {most} threads": f"{video[0]['vs_ale_py']:.2f}" if video else "not run",
+        "video sources": args.video_sources or "opencv-doc",
     }
-    strip = common.RESULTS / "natural_atari_frames.png"
     if not args.no_record:
-        frame_strip(args.game, [*args.backgrounds, "image"] if "video" in args.backgrounds
-                    else args.backgrounds, args.video_sources, strip)
+        # Photos come from opencv-doc only (--video-sources names videos).
+        strip_backgrounds = list(args.backgrounds)
+        if "video" in args.backgrounds and args.video_sources is None:
+            strip_backgrounds.append("image")
+        strip = common.RESULTS / "natural_atari_frames.png"
+        frame_strip(args.game, strip_backgrounds, args.video_sources, strip)
         summary["frames"] = str(strip.relative_to(common.RESULTS.parent.parent))
-        common.record("natural_atari", info, table, summary, rows)
-    else:
-        print(table)
-        print(summary)
-
+    common.record("natural_atari", info, table, summary, rows, save=not args.no_record)
 
 if __name__ == "__main__":
     main()

@@ -44,6 +44,9 @@ class _StepWork:
     final_screens: np.ndarray | None = None  # [len(final_rows), 210, 160(, 3)]
     final_backgrounds: np.ndarray | None = None  # their backgrounds before the reset, or None
 
+    def __post_init__(self):
+        self.any_new_episode = bool(self.new_episode.any())
+
 
 class NaturalAtariVecEnv:
     """`num_envs` copies of an Atari game whose black background shows natural video or noise.
@@ -287,7 +290,7 @@ class NaturalAtariVecEnv:
         rows = slice(lo, hi)
         backgrounds = self._background.fill(lo, hi)
         self._frames(work.screens[rows], backgrounds, out=self._stack.ring[self._stack.head, rows])
-        a, b = np.searchsorted(work.final_rows, (lo, hi))
+        a, b = np.searchsorted(work.final_rows, (lo, hi)) if work.final is not None else (0, 0)
         if b > a:  # episodes that ended here: their last frame against their last background
             ended = work.final_rows[a:b]
             if work.final_backgrounds is not None:
@@ -296,9 +299,8 @@ class NaturalAtariVecEnv:
                 ended_backgrounds = None if backgrounds is None else backgrounds[ended - lo]
             final_frames = self._frames(work.final_screens[a:b], ended_backgrounds)
             ended_obs = self._stack.with_newest(ended, final_frames)
-        new_episode = lo + np.flatnonzero(work.new_episode[rows])
-        if new_episode.size:
-            self._stack.clear_older(new_episode)
+        if work.any_new_episode:
+            self._stack.clear_older(lo + np.flatnonzero(work.new_episode[rows]))
         self._stack.observe(rows, work.obs)
         if work.final is not None:
             work.final[rows] = work.obs[rows]
