@@ -472,3 +472,27 @@ def test_step_timings_add_up():
 def test_thread_counts_are_validated(name, value):
     with pytest.raises(ValueError, match=f"{name} must be an integer >= 0"):
         NaturalAtariVecEnv("Breakout", 2, **{name: value})
+
+
+def test_chunk_runner_covers_every_row_once_and_reraises():
+    from jaxnat.atari.chunks import ChunkRunner
+
+    runner = ChunkRunner(10, 4)
+    seen = np.zeros(10, int)
+
+    def mark(lo, hi):
+        seen[lo:hi] += 1
+
+    runner.run(mark)
+    np.testing.assert_array_equal(seen, 1)
+    assert sorted(hi - lo for lo, hi in runner.chunks) == [2, 2, 3, 3]  # near-equal
+
+    def fail_late(lo, hi):
+        if hi == 10:
+            raise KeyError("chunk error")
+
+    with pytest.raises(KeyError, match="chunk error"):
+        runner.run(fail_late)
+    runner.close()
+    with pytest.raises(ValueError, match="threads must be an integer >= 1"):
+        ChunkRunner(4, 0)
