@@ -9,6 +9,7 @@ not stack on OpenCV's threads.
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -36,7 +37,7 @@ class ChunkRunner:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
         n = min(int(threads), int(num_rows))
         edges = np.linspace(0, num_rows, n + 1).round().astype(int).tolist()
-        self.chunks = list(zip(edges[:-1], edges[1:]))
+        self.chunks = list(itertools.pairwise(edges))
         self._pool = (ThreadPoolExecutor(n - 1, thread_name_prefix="jaxnat-atari")
                       if n > 1 else None)
 
