@@ -202,14 +202,13 @@ class NaturalAtariVecEnv:
         self._background.reset(None)
         self._stack.allocate(self.num_envs, self.obs_size)
         self._stack.rotate()
-        obs = self._new_observations()
-        self._runner.run(lambda lo, hi: self._process_rows(
-            _StepWork(raw[:, 0], np.ones(self.num_envs, bool), obs), lo, hi))
+        work = _StepWork(raw[:, 0], np.ones(self.num_envs, bool), self._new_observations())
+        self._runner.run(lambda lo, hi: self._process_rows(work, lo, hi))
         self._returns[:] = 0
         self._lengths[:] = 0
         self._ended[:] = False
         self._needs_reset = False
-        return obs, {"lives": np.asarray(info["lives"])}
+        return work.obs, {"lives": np.asarray(info["lives"])}
 
     def step(self, actions):
         """One agent step of every env; numpy in (`int[B]` actions) and out."""
