@@ -496,3 +496,11 @@ def test_chunk_runner_covers_every_row_once_and_reraises():
     runner.close()
     with pytest.raises(ValueError, match="threads must be an integer >= 1"):
         ChunkRunner(4, 0)
+
+
+def test_outputs_written_in_place_must_be_contiguous():
+    gray = np.zeros((2, 210, 160), np.uint8)
+    out = np.zeros((2, 84, 84, 2), np.uint8)
+    assert resize_area(gray, (84, 84), out=np.zeros((2, 84, 84), np.uint8)).shape == (2, 84, 84)
+    with pytest.raises(ValueError, match="C-contiguous uint8"):
+        resize_area(gray, (84, 84), out=out[..., 0])  # a strided view: OpenCV would copy it

@@ -104,6 +104,17 @@ def composite_pooled_gray(gray: np.ndarray, gray_backgrounds: np.ndarray | None)
     return gray
 
 
+def _output(out: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+    """A new `uint8[shape]`, or `out` checked to be one OpenCV can write in place (a
+    non-contiguous one would be copied and the result lost)."""
+    if out is None:
+        return np.empty(shape, np.uint8)
+    if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got "
+                         f"{out.dtype} {out.shape} (contiguous: {out.flags.c_contiguous})")
+    return out
+
+
 def resize_area(gray: np.ndarray, size: tuple[int, int], out: np.ndarray | None = None) -> np.ndarray:
     """`uint8[B, H, W]` -> `uint8[B, h, w]` with INTER_AREA (as ale-py and Gymnasium resize),
     written into `out` (a C-contiguous `uint8[B, h, w]`, e.g. a frame stack's slot) when given.
@@ -114,8 +125,7 @@ def resize_area(gray: np.ndarray, size: tuple[int, int], out: np.ndarray | None 
     """
     b, h_in, w_in = gray.shape
     h, w = size
-    if out is None:
-        out = np.empty((b, h, w), np.uint8)
+    out = _output(out, (b, h, w))
     if (h_in, w_in) == (h, w):
         np.copyto(out, gray)
         return out
@@ -195,8 +205,7 @@ class FrameStack:
 
     def _merge(self, frames: list[np.ndarray], out: np.ndarray | None = None) -> np.ndarray:
         b, h, w = frames[0].shape
-        if out is None:
-            out = np.empty((b, h, w, self.depth), np.uint8)
+        out = _output(out, (b, h, w, self.depth))
         if self.depth == 1:
             np.copyto(out[..., 0], frames[0])
         else:
