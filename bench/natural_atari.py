@@ -146,7 +146,9 @@ def main(argv=None):
     parser.add_argument("--num-envs", type=int, default=max(8, 4 * cores))
     parser.add_argument("--threads", type=int, nargs="+",
                         default=sorted({1, max(1, cores // 4), max(1, cores // 2), cores}))
-    parser.add_argument("--steps", type=int, default=100, help="batched steps per round")
+    parser.add_argument("--steps", type=int, default=100,
+                        help="batched steps per round at the largest thread count (fewer threads: "
+                             "proportionally fewer, at least 25; a step is slower there)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--backgrounds", nargs="+", default=["none", "noise", "video"])
     parser.add_argument("--video-sources", default=None, help="default: opencv-doc's videos")
@@ -174,6 +176,7 @@ def main(argv=None):
             args.backgrounds = [b for b in args.backgrounds if b != "video"]
 
     info = common.machine()
+    started = time.perf_counter()
     rows = []
     for threads in args.threads:
         envs = contenders(args.game, args.num_envs, threads, args.backgrounds, 0,
@@ -188,7 +191,8 @@ def main(argv=None):
                 env.step_timings.update(steps=0, ale_s=0.0, host_s=0.0)
         rates = {name: [] for name in envs}
         for _ in range(args.rounds):
-            actions = rng.integers(0, n_actions, (args.steps, args.num_envs))
+            steps = max(min(args.steps, 25), args.steps * threads // most)
+            actions = rng.integers(0, n_actions, (steps, args.num_envs))
             for name, env in envs.items():
                 rates[name].append(steps_per_second(env, actions))
         reference = statistics.median(rates["ale-py (gray 84x84x4)"])
@@ -213,8 +217,9 @@ def main(argv=None):
     ])
     video = [r for r in rows if r["env"] == "jaxnat video" and r["threads"] == most]
     summary = {
-        "steps x rounds": f"{args.steps} x {args.rounds} batched steps per contender and thread "
-                          "count",
+        "steps x rounds": f"{args.steps} x {args.rounds} batched steps per contender at "
+                          f"{most} threads (fewer threads: proportionally fewer, at least 25)",
+        "bench seconds": f"{time.perf_counter() - started:.0f} (timing and constructing the envs)",
         "game": args.game,
         "num_envs": args.num_envs,
         "settings": "sticky 0.25, noop 30, frame skip 4 + max-pool, 84x84 gray, stack 4, "
