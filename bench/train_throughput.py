@@ -1,10 +1,12 @@
 """PPO end to end on a classification env: env steps/s with seeds vmapped, and learning speed.
 
 One jitted program trains `--seeds` seeds at once (`jit(vmap(run))`), in chunks of updates;
-after each chunk every seed is evaluated greedily on the test split. Reports steps/s (compile
-excluded), and the wall time until the mean test return over seeds first reaches 0.9.
+after each chunk every seed is evaluated on the test split, greedy and sampled. Reports steps/s
+(compile excluded), and the wall time until the mean test return over seeds first reaches 0.9.
 
     python bench/train_throughput.py [--env-id Classify/FashionMNIST-v0] [--seconds 120]
+    python bench/train_throughput.py --update-epochs 2 --num-minibatches 2     # throughput
+    python bench/train_throughput.py --num-envs 512 --env-kwargs start=center  # authors' start
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import common  # noqa: E402
 import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
 from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
+from jaxnat.training.args import parse_env_kwargs  # noqa: E402
 
 
 def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int, chunk: int,
@@ -85,6 +88,8 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env-id", default="Classify/Digits-v0")
+    parser.add_argument("--env-kwargs", nargs="*", default=(), metavar="KEY=VALUE",
+                        help="env options, as `jaxnat train --env-kwargs` (e.g. start=center)")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--num-envs", type=int, default=None, help="default: 2048 on GPU, 32 on CPU")
     parser.add_argument("--num-steps", type=int, default=32)
@@ -102,8 +107,9 @@ def main(argv=None):
     # On a CPU the main job's settings (make run; bench/results/ppo_sweep.md), on a GPU big batches.
     num_envs = args.num_envs or (32 if on_cpu else 2048)
     minibatches = args.num_minibatches or (8 if on_cpu else 4)
+    env_kwargs = parse_env_kwargs(args.env_kwargs)
     rows, compile_s, train_s, reached = train_and_evaluate(
-        args.env_id, seeds=args.seeds, num_envs=num_envs, num_steps=args.num_steps,
+        args.env_id, env_kwargs=env_kwargs, seeds=args.seeds, num_envs=num_envs, num_steps=args.num_steps,
         chunk=args.chunk, seconds=args.seconds, lr=args.lr, eval_episodes=args.eval_episodes,
         update_epochs=args.update_epochs, num_minibatches=minibatches)
     table = common.markdown_table(rows, [
@@ -115,7 +121,7 @@ def main(argv=None):
         ("test_sampled_accuracy", "test accuracy (sampled)", ".1%"),
     ])
     summary = {
-        "env": args.env_id,
+        "env": args.env_id + (f" {env_kwargs}" if env_kwargs else ""),
         "setup": f"PPO, {args.seeds} seeds vmapped, {num_envs} envs x {args.num_steps} steps per update, "
                  f"{args.update_epochs} epochs x {minibatches} minibatches, lr {args.lr}, "
                  f"{args.eval_episodes} test episodes per seed per evaluation",
