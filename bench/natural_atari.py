@@ -5,9 +5,13 @@ For each thread count, every contender steps `--num-envs` envs of `--game` with 
 actions (sticky actions 0.25, up to 30 no-ops at reset, frame skip 4 with max-pool, 84x84 gray,
 stack 4, no FIRE at reset, unclipped rewards); ale-py does all preprocessing in its C++ threads,
 we ask it for the max-pooled 210x160 gray screen and composite, resize and stack on the host.
-Also timed: ale-py returning that screen alone (the emulation share of our step), and our env
-with `pool="rgb"` (RGB screens, the spec's literal pooling order) with the video background. Contenders
-are timed in interleaved rounds (median), so load from other processes hits them alike.
+Also timed at the largest thread count: ale-py returning that screen alone (the emulation share
+of our step), our env with `pool="rgb"` (RGB screens, the spec's literal pooling order) with the
+video background, and the video background with fewer host threads (the host work after ALE is
+split over `host_threads` chunks of envs; 1 = all on the calling thread).
+Contenders are timed in interleaved rounds (median), so load from other processes hits them
+alike. For our env the table also splits a batched step into the wait for ALE's emulation and
+the host work around it (ms per batched step, from `env.step_timings`).
 Target (performance.md): video >= 90% of ale-py's own throughput.
 
 Also writes bench/results/natural_atari_frames.png: one row per background, the agent's newest
@@ -16,7 +20,12 @@ frame of that background's source (the env itself composites in gray).
 
     python bench/natural_atari.py                 # sizes from the CPU count
     python bench/natural_atari.py --quick         # a smoke run
-    python bench/natural_atari.py --threads 1 4 8 16 --num-envs 64 --steps 300
+    python bench/natural_atari.py --threads 1 4 8 16 --num-envs 64 --steps 100
+    python bench/natural_atari.py --video-sources out/videos   # a folder of your own clips
+
+On a 16-core host this sweeps 1, 4, 8 and 16 threads with 64 envs (about 2-3 minutes). A host
+without Debian's opencv-doc needs videos: copy some there (e.g. opencv-doc's vtest.avi, tree.avi
+and Megamind.avi into out/videos/) and pass --video-sources out/videos.
 """
 
 from __future__ import annotations
@@ -62,19 +71,28 @@ def steps_per_second(env, actions: np.ndarray) -> float:
     return actions.size / (time.perf_counter() - t0)
 
 
-def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_pool):
-    envs = {
-        "ale-py (gray 84x84x4)": ale_py_env(game, num_envs, threads, screen=False, seed=seed),
-        "ale-py 210x160 screen only": ale_py_env(game, num_envs, threads, screen=True, seed=seed),
-    }
-    variants = [(bg, "gray") for bg in backgrounds]
-    if rgb_pool and "video" in backgrounds:
-        variants.append(("video", "rgb"))
-    for bg, pool in variants:
+def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_pool, host_threads,
+               extras):
+    """name -> env: ale-py's own env and ours with each background; with `extras` (the largest
+    thread count: constructing 64 emulators takes seconds, so the sweep keeps to the essentials)
+    also ale-py's bare screen, the video background with `host_threads` host threads and with
+    `pool="rgb"`."""
+    envs = {"ale-py (gray 84x84x4)": ale_py_env(game, num_envs, threads, screen=False, seed=seed)}
+    if extras:
+        envs["ale-py 210x160 screen only"] = ale_py_env(game, num_envs, threads, screen=True,
+                                                        seed=seed)
+    variants = [(bg, "gray", 0) for bg in backgrounds]
+    if "video" in backgrounds and extras:
+        variants += [("video", "gray", h) for h in host_threads if h != threads]
+        if rgb_pool:
+            variants.append(("video", "rgb", 0))
+    for bg, pool, host in variants:
         env = NaturalAtariVecEnv(game, num_envs, background=bg, num_threads=threads, seed=seed,
-                                 video_sources=video_sources, pool=pool, **SETTINGS)
+                                 video_sources=video_sources, pool=pool, host_threads=host,
+                                 **SETTINGS)
         env.reset()
-        envs[f"jaxnat {bg}" + (" (pool=rgb)" if pool == "rgb" else "")] = env
+        name = f"jaxnat {bg}" + (" (pool=rgb)" if pool == "rgb" else "")
+        envs[name + (f" (host_threads={host})" if host else "")] = env
     return envs
 
 
@@ -128,16 +146,25 @@ def main(argv=None):
     parser.add_argument("--num-envs", type=int, default=max(8, 4 * cores))
     parser.add_argument("--threads", type=int, nargs="+",
                         default=sorted({1, max(1, cores // 4), max(1, cores // 2), cores}))
-    parser.add_argument("--steps", type=int, default=150, help="batched steps per round")
+    parser.add_argument("--steps", type=int, default=100,
+                        help="batched steps per round at the largest thread count (fewer threads: "
+                             "proportionally fewer, at least 25; a step is slower there)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--backgrounds", nargs="+", default=["none", "noise", "video"])
     parser.add_argument("--video-sources", default=None, help="default: opencv-doc's videos")
     parser.add_argument("--no-rgb-pool", action="store_true", help="skip the pool='rgb' variant")
+    parser.add_argument("--host-threads", type=int, nargs="*", default=None,
+                        help="at the largest thread count, also time the video background with "
+                             "these host-thread counts (default: 1, a quarter and a half of "
+                             "the threads)")
     parser.add_argument("--quick", action="store_true", help="few envs and steps, one thread count")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     if args.quick:
         args.num_envs, args.threads, args.steps, args.rounds = 4, [min(2, cores)], 20, 1
+    most = max(args.threads)
+    if args.host_threads is None:
+        args.host_threads = sorted({1, max(1, most // 4), max(1, most // 2)})
     if "video" in args.backgrounds:
         from jaxnat.datasets import DatasetNotFoundError
         from jaxnat.natural import load_videos
@@ -145,56 +172,71 @@ def main(argv=None):
         try:
             load_videos(args.video_sources, shape=(210, 160), split="train")
         except DatasetNotFoundError as err:  # e.g. a host without Debian's opencv-doc
-            print(f"skipping the video background: {err}")
+            print(f"skipping the video background (pass --video-sources a folder of clips): {err}")
             args.backgrounds = [b for b in args.backgrounds if b != "video"]
 
     info = common.machine()
+    started = time.perf_counter()
     rows = []
     for threads in args.threads:
         envs = contenders(args.game, args.num_envs, threads, args.backgrounds, 0,
-                          args.video_sources, not args.no_rgb_pool)
+                          args.video_sources, not args.no_rgb_pool, args.host_threads,
+                          extras=threads == most)
         rng = np.random.default_rng(0)
-        n_actions = envs["jaxnat none" if "none" in args.backgrounds else next(iter(envs))]
-        n_actions = int(n_actions.single_action_space.n)
+        n_actions = int(next(iter(envs.values())).single_action_space.n)
         warm = rng.integers(0, n_actions, (10, args.num_envs))
         for env in envs.values():
             steps_per_second(env, warm)
+            if hasattr(env, "step_timings"):
+                env.step_timings.update(steps=0, ale_s=0.0, host_s=0.0)
         rates = {name: [] for name in envs}
         for _ in range(args.rounds):
-            actions = rng.integers(0, n_actions, (args.steps, args.num_envs))
+            steps = max(min(args.steps, 25), args.steps * threads // most)
+            actions = rng.integers(0, n_actions, (steps, args.num_envs))
             for name, env in envs.items():
                 rates[name].append(steps_per_second(env, actions))
         reference = statistics.median(rates["ale-py (gray 84x84x4)"])
         for name, values in rates.items():
             rate = statistics.median(values)
-            rows.append(dict(threads=threads, env=name, num_envs=args.num_envs,
-                             steps_per_s=rate, vs_ale_py=rate / reference))
+            row = dict(threads=threads, env=name, num_envs=args.num_envs,
+                       steps_per_s=rate, vs_ale_py=rate / reference)
+            timings = getattr(envs[name], "step_timings", None)
+            if timings:
+                row["host_threads"] = envs[name]._runner.threads
+                row["ale_wait_ms"] = 1e3 * timings["ale_s"] / timings["steps"]
+                row["host_ms"] = 1e3 * timings["host_s"] / timings["steps"]
+            rows.append(row)
         for env in envs.values():
             env.close()
 
     table = common.markdown_table(rows, [
         ("threads", "threads", "d"), ("env", "env", "s"), ("num_envs", "envs", "d"),
         ("steps_per_s", "env steps/s", ",.0f"), ("vs_ale_py", "vs ale-py", ".2f"),
+        ("host_threads", "host threads", "d"), ("ale_wait_ms", "ALE wait ms/step", ".2f"),
+        ("host_ms", "host ms/step", ".2f"),
     ])
-    most = max(args.threads)
     video = [r for r in rows if r["env"] == "jaxnat video" and r["threads"] == most]
     summary = {
+        "steps x rounds": f"{args.steps} x {args.rounds} batched steps per contender at "
+                          f"{most} threads (fewer threads: proportionally fewer, at least 25)",
+        "bench seconds": f"{time.perf_counter() - started:.0f} (timing and constructing the envs)",
         "game": args.game,
         "num_envs": args.num_envs,
-        "settings": "sticky 0.25, noop 30, frame skip 4 + max-pool, 84x84 gray, stack 4, no fire reset",
+        "settings": "sticky 0.25, noop 30, frame skip 4 + max-pool, 84x84 gray, stack 4, "
+                    "no fire reset",
         "target": "video >= 0.90 of ale-py at the same threads",
         f"video vs ale-py at {most} threads": f"{video[0]['vs_ale_py']:.2f}" if video else "not run",
+        "video sources": args.video_sources or "opencv-doc",
     }
-    strip = common.RESULTS / "natural_atari_frames.png"
     if not args.no_record:
-        frame_strip(args.game, [*args.backgrounds, "image"] if "video" in args.backgrounds
-                    else args.backgrounds, args.video_sources, strip)
+        # Photos come from opencv-doc only (--video-sources names videos).
+        strip_backgrounds = list(args.backgrounds)
+        if "video" in args.backgrounds and args.video_sources is None:
+            strip_backgrounds.append("image")
+        strip = common.RESULTS / "natural_atari_frames.png"
+        frame_strip(args.game, strip_backgrounds, args.video_sources, strip)
         summary["frames"] = str(strip.relative_to(common.RESULTS.parent.parent))
-        common.record("natural_atari", info, table, summary, rows)
-    else:
-        print(table)
-        print(summary)
-
+    common.record("natural_atari", info, table, summary, rows, save=not args.no_record)
 
 if __name__ == "__main__":
     main()

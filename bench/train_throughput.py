@@ -32,8 +32,8 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
     """Train PPO on `env_id` with `seeds` seeds vmapped, in chunks of `chunk` updates, for about
     `seconds` of training; after each chunk evaluate every seed greedily on the test split.
 
-    Returns (rows, compile seconds, training seconds, the first row whose mean test return
-    reached `target` or None)."""
+    Returns (rows, compile seconds, training seconds, `{"greedy": row, "sampled": row}`: per
+    policy, the first row whose mean test return reached `target`, or None)."""
     env_kwargs = env_kwargs or {}
     env, params = jaxnat.make(env_id, **env_kwargs)
     test_env, test_params = jaxnat.make(env_id, split="test", autoreset=False, **env_kwargs)
@@ -52,7 +52,7 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
     evaluate = evaluate.lower(runner.train_state.params, keys).compile()
     compile_s = time.perf_counter() - t0
 
-    rows, train_s, reached = [], 0.0, None
+    rows, train_s, reached = [], 0.0, {"greedy": None, "sampled": None}
     while train_s < seconds:
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run(runner))
@@ -67,15 +67,18 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
             "train_return": float(np.nanmean(np.asarray(metrics["episode_return"])[:, -1])),
             "test_return": float(np.mean(scores["greedy_return"])),
             "test_return_std": float(np.std(scores["greedy_return"])),
+            "test_sampled_return": float(np.mean(scores["sampled_return"])),
             "test_accuracy": float(np.mean(scores["greedy_terminated_fraction"])),
             "test_sampled_accuracy": float(np.mean(scores["sampled_terminated_fraction"])),
         }
         rows.append(row)
         print(f"  {updates:5d} updates, {row['env_steps_per_seed']:>10,} steps/seed, {train_s:6.1f}s: "
-              f"{row['steps_per_s']:.3e} steps/s, test return {row['test_return']:+.3f}, "
+              f"{row['steps_per_s']:.3e} steps/s, test return {row['test_return']:+.3f} greedy, "
+              f"{row['test_sampled_return']:+.3f} sampled, "
               f"accuracy {row['test_accuracy']:.1%}", flush=True)
-        if reached is None and row["test_return"] >= target:
-            reached = row
+        for policy, column in (("greedy", "test_return"), ("sampled", "test_sampled_return")):
+            if reached[policy] is None and row[column] >= target:
+                reached[policy] = row
     return rows, compile_s, train_s, reached
 
 
@@ -107,7 +110,8 @@ def main(argv=None):
         ("updates", "updates", ","), ("env_steps_per_seed", "env steps per seed", ","),
         ("train_s", "train s", ".1f"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
         ("train_return", "train return", "+.3f"), ("test_return", "test return (greedy)", "+.3f"),
-        ("test_return_std", "std over seeds", ".3f"), ("test_accuracy", "test accuracy", ".1%"),
+        ("test_return_std", "std over seeds", ".3f"), ("test_sampled_return", "test return (sampled)", "+.3f"),
+        ("test_accuracy", "test accuracy", ".1%"),
         ("test_sampled_accuracy", "test accuracy (sampled)", ".1%"),
     ])
     summary = {
@@ -117,9 +121,12 @@ def main(argv=None):
                  f"{args.eval_episodes} test episodes per seed per evaluation",
         "compile s": f"{compile_s:.1f}",
         "env steps/s end to end (all seeds, compile excluded)": f"{rows[-1]['steps_per_s']:.3e} (target on one H100: >= 1e6)",
-        "time to mean test return >= 0.9": (f"{reached['train_s']:.1f} s ({reached['env_steps_per_seed']:,} steps per seed)"
-                                            if reached else f"not reached in {train_s:.0f} s (target: <= 60 s)"),
+        **{f"time to mean test return >= 0.9 ({policy} policy)":
+           (f"{row['train_s']:.1f} s ({row['env_steps_per_seed']:,} steps per seed)"
+            if row else f"not reached in {train_s:.0f} s (target: <= 60 s)")
+           for policy, row in reached.items()},
         "final test return / accuracy (greedy)": f"{rows[-1]['test_return']:+.3f} / {rows[-1]['test_accuracy']:.1%}",
+        "final test return / accuracy (sampled)": f"{rows[-1]['test_sampled_return']:+.3f} / {rows[-1]['test_sampled_accuracy']:.1%}",
     }
     common.record("train_throughput", info, table, summary, rows, save=not args.no_record)
 

@@ -420,3 +420,87 @@ def test_clip_reward_and_device_arrays_wrappers():
         assert (np.abs(np.asarray(reward)) <= 1).all()
         np.testing.assert_array_equal(np.clip(info["unclipped_reward"], -1, 1), reward)
     assert env.num_envs == 2  # attributes pass through
+
+
+# -- threaded host work --------------------------------------------------------------------
+def _trajectory(env, steps, seed=0):
+    """Observations, final observations, rewards and episode statistics of a reset and `steps`
+    steps with seeded random actions."""
+    rng = np.random.default_rng(1)
+    out = [env.reset(seed=seed)[0]]
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = env.step(
+            rng.integers(0, env.single_action_space.n, env.num_envs))
+        out += [obs, reward, terminated | truncated, info["returned_episode_returns"]]
+        out.append(info.get("final_observation", obs))
+    env.close()
+    return out
+
+
+@pytest.mark.parametrize("background", ["none", "noise", "video"])
+@pytest.mark.parametrize("autoreset_mode", ["same_step", "next_step"])
+def test_threaded_host_work_equals_serial(clips, background, autoreset_mode):
+    def run(host_threads):
+        env = NaturalAtariVecEnv(
+            "Breakout", 5, background=background, split="all", video_sources=str(clips),
+            max_episode_steps=7, autoreset_mode=autoreset_mode, num_threads=2,
+            host_threads=host_threads, seed=4,
+        )
+        assert env._runner.threads == min(host_threads, 5)
+        return _trajectory(env, 16)
+
+    serial = run(1)
+    assert any(x.dtype == bool and x.any() for x in serial)  # episodes ended (time limit)
+    for threads in (3, 9):  # uneven chunks; more threads than envs: one env per chunk
+        threaded = run(threads)
+        for a, b in zip(serial, threaded, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_step_timings_add_up():
+    env = NaturalAtariVecEnv("Breakout", 2, num_threads=1, host_threads=2)
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(np.zeros(2, np.int64))
+    timings = env.step_timings
+    assert timings["steps"] == 3 and timings["ale_s"] > 0 and timings["host_s"] > 0
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["num_threads", "host_threads"])
+@pytest.mark.parametrize("value", [-1, 1.5, "4", True])
+def test_thread_counts_are_validated(name, value):
+    with pytest.raises(ValueError, match=f"{name} must be an integer >= 0"):
+        NaturalAtariVecEnv("Breakout", 2, **{name: value})
+
+
+def test_chunk_runner_covers_every_row_once_and_reraises():
+    from jaxnat.atari.chunks import ChunkRunner
+
+    runner = ChunkRunner(10, 4)
+    seen = np.zeros(10, int)
+
+    def mark(lo, hi):
+        seen[lo:hi] += 1
+
+    runner.run(mark)
+    np.testing.assert_array_equal(seen, 1)
+    assert sorted(hi - lo for lo, hi in runner.chunks) == [2, 2, 3, 3]  # near-equal
+
+    def fail_late(lo, hi):
+        if hi == 10:
+            raise KeyError("chunk error")
+
+    with pytest.raises(KeyError, match="chunk error"):
+        runner.run(fail_late)
+    runner.close()
+    with pytest.raises(ValueError, match="threads must be an integer >= 1"):
+        ChunkRunner(4, 0)
+
+
+def test_outputs_written_in_place_must_be_contiguous():
+    gray = np.zeros((2, 210, 160), np.uint8)
+    out = np.zeros((2, 84, 84, 2), np.uint8)
+    assert resize_area(gray, (84, 84), out=np.zeros((2, 84, 84), np.uint8)).shape == (2, 84, 84)
+    with pytest.raises(ValueError, match="C-contiguous uint8"):
+        resize_area(gray, (84, 84), out=out[..., 0])  # a strided view: OpenCV would copy it

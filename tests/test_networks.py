@@ -1,4 +1,5 @@
-"""Networks: the im2col convolution equals XLA's, trunks fit their observations, heads match."""
+"""Networks: both convolution forms equal XLA's (values and gradients, under vmap), trunks fit
+their observations, heads match."""
 
 import jax
 import jax.numpy as jnp
@@ -6,22 +7,56 @@ import numpy as np
 import pytest
 
 from jaxnat import spaces
-from jaxnat.agents.networks import _conv_im2col, default_trunk, make_actor_critic
+from jaxnat.agents.conv import conv2d
+from jaxnat.agents.networks import default_trunk, make_actor_critic
 
 
+@pytest.mark.parametrize("implementation", ["im2col", "native"])
 @pytest.mark.parametrize("shape, kernel, stride", [((2, 28, 28, 3), 5, 2), ((1, 3, 12, 12, 10), 5, 1), ((2, 84, 84, 4), 8, 4)])
-def test_im2col_equals_xla_convolution(shape, kernel, stride):
+def test_conv_equals_xla_convolution(implementation, shape, kernel, stride):
     x = jax.random.normal(jax.random.key(0), shape)
     k = jax.random.normal(jax.random.key(1), (kernel, kernel, shape[-1], 7))
     flat = x.reshape(-1, *shape[-3:])
     want = jax.lax.conv_general_dilated(flat, k, (stride, stride), "VALID",
                                         dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    got = _conv_im2col(x, k, stride)
+    got = conv2d(x, k, stride, implementation)
     np.testing.assert_allclose(np.asarray(got).reshape(want.shape), np.asarray(want), rtol=1e-4, atol=1e-4)
 
 
+def _loss(implementation):
+    return lambda x, k: jnp.sum(jnp.sin(conv2d(x, k, 2, implementation)))
+
+
+def test_native_conv_vmapped_over_weights_matches_im2col():
+    """One weight set per seed (as `vmap(train)`): values and both gradients agree."""
+    x = jax.random.normal(jax.random.key(0), (3, 4, 12, 12, 3))  # seeds, batch, H, W, C
+    k = jax.random.normal(jax.random.key(1), (3, 5, 5, 3, 2))
+    for fun in (lambda impl: jax.vmap(_loss(impl)), lambda impl: jax.vmap(jax.grad(_loss(impl), (0, 1)))):
+        want, got = fun("im2col")(x, k), jax.jit(fun("native"))(x, k)
+        for w, g in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
+            np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-4, atol=1e-4)
+
+
+def test_native_conv_shared_weights_and_per_example_gradients():
+    """Inputs vmapped, weights shared: the forward folds the batch; per-example kernel gradients
+    stay per example (not summed over the batch)."""
+    x = jax.random.normal(jax.random.key(0), (3, 12, 12, 3))
+    k = jax.random.normal(jax.random.key(1), (5, 5, 3, 2))
+    forward = lambda impl: jax.vmap(lambda xi: conv2d(xi, k, 2, impl))(x)
+    np.testing.assert_allclose(np.asarray(forward("native")), np.asarray(forward("im2col")), rtol=1e-4, atol=1e-4)
+    per_example = lambda impl: jax.vmap(jax.grad(_loss(impl), 1), (0, None))(x, k)
+    got = per_example("native")
+    assert got.shape == (3, 5, 5, 3, 2)
+    np.testing.assert_allclose(np.asarray(got), np.asarray(per_example("im2col")), rtol=1e-4, atol=1e-4)
+
+
+def test_conv_rejects_unknown_implementation():
+    with pytest.raises(ValueError, match="im2col"):
+        conv2d(jnp.zeros((1, 8, 8, 1)), jnp.zeros((3, 3, 1, 1)), 1, "winograd")
+
+
 def test_default_trunks():
-    box = lambda *s: spaces.Box(0, 255, s, jnp.uint8)  # noqa: E731
+    box = lambda *s: spaces.Box(0, 255, s, jnp.uint8)
     assert default_trunk(box(28, 28, 3)) == "mnist"
     assert default_trunk(box(32, 32, 5)) == "cifar"
     assert default_trunk(box(84, 84, 4)) == "atari"

@@ -29,8 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnat import spaces
+from jaxnat.agents.conv import conv2d, im2col_patches
 
-__all__ = ["TRUNKS", "ActorCritic", "make_actor_critic", "default_trunk", "action_dims", "init_params"]
+__all__ = ["TRUNKS", "ActorCritic", "make_actor_critic", "default_trunk", "action_dims", "init_params",
+           "im2col_patches"]
 
 # (features, kernel, stride) per conv layer.
 _PAPER_CNNS = {
@@ -46,44 +48,21 @@ def _dense(features: int, scale: float = np.sqrt(2)) -> nn.Dense:
     return nn.Dense(features, kernel_init=nn.initializers.orthogonal(scale))
 
 
-def _conv_im2col(x, kernel, stride: int):
-    """A VALID convolution as strided slices and one matmul.
-
-    Measured faster than XLA's convolution where it counts: XLA:CPU runs the gradient of its
-    own convolution up to 16x slower inside a training loop (non-canonical layouts in loop
-    bodies, jax-ml/jax#12868), and on an H200 a convolution vmapped over 5 seeds' weights (a
-    grouped convolution) trained PPO 7x slower than this form (`bench/results/`).
-    """
-    kh, kw, cin, cout = kernel.shape
-    return im2col_patches(x, kh, kw, stride) @ kernel.reshape(kh * kw * cin, cout)
-
-
-def im2col_patches(x, kh: int, kw: int, stride: int):
-    """`[..., H, W, C] -> [..., OH, OW, kh * kw * C]`: the input patch of every output pixel of
-    a VALID convolution, in the order of an HWIO kernel reshaped to `[kh * kw * C, features]`
-    (K-FAC reads a conv layer's inputs in this form)."""
-    oh = (x.shape[-3] - kh) // stride + 1
-    ow = (x.shape[-2] - kw) // stride + 1
-    return jnp.concatenate(
-        [x[..., i : i + stride * (oh - 1) + 1 : stride, j : j + stride * (ow - 1) + 1 : stride, :]
-         for i in range(kh) for j in range(kw)],
-        axis=-1,
-    )
-
-
 class ValidConv(nn.Module):
-    """A VALID, strided 2-D convolution with an HWIO kernel (as `nn.Conv`), computed by im2col."""
+    """A VALID, strided 2-D convolution with an HWIO kernel (as `nn.Conv`); `implementation`
+    picks how it is computed (`jaxnat.agents.conv`: im2col on CPU, XLA's own per seed on GPU)."""
 
     features: int
     kernel: int
     stride: int
+    implementation: str = "auto"
 
     @nn.compact
     def __call__(self, x):
         kernel = self.param("kernel", nn.initializers.orthogonal(np.sqrt(2)),
                             (self.kernel, self.kernel, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return _conv_im2col(x, kernel, self.stride) + bias
+        return conv2d(x, kernel, self.stride, self.implementation) + bias
 
 
 class PaperCNN(nn.Module):

@@ -2,21 +2,26 @@
 
 `make_background(kind, num_envs, ...)` gives an object with
 
-- `reset(envs=None)`: envs (a bool mask, or all) start a new background: a new random video at
-  a random offset (video), a new random photo (image); nothing for noise and none;
-- `frames()`: this step's background of every env as gray levels `uint8[B, H, W]` (through the
-  compositor's grayscale law: the compositor composites in gray), or None (black);
-- `advance()`: move every env's video on by one frame (called once per agent step);
+- `advance()`: move every env on to its next step's background (the next video frame, the
+  next noise, drawn on the host threads). Called once per agent step while ALE emulates: it
+  does not depend on how the step ends;
+- `reset(envs)`: envs (a bool mask, or all for None) start a new background: a new random
+  video at a random offset (video), a new random photo (image); nothing for noise and none.
+  Returns the backgrounds those envs had before (gray `[n, H, W]`, for the frames that ended
+  their episodes) where a reset changes them, else None;
+- `fill(lo, hi)`: this step's gray backgrounds `uint8[hi - lo, H, W]` of envs `lo:hi`, or None
+  (black). Thread-safe for disjoint row ranges (the env composites row chunks in parallel);
+  noise is drawn here, from each env's own generator, so the draws do not depend on how the
+  batch is chunked;
 - `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`;
-- `close()`: stop worker threads.
+- `close()`.
 
-Videos and images come from the natural-sources module (`jaxnat.natural`), resized to the
-emulator's 210x160 and split into train and test by whole files.
+Backgrounds are gray levels (through the compositor's grayscale law: the compositor composites
+in gray). Videos and images come from the natural-sources module (`jaxnat.natural`), resized to
+the emulator's 210x160 and split into train and test by whole files.
 """
 
 from __future__ import annotations
-
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -31,14 +36,14 @@ class NoBackground:
     """Black, the baseline: the compositor leaves frames as they are. Also the base class: its
     methods are the do-nothing defaults."""
 
-    def reset(self, envs=None) -> None:
-        pass
-
-    def frames(self) -> np.ndarray | None:
-        return None
-
     def advance(self) -> None:
         pass
+
+    def reset(self, envs=None) -> np.ndarray | None:
+        return None
+
+    def fill(self, lo: int, hi: int) -> np.ndarray | None:
+        return None
 
     def seed(self, seed: int) -> None:
         pass
@@ -48,41 +53,51 @@ class NoBackground:
 
 
 class NoiseBackground(NoBackground):
-    """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every frame, drawn directly
-    as its gray level (`GrayNoiseSampler`: the same law as graying RGB noise).
+    """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every step, drawn directly
+    as its gray level (`GrayNoiseSampler`: the same law as graying RGB noise). Env `i` draws
+    from its own generator (seeded from `seed` and `i`), once per step, so a seed gives one
+    sequence however many threads draw.
 
-    The next frame's noise is drawn on a worker thread while the emulator runs (numpy releases
-    the GIL), so drawing costs little wall time; one worker draws them in order, so a seed
-    gives one sequence.
-    """
+    With a `runner` (the env's `ChunkRunner`), `advance` starts the step's draws on its pool
+    threads while ALE emulates, and `fill` waits for them; otherwise `fill` draws."""
 
-    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0):
-        self._shape = (num_envs, *shape)
-        self._scale = scale
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxnat-noise")
+    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0,
+                 runner=None):
+        self.buffer = np.empty((num_envs, *shape), np.uint8)
+        self._sampler = GrayNoiseSampler(np.random.default_rng(seed), scale)
+        self._runner = runner
+        self._drawing = None  # futures of this step's draws, started by advance()
         self.seed(seed)
 
-    def frames(self) -> np.ndarray:
-        return self._current
-
     def advance(self) -> None:
-        self._current = self._next.result()
-        self._next = self._worker.submit(self._sampler.sample, self._shape)
+        if self._runner is not None:
+            self._drawing = self._runner.submit(self._draw) or None  # None: no pool
+
+    def fill(self, lo: int, hi: int) -> np.ndarray:
+        if self._drawing is None:
+            self._draw(lo, hi)
+        else:
+            for future in self._drawing:  # every chunk's: a step draws once per env
+                future.result()
+        return self.buffer[lo:hi]
+
+    def reset(self, envs=None) -> None:
+        if envs is None:  # the env's reset(): draw in fill, as no step started draws
+            self._drawing = None
+
+    def _draw(self, lo: int, hi: int) -> None:
+        for i in range(lo, hi):
+            self._sampler.sample(self.buffer.shape[1:], self._rngs[i], out=self.buffer[i])
 
     def seed(self, seed: int) -> None:
-        if getattr(self, "_next", None) is not None:
-            self._next.result()  # let the worker finish with the old generator
-        self._sampler = GrayNoiseSampler(np.random.default_rng(seed), self._scale)
-        self._current = self._sampler.sample(self._shape)
-        self._next = self._worker.submit(self._sampler.sample, self._shape)
-
-    def close(self) -> None:
-        self._worker.shutdown(wait=True)
+        streams = np.random.SeedSequence(seed).spawn(len(self.buffer))
+        self._rngs = [np.random.default_rng(s) for s in streams]
 
 
 class BankBackground(NoBackground):
     """Consecutive frames of natural videos, or one still photo per episode (`still`), gray,
-    from a `FrameBank` through `jaxnat.natural.HostVideoSampler`."""
+    from a `FrameBank` through `jaxnat.natural.HostVideoSampler`; this step's frames are
+    gathered into `buffer` by `advance` and `reset`, on the env's thread."""
 
     def __init__(self, bank, num_envs: int, seed: int, still: bool = False):
         from jaxnat.natural import HostVideoSampler
@@ -95,17 +110,19 @@ class BankBackground(NoBackground):
         self.bank = bank.replace(frames=gray_frames)
         self.still = still  # photos: one per episode, not a new one every step
         self._sampler = HostVideoSampler(self.bank, num_envs, seed)
-        self._current = self._sampler.frames()[..., 0]
-
-    def reset(self, envs=None) -> None:
-        self._current = self._sampler.reset(envs)[..., 0]
-
-    def frames(self) -> np.ndarray:
-        return self._current
+        self.buffer = self._sampler.frames()  # uint8 [B, H, W, 1]
 
     def advance(self) -> None:
         if not self.still:
-            self._current = self._sampler.step()[..., 0]
+            self._sampler.step(out=self.buffer)
+
+    def reset(self, envs=None) -> np.ndarray | None:
+        before = None if envs is None else self.buffer[np.asarray(envs, bool), ..., 0]
+        self._sampler.reset(envs, out=self.buffer)
+        return before
+
+    def fill(self, lo: int, hi: int) -> np.ndarray:
+        return self.buffer[lo:hi, ..., 0]
 
     def seed(self, seed: int) -> None:
         self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
@@ -120,12 +137,14 @@ def make_background(
     sources=None,
     seed: int = 0,
     noise_scale: float = 50.0,
+    runner=None,
 ):
-    """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`."""
+    """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
+    `runner`: a `ChunkRunner` whose threads may draw noise ahead."""
     if kind == "none":
         return NoBackground()
     if kind == "noise":
-        return NoiseBackground(num_envs, shape, seed, noise_scale)
+        return NoiseBackground(num_envs, shape, seed, noise_scale, runner)
     if kind in ("video", "image"):
         from jaxnat import natural
 

@@ -104,8 +104,20 @@ def composite_pooled_gray(gray: np.ndarray, gray_backgrounds: np.ndarray | None)
     return gray
 
 
-def resize_area(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """`uint8[B, H, W]` -> `uint8[B, h, w]` with INTER_AREA (as ale-py and Gymnasium resize).
+def _output(out: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+    """A new `uint8[shape]`, or `out` checked to be one OpenCV can write in place (a
+    non-contiguous one would be copied and the result lost)."""
+    if out is None:
+        return np.empty(shape, np.uint8)
+    if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got "
+                         f"{out.dtype} {out.shape} (contiguous: {out.flags.c_contiguous})")
+    return out
+
+
+def resize_area(gray: np.ndarray, size: tuple[int, int], out: np.ndarray | None = None) -> np.ndarray:
+    """`uint8[B, H, W]` -> `uint8[B, h, w]` with INTER_AREA (as ale-py and Gymnasium resize),
+    written into `out` (a C-contiguous `uint8[B, h, w]`, e.g. a frame stack's slot) when given.
 
     One OpenCV call over the tall image when `H/h` keeps images' rows apart (an integer number
     of output rows per image: always, since each image gives exactly `h` rows, as long as the
@@ -113,49 +125,93 @@ def resize_area(gray: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """
     b, h_in, w_in = gray.shape
     h, w = size
+    out = _output(out, (b, h, w))
     if (h_in, w_in) == (h, w):
-        return gray.copy()
-    out = cv2.resize(_tall(gray), (w, b * h), interpolation=cv2.INTER_AREA)
-    return out.reshape(b, h, w)
+        np.copyto(out, gray)
+        return out
+    cv2.resize(_tall(gray), (w, b * h), dst=out.reshape(b * h, w), interpolation=cv2.INTER_AREA)
+    return out
 
 
 class FrameStack:
-    """The last `depth` frames of each env, handed out channels-last `uint8[B, h, w, depth]`.
+    """The last `depth` frames of each env, handed out channels-last `uint8[B, h, w, depth]`,
+    oldest first; a new episode's stack is zeros and then its first frame, as ale-py's.
 
-    Kept as `depth` separate `[B, h, w]` frames and interleaved with `cv2.merge` (a few us per
-    env) instead of shifting a channels-last array (a strided copy, ten times slower). A reset
-    env's stack is zeros and then its first frame, as ale-py's.
+    Kept in a ring buffer `ring[depth, B, h, w]` (no per-step allocation: each step writes its
+    frames into the oldest slot, which becomes the newest) and interleaved with `cv2.merge` (a
+    few us per env) instead of shifting a channels-last array (a strided copy, ten times
+    slower). Row-wise methods (`rows`: a slice or an index array of envs) let threads fill
+    disjoint rows of one step in parallel; `rotate` is the one call that touches every row.
     """
 
     def __init__(self, depth: int):
         self.depth = int(depth)
-        self.frames: list[np.ndarray] = []
+        self.ring: np.ndarray | None = None
+        self.head = 0  # slot of the newest frame
 
+    def allocate(self, num_envs: int, frame_shape: tuple[int, int]) -> None:
+        """Zero stacks for `num_envs` envs of `frame_shape` frames."""
+        shape = (self.depth, num_envs, *frame_shape)
+        if self.ring is None or self.ring.shape != shape:
+            self.ring = np.zeros(shape, np.uint8)
+        else:
+            self.ring.fill(0)
+        self.head = self.depth - 1
+
+    def slots(self) -> list[int]:
+        """Ring slots, oldest first (the last one is the newest frame)."""
+        return [(self.head + 1 + i) % self.depth for i in range(self.depth)]
+
+    def rotate(self) -> np.ndarray:
+        """Start a step: the oldest slot becomes the newest; returns it (`[B, h, w]`) for the
+        step's frames to be written into, row by row."""
+        self.head = (self.head + 1) % self.depth
+        return self.ring[self.head]
+
+    def clear_older(self, rows) -> None:
+        """A new episode for `rows`: every frame but the newest becomes 0."""
+        for slot in self.slots()[:-1]:
+            self.ring[slot, rows] = 0
+
+    def observe(self, rows: slice, out: np.ndarray) -> np.ndarray:
+        """Write the stacks of `rows` (a slice) into `out[rows]`."""
+        return self._merge([self.ring[s, rows] for s in self.slots()], out[rows])
+
+    def with_newest(self, rows, frames: np.ndarray) -> np.ndarray:
+        """The stacks of `rows` with `frames` (`[n, h, w]`) in place of their newest frame
+        (final observations: the frame an episode ended on, after the step's `rotate`)."""
+        return self._merge([self.ring[s, rows] for s in self.slots()[:-1]] + [frames])
+
+    # -- whole-batch conveniences -----------------------------------------------------------
     def reset(self, frame: np.ndarray) -> np.ndarray:
-        zeros = np.zeros_like(frame)
-        self.frames = [zeros] * (self.depth - 1) + [frame]
+        self.allocate(frame.shape[0], frame.shape[1:])
+        self.ring[self.head] = frame
         return self.observation()
 
     def push(self, frame: np.ndarray, reset: np.ndarray | None = None) -> np.ndarray:
         """Append `frame [B, h, w]`; where `reset` is True the env's older frames become 0."""
-        frames = self.frames[1:] + [frame]
+        self.rotate()[:] = frame
         if reset is not None and reset.any():
-            frames[:-1] = [np.where(reset[:, None, None], 0, f) for f in frames[:-1]]
-        self.frames = frames
+            self.clear_older(reset)
         return self.observation()
 
     def preview(self, frame: np.ndarray) -> np.ndarray:
         """The stack that `push(frame)` would give, without pushing (final observations)."""
-        return self._merge(self.frames[1:] + [frame])
+        return self._merge([self.ring[s] for s in self.slots()[1:]] + [frame])
 
     def observation(self) -> np.ndarray:
-        return self._merge(self.frames)
+        b, h, w = self.ring.shape[1:]
+        return self.observe(slice(None), np.empty((b, h, w, self.depth), np.uint8))
 
-    def _merge(self, frames: list[np.ndarray]) -> np.ndarray:
+    def _merge(self, frames: list[np.ndarray], out: np.ndarray | None = None) -> np.ndarray:
         b, h, w = frames[0].shape
+        out = _output(out, (b, h, w, self.depth))
         if self.depth == 1:
-            return frames[0][..., None].copy()
-        return cv2.merge([f.reshape(b * h, w) for f in frames]).reshape(b, h, w, self.depth)
+            np.copyto(out[..., 0], frames[0])
+        else:
+            cv2.merge([np.ascontiguousarray(f).reshape(b * h, w) for f in frames],
+                      out.reshape(b * h, w, self.depth))
+        return out
 
 
 class GrayNoiseSampler:
@@ -195,6 +251,14 @@ class GrayNoiseSampler:
             law += channel[r] * np.bincount(gray_levels, weights=p_gb, minlength=256)[:256]
         return law / law.sum()
 
-    def sample(self, shape: tuple[int, ...]) -> np.ndarray:
-        u = self.rng.integers(0, 65536, size=shape, dtype=np.uint16)
-        return self._table[u]
+    def sample(self, shape: tuple[int, ...], rng: np.random.Generator | None = None,
+               out: np.ndarray | None = None) -> np.ndarray:
+        """Draws of `shape` from `rng` (default: the sampler's), into `out` when given.
+
+        The 16-bit uniforms are the four quarters of the bit generator's raw 64-bit words (each
+        uniform and independent), twice as fast as `rng.integers`; both numpy steps release
+        the GIL, so threads drawing from their own generators run in parallel."""
+        size = math.prod(shape)
+        words = (self.rng if rng is None else rng).bit_generator.random_raw((size + 3) // 4)
+        u = words.view(np.uint16)[:size].reshape(shape)
+        return np.take(self._table, u, out=out, mode="clip")  # "clip" writes `out` directly

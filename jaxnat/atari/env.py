@@ -7,10 +7,14 @@
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from jaxnat import spaces
 from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
+from jaxnat.atari.chunks import ChunkRunner, default_threads
 from jaxnat.atari.compositor import (
     FrameStack,
     composite_gray,
@@ -23,6 +27,25 @@ __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
+_NO_ROWS = np.zeros(0, np.int64)
+
+
+@dataclass
+class _StepWork:
+    """What the row chunks of one step (or reset) need: ALE's screens, the envs starting a new
+    episode, and (same-step autoreset) the envs whose episode ended, their final screens and
+    the backgrounds those showed, and where to put the observations."""
+
+    screens: np.ndarray  # [B, 210, 160] gray or [B, 210, 160, 3] RGB, composited in place
+    new_episode: np.ndarray  # bool [B]
+    obs: np.ndarray  # uint8 [B, h, w, stack], written row by row
+    final: np.ndarray | None = None  # like obs: final observations (same_step, some env ended)
+    final_rows: np.ndarray = field(default_factory=lambda: _NO_ROWS)  # sorted env indices whose episode ended
+    final_screens: np.ndarray | None = None  # [len(final_rows), 210, 160(, 3)]
+    final_backgrounds: np.ndarray | None = None  # their backgrounds before the reset, or None
+
+    def __post_init__(self):
+        self.any_new_episode = bool(self.new_episode.any())
 
 
 class NaturalAtariVecEnv:
@@ -63,6 +86,15 @@ class NaturalAtariVecEnv:
 
     Deterministic given `seed` (env `i`'s emulator is seeded with `seed + i`), the actions, and
     `sticky_actions=0` or not: ALE's sticky actions use the emulator's own seeded generator.
+
+    Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
+    ale-py). The host work after it (background draws, compositing, resize, frame stack) is
+    split into `host_threads` chunks of envs run in parallel (0: as many as ALE's threads; 1:
+    all on the calling thread; at most one chunk per env); the next video frames are fetched,
+    and the noise drawn, while ALE emulates. Observations do not depend on either count: each
+    env draws its noise from its own generator. `step_timings` adds up, over steps, the
+    seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
+    the emulation) and in the rest of `step` (`host_s`).
     """
 
     def __init__(
@@ -83,6 +115,7 @@ class NaturalAtariVecEnv:
         obs_size: int | tuple[int, int] = 84,
         stack: int = 4,
         num_threads: int = 0,
+        host_threads: int = 0,
         autoreset_mode: str = "same_step",
         noise_scale: float = 50.0,
         seed: int = 0,
@@ -101,6 +134,10 @@ class NaturalAtariVecEnv:
             raise ValueError(f"sticky_actions is a probability in [0, 1], got {sticky_actions}")
         if int(stack) < 1 or int(frame_skip) < 1 or int(noop_max) < 0:
             raise ValueError(f"need stack >= 1, frame_skip >= 1, noop_max >= 0; got {stack}, {frame_skip}, {noop_max}")
+        for name, value in (("num_threads", num_threads), ("host_threads", host_threads)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0 (0: one per env, at most one "
+                                 f"per CPU), got {value!r}")
         rom_path(game)  # clear errors for unknown games and missing ROMs, before ale-py's
         from ale_py.vector_env import AtariVectorEnv  # noqa: PLC0415  (optional dependency)
 
@@ -133,11 +170,14 @@ class NaturalAtariVecEnv:
             num_threads=int(num_threads),
             autoreset_mode=_AUTORESET_MODES[autoreset_mode],
         )
+        ale_threads = int(num_threads) or default_threads(self.num_envs)
+        self._runner = ChunkRunner(self.num_envs, int(host_threads) or ale_threads)
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
-            seed=self._seed, noise_scale=noise_scale,
+            seed=self._seed, noise_scale=noise_scale, runner=self._runner,
         )
         self._stack = FrameStack(stack)
+        self.step_timings = {"steps": 0, "ale_s": 0.0, "host_s": 0.0}
         n_actions = int(self._ale.single_action_space.n)
         self.single_action_space = spaces.Discrete(n_actions)
         self.single_observation_space = spaces.Box(0, 255, (*self.obs_size, int(stack)), np.uint8)
@@ -160,13 +200,15 @@ class NaturalAtariVecEnv:
         self._seed += self.num_envs  # a later reset() without a seed starts new games
         raw, info = self._ale.reset(seed=seed)
         self._background.reset(None)
-        frame = self._preprocess(raw[:, 0], self._background.frames())
-        obs = self._stack.reset(frame)
+        self._stack.allocate(self.num_envs, self.obs_size)
+        self._stack.rotate()
+        work = _StepWork(raw[:, 0], np.ones(self.num_envs, bool), self._new_observations())
+        self._runner.run(lambda lo, hi: self._process_rows(work, lo, hi))
         self._returns[:] = 0
         self._lengths[:] = 0
         self._ended[:] = False
         self._needs_reset = False
-        return obs, {"lives": np.asarray(info["lives"])}
+        return work.obs, {"lives": np.asarray(info["lives"])}
 
     def step(self, actions):
         """One agent step of every env; numpy in (`int[B]` actions) and out."""
@@ -183,36 +225,46 @@ class NaturalAtariVecEnv:
                 f"actions must lie in [0, {self.single_action_space.n}), got {actions.min()} .. "
                 f"{actions.max()}"
             )
-        raw, reward, terminated, truncated, ale_info = self._ale.step(actions.astype(np.int64))
+        start = time.perf_counter()
+        self._ale.send(actions.astype(np.int64))
+        sent = time.perf_counter()
+        self._background.advance()  # next video frames, noise draws: while ALE emulates
+        advanced = time.perf_counter()
+        raw, reward, terminated, truncated, ale_info = self._ale.recv()
+        waited = sent - start + time.perf_counter() - advanced  # in ALE's send and recv
         if not np.array_equal(ale_info["env_id"], np.arange(self.num_envs)):  # never seen; cheap
             raise RuntimeError(f"ale-py returned envs out of order: {ale_info['env_id']}")
         reward = reward.astype(np.float32)
         done = terminated | truncated
-        restarted = self._ended  # next_step mode: these envs were reset by this step
-        self._background.advance()
+        same_step = self.autoreset_mode == "same_step"
+        # same_step: ended envs start their next episode in this step's observation;
+        # next_step: envs that ended last step were reset by this one.
+        new_episode = done if same_step else self._ended
+        work = _StepWork(raw[:, 0], new_episode, self._new_observations())
+        if same_step and done.any():
+            work.final = self._new_observations()
+            work.final_rows = np.flatnonzero(done)
+            work.final_screens = ale_info["final_obs"][work.final_rows, 0]
+        if new_episode.any():
+            work.final_backgrounds = self._background.reset(new_episode)
+        self._stack.rotate()
+        self._runner.run(lambda lo, hi: self._process_rows(work, lo, hi))
         info = {"lives": np.asarray(ale_info["lives"])}
-        if self.autoreset_mode == "same_step" and done.any():
-            # The final frame against this step's background, then the new episode's background.
-            final = raw[:, 0].copy()
-            final[done] = ale_info["final_obs"][done, 0]
-            final_frame = self._preprocess(final, self._background.frames())
-            info["final_observation"] = self._stack.preview(final_frame)
-            self._background.reset(done)
-            obs = self._stack.push(self._preprocess(raw[:, 0], self._background.frames()), done)
-        else:
-            if restarted.any():
-                self._background.reset(restarted)
-            obs = self._stack.push(self._preprocess(raw[:, 0], self._background.frames()), restarted)
-            if self.autoreset_mode == "same_step":
-                info["final_observation"] = obs
-        self._record_episodes(reward, done, restarted, info)
-        if self.autoreset_mode == "next_step":
+        if same_step:
+            info["final_observation"] = work.obs if work.final is None else work.final
+        self._record_episodes(reward, done, self._ended, info)
+        if not same_step:
             self._ended = done
-        return obs, reward, terminated, truncated, info
+        timings = self.step_timings
+        timings["steps"] += 1
+        timings["ale_s"] += waited
+        timings["host_s"] += time.perf_counter() - start - waited
+        return work.obs, reward, terminated, truncated, info
 
     def close(self) -> None:
         self._ale.close()
         self._background.close()
+        self._runner.close()
 
     def __repr__(self) -> str:
         return (
@@ -227,14 +279,41 @@ class NaturalAtariVecEnv:
         self.close()
 
     # -- internals ------------------------------------------------------------------------
-    def _preprocess(self, screens: np.ndarray, background) -> np.ndarray:
-        """Pooled screens `[B, 210, 160]` gray (modified in place) or `[B, 210, 160, 3]` RGB, and
-        gray backgrounds `[B, 210, 160]` (or None) -> composited, gray, resized `[B, h, w]`."""
+    def _new_observations(self) -> np.ndarray:
+        return np.empty((self.num_envs, *self.obs_size, self._stack.depth), np.uint8)
+
+    def _process_rows(self, work: _StepWork, lo: int, hi: int) -> None:
+        """Envs `lo:hi` of a step (one chunk; chunks run in parallel on disjoint rows):
+        composite this step's backgrounds, gray, resize into the stack's newest slot, final
+        observations of the envs that ended, then the observations."""
+        rows = slice(lo, hi)
+        backgrounds = self._background.fill(lo, hi)
+        self._frames(work.screens[rows], backgrounds, out=self._stack.ring[self._stack.head, rows])
+        a, b = np.searchsorted(work.final_rows, (lo, hi)) if work.final is not None else (0, 0)
+        if b > a:  # episodes that ended here: their last frame against their last background
+            ended = work.final_rows[a:b]
+            if work.final_backgrounds is not None:
+                ended_backgrounds = work.final_backgrounds[a:b]
+            else:
+                ended_backgrounds = None if backgrounds is None else backgrounds[ended - lo]
+            final_frames = self._frames(work.final_screens[a:b], ended_backgrounds)
+            ended_obs = self._stack.with_newest(ended, final_frames)
+        if work.any_new_episode:
+            self._stack.clear_older(lo + np.flatnonzero(work.new_episode[rows]))
+        self._stack.observe(rows, work.obs)
+        if work.final is not None:
+            work.final[rows] = work.obs[rows]
+            if b > a:
+                work.final[ended] = ended_obs
+
+    def _frames(self, screens: np.ndarray, backgrounds, out: np.ndarray | None = None) -> np.ndarray:
+        """Pooled screens `[n, 210, 160]` gray (modified in place) or `[n, 210, 160, 3]` RGB, and
+        gray backgrounds `[n, 210, 160]` (or None) -> composited, gray, resized `[n, h, w]`."""
         if self.pool == "gray":
-            gray = composite_pooled_gray(screens, background)
+            gray = composite_pooled_gray(screens, backgrounds)
         else:
-            gray = composite_gray(screens, background)
-        return resize_area(gray, self.obs_size)
+            gray = composite_gray(screens, backgrounds)
+        return resize_area(gray, self.obs_size, out=out)
 
     def _record_episodes(self, reward, done, restarted, info) -> None:
         """Whole-game returns and lengths (rewards unclipped), PureJaxRL's info keys."""

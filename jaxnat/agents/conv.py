@@ -1,0 +1,114 @@
+"""VALID, strided 2-D convolutions for the paper's trunks, fast when vmapped over seeds.
+
+`jit(vmap(train))(keys)` gives every seed its own weights, and XLA turns a convolution vmapped
+over its weights into one *grouped* convolution, which trained PPO 7x slower on an H200 than
+the forms below (`bench/results/train_throughput.md`). Two forms avoid it:
+
+- `"im2col"`: strided slices and one matmul per layer (a vmapped matmul is a batched matmul).
+  Chosen on CPU, where XLA:CPU also runs the gradient of its own convolution up to 16x slower
+  inside training loops (non-canonical layouts in loop bodies, jax-ml/jax#12868). On a GPU it
+  writes every input patch to memory (the mnist trunk's first layer: 43 KB per sample).
+- `"native"`: XLA's own convolution, with a batching rule that runs one convolution per weight
+  set (one per seed, in a loop) when the weights are vmapped, and folds the batch into the
+  convolution's batch when only the inputs are. Chosen on GPU: cuDNN's kernels without the
+  patch copies (PPO on Digits, 5 seeds, 4 epochs x 4 minibatches, H200: 1.26x the im2col form's env
+  steps/s).
+
+Both compute the same function (tests check values and gradients under vmap); `"auto"` picks by
+the backend at trace time.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["IMPLEMENTATIONS", "conv2d", "im2col_patches"]
+
+IMPLEMENTATIONS = ("auto", "im2col", "native")
+_DIMENSIONS = ("NHWC", "HWIO", "NHWC")
+
+
+def im2col_patches(x, kh: int, kw: int, stride: int):
+    """`[..., H, W, C] -> [..., OH, OW, kh * kw * C]`: the input patch of every output pixel of
+    a VALID convolution, in the order of an HWIO kernel reshaped to `[kh * kw * C, features]`
+    (K-FAC reads a conv layer's inputs in this form)."""
+    oh = (x.shape[-3] - kh) // stride + 1
+    ow = (x.shape[-2] - kw) // stride + 1
+    return jnp.concatenate(
+        [x[..., i : i + stride * (oh - 1) + 1 : stride, j : j + stride * (ow - 1) + 1 : stride, :]
+         for i in range(kh) for j in range(kw)],
+        axis=-1,
+    )
+
+
+def _im2col(x, kernel, stride: int):
+    kh, kw, cin, cout = kernel.shape
+    return im2col_patches(x, kh, kw, stride) @ kernel.reshape(kh * kw * cin, cout)
+
+
+def _xla_conv(x, kernel, stride: int):
+    """XLA's convolution over any leading dims of `x` `[..., H, W, C]`."""
+    lead = x.shape[:-3]
+    y = jax.lax.conv_general_dilated(x.reshape(-1, *x.shape[-3:]), kernel, (stride, stride),
+                                     "VALID", dimension_numbers=_DIMENSIONS)
+    return y.reshape(*lead, *y.shape[1:])
+
+
+def _one_per_weight_set(fun, axis_size, in_batched, args):
+    """Batching rule body: `fun` applied to each batch element in a loop (unbatched arguments
+    broadcast), outputs stacked along axis 0."""
+    args = [a if b else jnp.broadcast_to(a, (axis_size, *a.shape)) for a, b in zip(args, in_batched)]
+    return jax.lax.map(lambda a: fun(*a), args)
+
+
+@functools.cache
+def _native(stride: int):
+    """The `"native"` form for one stride: a custom_vjp whose forward and backward passes carry
+    their own batching rules (JAX cannot differentiate through a custom_vmap function itself)."""
+
+    @jax.custom_batching.custom_vmap
+    def forward(x, kernel):
+        return _xla_conv(x, kernel, stride)
+
+    @forward.def_vmap
+    def _forward_rule(axis_size, in_batched, x, kernel):
+        x_batched, kernel_batched = in_batched
+        if not kernel_batched:  # shared weights: the batch is just more leading dims
+            return forward(x, kernel), x_batched
+        return _one_per_weight_set(forward, axis_size, in_batched, (x, kernel)), True
+
+    @jax.custom_batching.custom_vmap
+    def backward(x, kernel, grad):
+        _, vjp = jax.vjp(functools.partial(_xla_conv, stride=stride), x, kernel)
+        return vjp(grad)
+
+    @backward.def_vmap
+    def _backward_rule(axis_size, in_batched, x, kernel, grad):
+        # Per-element kernel gradients: never fold the batch into one convolution (that would
+        # sum them).
+        return _one_per_weight_set(backward, axis_size, in_batched, (x, kernel, grad)), (True, True)
+
+    @jax.custom_vjp
+    def conv(x, kernel):
+        return forward(x, kernel)
+
+    conv.defvjp(lambda x, kernel: (forward(x, kernel), (x, kernel)),
+                lambda residuals, grad: backward(*residuals, grad))
+    return conv
+
+
+def conv2d(x, kernel, stride: int, implementation: str = "auto"):
+    """VALID convolution of `x` `[..., H, W, C]` with an HWIO `kernel`, any leading dims.
+
+    `implementation`: `"im2col"`, `"native"` or `"auto"` (im2col on CPU, native elsewhere);
+    see the module docstring for why both exist."""
+    if implementation not in IMPLEMENTATIONS:
+        raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
+    if implementation == "auto":
+        implementation = "im2col" if jax.default_backend() == "cpu" else "native"
+    if implementation == "im2col":
+        return _im2col(x, kernel, stride)
+    return _native(int(stride))(x, kernel)
