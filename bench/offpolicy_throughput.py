@@ -6,10 +6,12 @@ Each algorithm trains `--seeds` seeds in one jitted program (`jit(vmap(run))`, t
 each chunk every seed is evaluated greedily on the test split (1000 episodes; 200 with --quick). Steps/s exclude
 compilation and evaluation. All algorithms get the same number of envs; their own defaults
 otherwise (PPO's 128-step rollouts shortened to 32 as in bench/train_throughput.py; DQN with one
-env step per update and a replay ratio of 2 samples per env step, see `_configs`).
+env step per update, a replay ratio of 2 samples per env step, Adam 1e-3 and a target copy every
+250 gradient steps, see `_configs`). Where the threshold is not reached in the budget the table
+says so ("-") and gives the best test return seen and when.
 
     python bench/offpolicy_throughput.py               # GPU: 2048 envs, 5 seeds, 90 s each
-    python bench/offpolicy_throughput.py --quick       # CPU: 16 envs, 2 seeds, 30 s each
+    python bench/offpolicy_throughput.py --quick       # CPU: 16 envs, 2 seeds, 90 s each
 """
 
 from __future__ import annotations
@@ -45,10 +47,16 @@ def _configs(num_envs: int, on_gpu: bool) -> dict:
                 "5 steps, RMSprop 7e-4"),
         "acktr": (acktr(total_timesteps=big, num_envs=num_envs, anneal_lr=False),
                   "20 steps, K-FAC lr 0.25, KL clip 0.001"),
+        # Adam 1e-3 and a target copy every 250 gradient steps: on this CPU (Digits, 16 envs,
+        # 20k steps/seed) 50% test accuracy against 25% with RMSprop 2.5e-4 (eps 1e-5) and 1000.
         "dqn": (dqn(total_timesteps=big, num_envs=num_envs, num_steps=1, batch_size=batch,
-                    gradient_steps=gradient_steps, buffer_size=100_000 if on_gpu else 20_000),
-                f"1 step, {gradient_steps} x batch {batch} gradient steps, RMSprop 2.5e-4, "
-                f"buffer {100_000 if on_gpu else 20_000}"),
+                    gradient_steps=gradient_steps, buffer_size=100_000 if on_gpu else 20_000,
+                    optimizer="adam", lr=1e-3, target_update_period=250,
+                    learning_starts=10_000 if on_gpu else 1_000,
+                    exploration_steps=100_000 if on_gpu else 10_000),
+                f"1 step, {gradient_steps} x batch {batch} gradient steps, Adam 1e-3, target period 250, "
+                f"buffer {100_000 if on_gpu else 20_000}, epsilon 1 -> 0.1 over "
+                f"{100_000 if on_gpu else 10_000:,} steps/seed, learning from {10_000 if on_gpu else 1_000:,}"),
     }
 
 
@@ -66,7 +74,7 @@ def bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, s
     evaluate = evaluate.lower(runner.train_state.params, keys).compile()
     compile_s = time.perf_counter() - t0
 
-    train_s, reached, last = 0.0, None, None
+    train_s, reached, last, best = 0.0, None, None, None
     while train_s < seconds:
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run(runner))
@@ -89,8 +97,14 @@ def bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, s
               f"accuracy {last['test_accuracy']:.1%}", flush=True)
         if reached is None and last["test_return"] >= THRESHOLD:
             reached = dict(last)
+        if best is None or last["test_return"] > best["test_return"]:
+            best = dict(last)
     last["threshold_s"] = reached["train_s"] if reached else None
     last["threshold_steps"] = reached["env_steps_per_seed"] if reached else None
+    last["best_return"] = best["test_return"]
+    last["best_accuracy"] = best["test_accuracy"]
+    last["best_s"] = best["train_s"]
+    last["best_steps"] = best["env_steps_per_seed"]
     return last
 
 
@@ -98,10 +112,10 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env-id", default="Classify/Digits-v0")
     parser.add_argument("--algos", default="ppo,a2c,acktr,dqn")
-    parser.add_argument("--quick", action="store_true", help="CPU sizes: 16 envs, 2 seeds, 30 s per algorithm")
+    parser.add_argument("--quick", action="store_true", help="CPU sizes: 16 envs, 2 seeds, 90 s per algorithm")
     parser.add_argument("--seeds", type=int, default=None, help="default: 5 (2 with --quick)")
     parser.add_argument("--num-envs", type=int, default=None, help="default: 2048 on GPU, 16 with --quick")
-    parser.add_argument("--seconds", type=float, default=None, help="training budget per algorithm; default 90 (30 with --quick)")
+    parser.add_argument("--seconds", type=float, default=None, help="training budget per algorithm; default 90 (also with --quick)")
     parser.add_argument("--chunk-steps", type=int, default=None,
                         help="env steps per seed between evaluations; default num_envs * 160")
     parser.add_argument("--eval-episodes", type=int, default=None, help="test episodes per seed per evaluation; default 1000 (200 with --quick)")
@@ -112,7 +126,7 @@ def main(argv=None):
     on_gpu = info["backend"] != "cpu"
     seeds = args.seeds or (2 if args.quick else 5)
     num_envs = args.num_envs or (16 if args.quick or not on_gpu else 2048)
-    seconds = args.seconds or (30.0 if args.quick else 90.0)
+    seconds = args.seconds or 90.0
     chunk_steps = args.chunk_steps or num_envs * 160
     eval_episodes = args.eval_episodes or (200 if args.quick else 1000)
     env, params = jaxnat.make(args.env_id)
@@ -129,7 +143,9 @@ def main(argv=None):
         ("algo", "algorithm", "s"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
         ("threshold_s", f"s to test return >= {THRESHOLD}", ".1f"),
         ("threshold_steps", "steps/seed to it", ","), ("train_s", "trained s", ".1f"),
-        ("env_steps_per_seed", "steps/seed", ","), ("test_return", "final test return", "+.3f"),
+        ("env_steps_per_seed", "steps/seed", ","), ("best_return", "best test return", "+.3f"),
+        ("best_accuracy", "its accuracy", ".1%"), ("best_s", "at s", ".1f"), ("best_steps", "at steps/seed", ","),
+        ("test_return", "final test return", "+.3f"),
         ("test_return_std", "std over seeds", ".3f"), ("test_accuracy", "final accuracy", ".1%"),
         ("compile_s", "compile s", ".1f"),
     ])

@@ -1,5 +1,6 @@
-"""DQN: the TD target by hand (plain and double), epsilon schedule, target-network period,
-learning start, replay ring buffer, and probe environments under vmap over seeds."""
+"""DQN: the TD target by hand (plain and double), n-step returns by hand, epsilon schedule,
+target-network period, learning start, replay ring buffer, and probe environments (one step,
+observation-dependent, factored, two steps, time limits) under vmap over seeds."""
 
 import functools
 
@@ -9,7 +10,7 @@ import numpy as np
 import optax
 import pytest
 
-from jaxnat.agents.dqn import DQNConfig, epsilon, make_dqn, td_loss
+from jaxnat.agents.dqn import DQNConfig, epsilon, make_dqn, nstep_transition, td_loss
 from jaxnat.agents.probes import make_probe
 from jaxnat.agents.replay import replay_add, replay_init, replay_sample
 
@@ -35,7 +36,7 @@ def test_td_target_by_hand(double, terminated):
     online = (jnp.array([[0.5, 0.0], [0.0, 5.0]]), jnp.array([[0.0, -1.0, 0.0], [2.0, 1.0, 0.0]]))
     target = (jnp.array([[9.0, 9.0], [3.0, 1.0]]), jnp.array([[9.0, 9.0, 9.0], [0.0, 4.0, 1.0]]))
     batch = {"obs": jnp.array([0]), "action": jnp.array([[0, 1]]), "reward": jnp.array([1.0]),
-             "next_obs": jnp.array([1]), "terminated": jnp.array([terminated])}
+             "next_obs": jnp.array([1]), "discount": jnp.array([0.5 * (1.0 - terminated)])}
     config = DQNConfig(gamma=0.5, double_dqn=double)
     # Plain: each head's best target value, 3 and 4; double: the target's values of the online
     # network's best actions (1 and 0), 1 and 0. The next-state value is their mean.
@@ -45,6 +46,51 @@ def test_td_target_by_hand(double, terminated):
     loss, info = td_loss(config, QTable(), online, target, batch)
     np.testing.assert_allclose(float(loss), expected, rtol=1e-6)
     np.testing.assert_allclose(float(info["q_mean"]), -0.25)
+
+
+def test_nstep_transition_by_hand():
+    """Three one-step transitions of three envs, oldest first, gamma 0.5. Env 0 runs on: the
+    return covers all 3 steps and bootstraps from the third next observation with 0.5^3. Env 1
+    terminates at step 2: 2 steps, no bootstrap. Env 2 is truncated at step 1: 1 step,
+    bootstrapping from the final observation with 0.5. Rewards after an episode end are not
+    counted."""
+    reward = jnp.array([[1.0, 2.0, 4.0], [8.0, 16.0, 32.0], [64.0, 128.0, 256.0]])  # [n, B]
+    terminated = jnp.array([[0, 0, 0], [0, 1, 0], [0, 0, 0]], bool)
+    done = jnp.array([[0, 0, 1], [0, 1, 0], [0, 0, 1]], bool)
+    next_obs = jnp.array([[10, 11, 12], [20, 21, 22], [30, 31, 32]])
+    recent = {"obs": jnp.array([[0, 1, 2], [10, 11, 12], [20, 21, 22]]),
+              "action": jnp.array([[[5], [6], [7]], [[0], [0], [0]], [[0], [0], [0]]]),
+              "reward": reward, "next_obs": next_obs, "terminated": terminated, "done": done}
+    out = jax.jit(nstep_transition)(recent, 0.5)
+    np.testing.assert_allclose(out["reward"], [1 + 0.5 * 8 + 0.25 * 64, 2 + 0.5 * 16, 4.0])
+    np.testing.assert_allclose(out["discount"], [0.125, 0.0, 0.5])
+    np.testing.assert_array_equal(out["next_obs"], [30, 21, 12])
+    np.testing.assert_array_equal(out["obs"], [0, 1, 2])
+    np.testing.assert_array_equal(out["action"], [[5], [6], [7]])
+    # One step: the Nature DQN target, r + gamma * (1 - terminated).
+    one = nstep_transition(jax.tree.map(lambda x: x[1:2], recent), 0.5)
+    np.testing.assert_allclose(one["reward"], [8.0, 16.0, 32.0])
+    np.testing.assert_allclose(one["discount"], [0.5, 0.0, 0.5])
+
+
+def test_nstep_returns_in_the_buffer():
+    """Two-step returns on the two-step probe: the step-1 transition carries the step-2 reward
+    (discounted once) and does not bootstrap (the episode terminated); the step-2 transition
+    holds its own reward alone; the first `n_step - 1` steps of a run store nothing yet."""
+    env, params = make_probe("two_step")
+    config = DQNConfig(total_timesteps=16, num_envs=2, num_steps=4, gradient_steps=1, batch_size=4,
+                       buffer_size=64, n_step=2, gamma=0.5, trunk="mlp")
+    learner = make_dqn(config, env, params)
+    runner, _ = _jit(learner.train)(jax.random.key(0))
+    buffer = jax.tree.map(np.asarray, runner.buffer)
+    assert int(buffer.size) == 2 * (8 - 1)  # 8 steps of 2 envs, the first one still pending
+    data = jax.tree.map(lambda x: x[: buffer.size], buffer.data)
+    first = data["obs"][:, 1] == 0.0  # step 1 shows [c, 0], step 2 [0, 1]
+    right = data["action"][:, 0] == (data["obs"][:, 0] > 0)
+    assert first.any() and (~first).any()
+    np.testing.assert_allclose(data["reward"][first], 0.5 * right[first])
+    np.testing.assert_allclose(data["discount"], 0.0)  # every return reaches the terminal step
+    np.testing.assert_array_equal(data["next_obs"][first], [[0.0, 1.0]] * first.sum())
 
 
 def test_epsilon_schedule():
@@ -103,11 +149,13 @@ def test_bad_config_is_a_clear_error():
         make_dqn(DQNConfig(optimizer="sgd", trunk="mlp"), env, params)
     with pytest.raises(ValueError, match="buffer_size=4 is smaller"):
         make_dqn(DQNConfig(buffer_size=4, trunk="mlp"), env, params)
+    with pytest.raises(ValueError, match="n_step=0"):
+        make_dqn(DQNConfig(n_step=0, trunk="mlp"), env, params)
 
 
 # --- learning the probes ----------------------------------------------------------------------
-# Not the two-step probe: its step-2 observation hides whether the step-1 action was right, so
-# one-step Q-learning values both step-1 actions alike (it needs multi-step returns).
+# The two-step probe's step-2 observation hides whether the step-1 action was right, so
+# one-step Q-learning values both step-1 actions alike: it needs (and gets) two-step returns.
 
 # mlp trunk, 4 envs x 4 steps, 2 gradient steps per update (a replay ratio of 8 samples per
 # env step), Adam 3e-3, double DQN, epsilon 1 -> 0 over 1024 env steps, 256 updates.
@@ -115,13 +163,15 @@ CONFIG = DQNConfig(total_timesteps=4096, num_envs=4, num_steps=4, gradient_steps
                    optimizer="adam", lr=3e-3, eps_end=0.0, exploration_steps=1024, learning_starts=128,
                    target_update_period=25, double_dqn=True, trunk="mlp")
 PROBE_CONFIG = {"endless": {"gamma": 0.9}}
+STATIC = {"two_step": {"n_step": 2}}  # config fields that change the program
 
 
 @functools.cache
 def trained(probe: str):
     env, params = make_probe(probe)
-    learner = make_dqn(CONFIG, env, params)
-    config = CONFIG.replace(**PROBE_CONFIG.get(probe, {}))
+    config = CONFIG.replace(**STATIC.get(probe, {}))
+    learner = make_dqn(config, env, params)
+    config = config.replace(**PROBE_CONFIG.get(probe, {}))
     runner, metrics = _jit(jax.vmap(learner.train, in_axes=(0, None)))(jax.random.split(jax.random.key(0), SEEDS), config)
     return learner, runner.train_state.params, jax.tree_util.tree_map(np.asarray, metrics)
 
@@ -169,3 +219,15 @@ def test_q_bootstraps_through_time_limits():
     # Updates of 4 steps and episodes of 5: some updates see no episode end (NaN).
     np.testing.assert_array_equal(np.nanmax(metrics["terminated_fraction"][:, -10:], axis=1), 0.0)
     np.testing.assert_array_equal(np.nanmean(metrics["episode_return"][:, -10:], axis=1), 5.0)
+
+
+def test_two_step_credit_assignment():
+    """Step 1 shows the cue +-1, step 2 shows [0, 1] whatever was done; the step-2 reward is 1
+    only if the step-1 action matched the cue. With two-step returns Q(step 1, right) = gamma
+    and Q(step 1, wrong) = 0 (less exactly: epsilon falls to 0, so wrong actions get rare)."""
+    learner, params, metrics = trained("two_step")
+    (q,) = q_values(learner, params, [[1.0, 0.0], [-1.0, 0.0]])
+    np.testing.assert_array_equal(q.argmax(-1), [[1, 0]] * SEEDS)
+    np.testing.assert_allclose(q.max(-1), CONFIG.gamma, atol=0.1)
+    assert np.all(q.min(-1) < 0.3), q
+    assert np.all(final_return(metrics) >= 0.95), final_return(metrics)

@@ -1,4 +1,5 @@
-"""The host training loop (jaxnat.agents.host_loop) on probe envs behind a numpy batched API.
+"""The host training loop (jaxnat.agents.host_loop) on probe envs behind a numpy batched API,
+and `jaxnat train` on NaturalAtari (a real ROM: ale-py ships them) with checkpoints and resume.
 
 The probes are jaxnat's own (jaxnat.agents.probes); `HostProbe` steps a batch of them through
 a jitted function and hands numpy arrays out, as `NaturalAtariVecEnv` does (same-step autoreset,
@@ -15,8 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxnat.agents import a2c, ppo
-from jaxnat.agents.host_loop import evaluate_host, make_host_learner
+from jaxnat.agents import a2c, dqn, ppo
+from jaxnat.agents.host_loop import evaluate_host, make_host_dqn, make_host_learner
 from jaxnat.agents.probes import make_probe
 from jaxnat.wrappers import LogWrapper
 
@@ -26,6 +27,10 @@ CONFIGS = {
     "a2c": a2c.A2CConfig(total_timesteps=4096, num_envs=4, num_steps=8, trunk="mlp", lr=1e-3),
 }
 RULES = {"ppo": ppo.RULE, "a2c": a2c.RULE}
+# As tests/test_dqn.py's probe config, with one env step of 4 envs per update.
+DQN = dqn.DQNConfig(total_timesteps=4096, num_envs=4, num_steps=1, gradient_steps=1, buffer_size=1024,
+                    optimizer="adam", lr=3e-3, eps_end=0.0, exploration_steps=1024, learning_starts=128,
+                    target_update_period=25, double_dqn=True, trunk="mlp")
 FAST = {"xla_backend_optimization_level": 0}  # compiles much faster on CPU
 
 
@@ -59,18 +64,22 @@ class HostProbe:
 
 
 @functools.cache
-def trained(probe: str, algo: str, gamma: float = 0.99):
-    config = CONFIGS[algo].replace(gamma=gamma)
-    learner = make_host_learner(config, HostProbe(probe, config.num_envs), RULES[algo], FAST)
-    train_state, history = learner.train(jax.random.key(0))
-    return learner, train_state.params, history
+def trained(probe: str, algo: str, gamma: float = 0.99, **static):
+    if algo == "dqn":
+        config = DQN.replace(gamma=gamma, **static)
+        learner = make_host_dqn(config, HostProbe(probe, config.num_envs), FAST)
+    else:
+        config = CONFIGS[algo].replace(gamma=gamma)
+        learner = make_host_learner(config, HostProbe(probe, config.num_envs), RULES[algo], FAST)
+    state, history = learner.train(jax.random.key(0))
+    return learner, learner.params(state), history
 
 
 def value(learner, params, obs):
     return np.asarray(learner.network.apply(params, jnp.asarray(obs, jnp.float32))[1])
 
 
-@pytest.mark.parametrize("algo", ["ppo", "a2c"])
+@pytest.mark.parametrize("algo", ["ppo", "a2c", "dqn"])
 def test_policy_learns_the_sign_probe(algo):
     learner, params, history = trained("sign", algo)
     assert np.nanmean([h["episode_return"] for h in history[-5:]]) >= 0.9
@@ -108,25 +117,117 @@ def test_batch_size_must_match_the_env():
                           ppo.RULE)
 
 
-def test_jaxnat_train_runs_natural_atari(tmp_path):
-    """`jaxnat train` routes NaturalAtari ids to the host loop and writes a run directory."""
+def test_dqn_host_loop_learns_two_steps_with_nstep_returns():
+    """The host DQN stores n-step transitions on the device as the jitted one does."""
+    learner, params, history = trained("two_step", "dqn", n_step=2)
+    assert np.nanmean([h["episode_return"] for h in history[-50:]]) >= 0.9
+    greedy = evaluate_host(learner, params, HostProbe("two_step", 4), 20, jax.random.key(1),
+                           greedy=True)
+    assert (greedy == 1.0).all()
+
+
+@pytest.mark.parametrize("algo", ["ppo", "dqn"])
+def test_checkpoint_round_trip_continues_exactly(algo, tmp_path):
+    """A state saved after 3 updates and restored into a fresh learner's structure equals the
+    saved one leaf for leaf (params, optimizer state, DQN's target network, buffer and n-step
+    window, key, update count), and running on from either gives the same result bit for bit
+    (the env restarts from the state's key in both: only the emulator cannot be restored)."""
+    from jaxnat.training.checkpoints import Checkpoints
+
+    if algo == "dqn":
+        config = DQN.replace(total_timesteps=48, learning_starts=8, n_step=2)
+        make = lambda: make_host_dqn(config, HostProbe("two_step", 4), FAST)  # noqa: E731
+    else:
+        config = CONFIGS["ppo"].replace(total_timesteps=4 * 16 * 6)
+        make = lambda: make_host_learner(config, HostProbe("two_step", 4), ppo.RULE, FAST)  # noqa: E731
+    learner = make()
+    state, _ = learner.run(learner.init(jax.random.key(3)), num_updates=3)
+    checkpoints = Checkpoints(tmp_path / "checkpoints")
+    checkpoints.save(state, {"update": 3})
+    other = make()  # as a new process would: its own jitted functions and optimizer
+    restored, meta = checkpoints.restore(other.init(jax.random.key(99)))
+    checkpoints.close()
+    assert meta["update"] == 3 and int(restored.update) == 3
+    for a, b in zip(_leaves(state), _leaves(restored), strict=True):
+        np.testing.assert_array_equal(a, b)
+    expected, expected_history = learner.run(state)
+    actual, history = other.run(restored)
+    assert len(history) == learner.num_updates - 3
+    np.testing.assert_equal(history, expected_history)  # NaN where no episode ended
+    for a, b in zip(_leaves(expected), _leaves(actual), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+ATARI = ["--env-id", "NaturalAtari/Breakout-v0", "--seeds", "2", "--total-timesteps", "32",
+         "--num-envs", "2", "--eval-episodes", "2", "--eval-every", "1", "--env-kwargs",
+         "obs_size=36", "num_threads=1", "max_episode_steps=10", "background=noise"]
+ALGO_ARGS = {"ppo": ["--num-steps", "8", "--num-minibatches", "2"],
+             "dqn": ["--num-steps", "8", "--buffer-size", "64", "--learning-starts", "16",
+                     "--gradient-steps", "2", "--batch-size", "8", "--n-step", "3"]}
+
+
+def _leaves(tree):
+    from jaxnat.training.checkpoints import to_saveable
+
+    return [np.asarray(x) for x in jax.tree.leaves(to_saveable(tree))]
+
+
+@pytest.mark.parametrize("algo", ["ppo", "dqn"])  # a2c: the same on-policy host loop as ppo
+def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
+    """`jaxnat train` routes NaturalAtari ids to the host loop and writes a run directory; a run
+    stopped after 3 checkpoints (seed 0 done, seed 1 at update 1) and resumed restores exactly
+    what was saved (params, optimizer state, DQN's buffer, the update count and key), finishes
+    seed 1 only, and its metrics hold every (seed, update) once."""
     pytest.importorskip("ale_py")
     import json
 
+    from jaxnat.agents import host_run
     from jaxnat.train import main
+    from jaxnat.training import RunSpec
+    from jaxnat.training.checkpoints import Checkpoints
 
     run_dir = tmp_path / "run"
-    status = main(["--env-id", "NaturalAtari/Breakout-v0", "--algo", "a2c", "--seeds", "1",
-                   "--total-timesteps", "32", "--num-envs", "2", "--num-steps", "8",
-                   "--eval-episodes", "2", "--run-dir", str(run_dir), "--env-kwargs",
-                   "obs_size=36", "num_threads=1", "max_episode_steps=10", "background=noise"],
-                  compiler_options=FAST)
-    assert status == 0
+    argv = [*ATARI, "--algo", algo, *ALGO_ARGS[algo]]
+    assert main([*argv, "--run-dir", str(run_dir)], compiler_options=FAST, stop_after_chunks=3) == 0
     rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-    assert [r["update"] for r in rows] == [1, 2]
+    assert [(r["seed"], r["update"]) for r in rows] == [(0, 1), (0, 2), (1, 1)]
     # 10-step games (time limit) in 8-step rollouts: both envs' first games end in update 2.
     assert rows[0]["episodes"] == 0 and rows[1]["episodes"] == 2
     assert rows[1]["episode_length"] == 10.0
     summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["complete"] and summary["env_steps_per_seed"] == 32
+    assert not summary["complete"] and [s["seed"] for s in summary["seeds"]] == [0]
     assert np.isfinite(summary["test_sampled_return_mean"])
+
+    # What the checkpoint of seed 1 holds is what the resumed run starts from.
+    spec = RunSpec.from_json(json.loads((run_dir / "config.json").read_text())["spec"])
+    env = host_run.ClipRewardWrapper(jaxnat_make_vec(spec, "train"))
+    learner = host_run.make_learner(algo, spec.config, env, FAST)
+    checkpoints = Checkpoints(run_dir / "checkpoints" / "seed_1")
+    saved, meta = checkpoints.restore(learner.init(jax.random.key(1)))
+    checkpoints.close()
+    assert meta["update"] == 1 and int(saved.update) == 1
+    fresh = learner.init(jax.random.key(1))
+    assert not all(np.array_equal(a, b) for a, b in zip(_leaves(saved.learner), _leaves(fresh.learner)))
+
+    assert main(["--resume", str(run_dir)], compiler_options=FAST) == 0
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [(r["seed"], r["update"]) for r in rows] == [(0, 1), (0, 2), (1, 1), (1, 2)]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["complete"] and [s["seed"] for s in summary["seeds"]] == [0, 1]
+    assert summary["env_steps_per_seed"] == 32
+    evals = [json.loads(line) for line in (run_dir / "eval.jsonl").read_text().splitlines()]
+    assert [e["seed"] for e in evals] == [0, 1]
+    env.close()
+
+
+def jaxnat_make_vec(spec, split):
+    import jaxnat
+
+    return jaxnat.make_vec(spec.env_id, spec.config.num_envs, split=split, **spec.env_kwargs)
+
+
+def test_algorithm_without_host_loop_is_a_clear_error(capsys):
+    from jaxnat.train import main
+
+    assert main(["--env-id", "NaturalAtari/Breakout-v0", "--algo", "acktr"]) == 2
+    assert "acktr has no host loop" in capsys.readouterr().err

@@ -8,27 +8,46 @@ One update: `num_steps` epsilon-greedy steps of `num_envs` envs go into the repl
 then `gradient_steps` Huber-loss steps on minibatches of `batch_size` sampled uniformly from it
 (none before `learning_starts` env steps); the target network copies the online one every
 `target_update_period` gradient steps. `double_dqn` picks the next action with the online
-network and values it with the target one (van Hasselt et al. 2016).
+network and values it with the target one (van Hasselt et al. 2016). `n_step` > 1 stores
+n-step returns (Sutton 1988; as Rainbow): the transition from `s_t` carries
+`r_t + gamma r_{t+1} + ... + gamma^{m-1} r_{t+m-1}` and bootstraps from `s_{t+m}` with
+`gamma^m`, where m = n, or fewer when the episode ends first (then no bootstrap if it
+terminated, a bootstrap from its final observation if it was truncated). One-step Q-learning
+cannot solve a task whose reward comes after an observation that hides the earlier action
+(`probes.TwoStepProbe`); two-step returns can.
 
-Settings: Nature DQN's (RMSprop lr 2.5e-4, decay 0.95, eps 0.01 (centered, as DeepMind's),
-batch 32, gamma 0.99, epsilon 1.0 -> 0.1, one gradient step per 4 env steps, Huber loss),
-with the replay memory, exploration period, learning start and target period 10x shorter
-(100k, 100k, 10k env steps; 1k gradient steps) since the paper's tasks train for 1-10M steps
-rather than Atari's 50M. `optimizer="adam"` uses Adam (eps 1.5e-4, as Dopamine's DQN).
+Settings: Nature DQN's (RMSprop lr 2.5e-4, decay 0.95, centered, batch 32, gamma 0.99, epsilon
+1.0 -> 0.1, one gradient step per 4 env steps, Huber loss), with the replay memory, exploration
+period, learning start and target period 10x shorter (100k, 100k, 10k env steps; 1k gradient
+steps) since the paper's tasks train for 1-10M steps rather than Atari's 50M. RMSprop's
+epsilon is 1e-5 (Dopamine's), not DeepMind's 0.01: DeepMind summed the loss over the batch of
+32, we average it, so our gradients are 32x smaller and their squares 1024x; 0.01 under the
+square root then floors the denominator at 0.1 and all but stops learning (on
+Classify/Digits-v0 the greedy accuracy stayed at chance, 12.5%, after 5M env steps per seed).
+`optimizer="adam"` uses Adam (eps 1.5e-4, as Dopamine's DQN).
 Time limits: the target bootstraps from the final observation of a truncated episode and not
 from a terminated one, as in `on_policy.py`.
 
-Factored actions (classification's move and label): one Q head per factor over the shared
-trunk ("action branching", Tavakoli et al. 2018) rather than one head over the product space;
-every head learns towards the same target, whose next-state value is the mean over the heads
-of each head's best value, `r + gamma * mean_f max_a Q_f(s', a)`. The network is jaxnat's
-actor-critic whose "logits" are the Q values (its value head is unused), so evaluation's
-greedy policy is `argmax Q` per factor (its "sampled" policy is a Boltzmann one over Q).
+Factored actions (classification's `(move, label)`): one Q head per factor over the shared
+trunk ("action branching", Tavakoli et al. 2018) rather than one head over the product space
+(4 x 10 = 40 outputs for Digits, 4 x 100 for CIFAR-100, and a product that grows with every
+factor). Every head learns towards the same target, whose next-state value is the mean over
+the heads of each head's best value, `r + gamma * mean_f max_a Q_f(s', a)`, so each
+`Q_f(s, a_f)` estimates the return of taking `a_f` while the other factors follow the
+behaviour policy. For classification this is sensible: the label head learns
+`Q(s, right label) = 1` (terminal) and `Q(s, wrong label) = -0.1 + gamma V(s')`, and the move
+head learns which window to uncover next, averaged over the label guesses. The greedy action
+is the argmax of each head. The network is jaxnat's actor-critic whose "logits" are the Q
+values (its value head is unused), so evaluation's greedy policy is `argmax Q` per factor (its
+"sampled" policy is a Boltzmann one over Q).
+
+The pieces (`DQNParts`: init, act, store, learn) are shared with the host loop for
+host-batched envs (`jaxnat.agents.host_loop`, Atari), where the env steps in Python.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -42,7 +61,8 @@ from jaxnat.agents.on_policy import (Learner, count_updates, episode_metrics, sc
                                      step_info, vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
-__all__ = ["DQNConfig", "DQNRunner", "epsilon", "make_dqn", "make_train"]
+__all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_dqn_parts",
+           "make_train", "nstep_transition", "td_loss"]
 
 OPTIMIZERS = ("rmsprop", "adam")
 
@@ -55,12 +75,13 @@ class DQNConfig:
     gradient_steps: int = static(8)  # per update: one per 4 env steps with the defaults
     batch_size: int = static(32)
     buffer_size: int = static(100_000)
+    n_step: int = static(1)  # returns over this many steps (1: Nature DQN's one-step target)
     optimizer: str = static("rmsprop")
     double_dqn: bool = static(False)
     trunk: str | None = static(None)
     lr: float = 2.5e-4
     rms_decay: float = 0.95
-    rms_eps: float = 0.01
+    rms_eps: float = 1e-5
     adam_eps: float = 1.5e-4
     gamma: float = 0.99
     eps_start: float = 1.0
@@ -70,14 +91,44 @@ class DQNConfig:
     target_update_period: int = 1_000  # gradient steps
 
 
-class DQNRunner(NamedTuple):
+class DQNState(NamedTuple):
+    """What DQN learns with, apart from the envs: a pytree (checkpointed as a whole)."""
+
     train_state: TrainState  # online network; `step` counts gradient steps taken
     target_params: Any
+    buffer: ReplayBuffer  # n-step transitions: obs, action, reward, next_obs, discount
+    recent: dict  # the last `n_step` one-step transitions of every env, [n_step, num_envs, ...]
+
+
+class DQNRunner(NamedTuple):
+    train_state: TrainState
+    target_params: Any
     buffer: ReplayBuffer
+    recent: dict
     env_state: Any
     obs: Any
     key: jax.Array
     update: jax.Array  # updates done so far (int32)
+
+
+class DQNParts(NamedTuple):
+    """DQN's pieces, pure and jittable, shared by the jitted loop here and the host loop.
+
+    - `init(key, obs, config) -> DQNState` (`obs`: a batch of `num_envs` observations)
+    - `act(params, obs, key, rate) -> action [B, F]`: epsilon-greedy with exploration `rate`
+    - `store(state, step, steps_taken, config) -> state`: one env step of every env
+      (`step`: obs, action, reward, next_obs = the final observation where an episode ended,
+      terminated, done) joins `recent`; once `steps_taken` (before this one) reaches
+      `n_step - 1`, the n-step transition from the oldest goes into the buffer
+    - `learn(state, key, learning, config) -> (state, losses)`: `gradient_steps` TD steps
+      (no-ops unless `learning`), with the target-network copies
+    """
+
+    network: Any
+    init: Callable
+    act: Callable
+    store: Callable
+    learn: Callable
 
 
 def epsilon(config: DQNConfig, env_steps):
@@ -95,8 +146,30 @@ def _optimizer(config: DQNConfig):
     raise ValueError(f"DQN optimizer {config.optimizer!r} is not one of {OPTIMIZERS}")
 
 
+def nstep_transition(recent: dict, gamma) -> dict:
+    """The n-step transition from the oldest of `recent`'s one-step transitions (`[n, B, ...]`,
+    oldest first): `reward = sum_k gamma^k r_k` over the first m steps (m = n, or up to and
+    including the first step that ended its episode), `next_obs` = that step's next (final)
+    observation, `discount = gamma^m`, or 0 if it terminated."""
+    done = recent["done"].astype(jnp.float32)
+    n = done.shape[0]
+    # alive[k]: steps 0..k-1 all continued the episode, so step k belongs to the return.
+    alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(done[:1]), 1.0 - done[:-1]]), axis=0)
+    powers = gamma ** jnp.arange(n, dtype=jnp.float32).reshape((n,) + (1,) * (done.ndim - 1))
+    reward = jnp.sum(alive * powers * recent["reward"], axis=0)
+    steps = jnp.sum(alive, axis=0)
+    last = steps.astype(jnp.int32) - 1  # the step the return ends with
+    pick = lambda x: jnp.take_along_axis(  # noqa: E731
+        x, last.reshape((1, -1) + (1,) * (x.ndim - 2)), axis=0)[0]
+    discount = gamma ** steps * (1.0 - pick(recent["terminated"].astype(jnp.float32)))
+    return {"obs": jax.tree.map(lambda x: x[0], recent["obs"]),
+            "action": recent["action"][0], "reward": reward,
+            "next_obs": jax.tree.map(pick, recent["next_obs"]), "discount": discount}
+
+
 def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[jax.Array, dict]:
-    """Mean Huber loss over the batch and the action factors."""
+    """Mean Huber loss over the batch and the action factors; the target is
+    `reward + discount * mean_f next value_f` (`discount` = gamma^m, 0 at termination)."""
     q, _ = network.apply(params, batch["obs"])
     q_next, _ = network.apply(target_params, batch["next_obs"])
     if config.double_dqn:
@@ -106,43 +179,39 @@ def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[j
     else:
         next_values = [qf.max(-1) for qf in q_next]
     next_value = jnp.mean(jnp.stack(next_values), axis=0)
-    target = batch["reward"] + config.gamma * (1.0 - batch["terminated"]) * next_value
-    target = jax.lax.stop_gradient(target)
+    target = jax.lax.stop_gradient(batch["reward"] + batch["discount"] * next_value)
     taken = [jnp.take_along_axis(qf, batch["action"][:, f : f + 1], -1)[:, 0] for f, qf in enumerate(q)]
     errors = jnp.stack(taken) - target
     loss = optax.huber_loss(errors, delta=1.0).mean()
     return loss, {"loss": loss, "q_mean": jnp.stack(taken).mean()}
 
 
-def make_dqn(config: DQNConfig, env, env_params) -> Learner:
-    """The DQN learner (`init`, `run`, `train`, `network`, `num_updates`)."""
-    total_updates = count_updates(config)
+def check_config(config: DQNConfig) -> None:
     if config.optimizer not in OPTIMIZERS:
         raise ValueError(f"DQN optimizer {config.optimizer!r} is not one of {OPTIMIZERS}")
     if config.buffer_size < config.num_envs:
         raise ValueError(f"buffer_size={config.buffer_size} is smaller than one env step of "
                          f"num_envs={config.num_envs} envs")
-    observation_space = env.observation_space(env_params)
-    action_space = env.action_space(env_params)
+    if config.n_step < 1:
+        raise ValueError(f"n_step={config.n_step} must be at least 1")
+
+
+def make_dqn_parts(config: DQNConfig, observation_space, action_space) -> DQNParts:
+    """DQN's network and pure functions for these spaces (see `DQNParts`)."""
+    check_config(config)
     network = make_actor_critic(observation_space, action_space, config.trunk)
     dims = network.action_dims
-    scalar_action = not hasattr(action_space, "nvec")
-    reset, step = vector_env(env)
 
-    def init(key, config=config) -> DQNRunner:
-        key, key_net, key_env = jax.random.split(key, 3)
-        params = init_params(network, observation_space, key_net)
+    def init(key, obs, config=config) -> DQNState:
+        params = init_params(network, observation_space, key)
         train_state = TrainState.create(apply_fn=network.apply, params=params, tx=_optimizer(config))
-        obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
-        item = {
-            "obs": jax.tree.map(lambda x: x[0], obs),
-            "action": jnp.zeros(len(dims), jnp.int32),
-            "reward": jnp.zeros((), jnp.float32),
-            "next_obs": jax.tree.map(lambda x: x[0], obs),
-            "terminated": jnp.zeros((), jnp.float32),
-        }
-        buffer = replay_init(item, config.buffer_size)
-        return DQNRunner(train_state, params, buffer, env_state, obs, key, jnp.zeros((), jnp.int32))
+        num_envs = jax.tree.leaves(obs)[0].shape[0]
+        step = {"obs": obs, "action": jnp.zeros((num_envs, len(dims)), jnp.int32),
+                "reward": jnp.zeros(num_envs, jnp.float32), "next_obs": obs,
+                "terminated": jnp.zeros(num_envs, bool), "done": jnp.zeros(num_envs, bool)}
+        recent = jax.tree.map(lambda x: jnp.zeros((config.n_step, *x.shape), x.dtype), step)
+        item = jax.tree.map(lambda x: x[0], nstep_transition(recent, config.gamma))
+        return DQNState(train_state, params, replay_init(item, config.buffer_size), recent)
 
     def act(params, obs, key, rate):
         key_explore, *keys = jax.random.split(key, 1 + len(dims))
@@ -152,21 +221,14 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         explore = jax.random.uniform(key_explore, greedy.shape[:1]) < rate
         return jnp.where(explore[:, None], random, greedy).astype(jnp.int32)
 
-    def env_step(carry, t, config):
-        runner, first_step = carry
-        key, key_act, key_env = jax.random.split(runner.key, 3)
-        rate = epsilon(config, (first_step + t) * config.num_envs)
-        action = act(runner.train_state.params, runner.obs, key_act, rate)
-        env_action = action[..., 0] if scalar_action else action
-        next_obs, env_state, reward, terminated, done, final_obs, info = step(
-            jax.random.split(key_env, config.num_envs), runner.env_state, env_action, env_params
-        )
-        buffer = replay_add(runner.buffer, {
-            "obs": runner.obs, "action": action, "reward": reward.astype(jnp.float32),
-            "next_obs": final_obs, "terminated": terminated.astype(jnp.float32),
-        })
-        runner = runner._replace(buffer=buffer, env_state=env_state, obs=next_obs, key=key)
-        return (runner, first_step), (step_info(info, terminated), rate)
+    def store(state: DQNState, step: dict, steps_taken, config=config) -> DQNState:
+        recent = jax.tree.map(lambda old, new: jnp.concatenate([old[1:], new[None].astype(old.dtype)]),
+                              state.recent, step)
+        buffer = jax.lax.cond(
+            steps_taken >= config.n_step - 1,
+            lambda b: replay_add(b, nstep_transition(recent, config.gamma)),
+            lambda b: b, state.buffer)
+        return state._replace(buffer=buffer, recent=recent)
 
     def gradient_step(carry, key, config, learning):
         train_state, target_params, buffer = carry
@@ -180,22 +242,59 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         target_params = jax.tree.map(lambda p, t: jnp.where(copy, p, t), train_state.params, target_params)
         return (train_state, target_params, buffer), losses
 
+    def learn(state: DQNState, key, learning, config=config) -> tuple[DQNState, dict]:
+        (train_state, target_params, _), losses = jax.lax.scan(
+            lambda c, k: gradient_step(c, k, config, learning),
+            (state.train_state, state.target_params, state.buffer),
+            jax.random.split(key, config.gradient_steps),
+        )
+        state = state._replace(train_state=train_state, target_params=target_params)
+        return state, jax.tree.map(jnp.mean, losses)
+
+    return DQNParts(network, init, act, store, learn)
+
+
+def make_dqn(config: DQNConfig, env, env_params) -> Learner:
+    """The DQN learner (`init`, `run`, `train`, `network`, `num_updates`)."""
+    total_updates = count_updates(config)
+    action_space = env.action_space(env_params)
+    parts = make_dqn_parts(config, env.observation_space(env_params), action_space)
+    scalar_action = not hasattr(action_space, "nvec")
+    reset, step = vector_env(env)
+
+    def init(key, config=config) -> DQNRunner:
+        key, key_net, key_env = jax.random.split(key, 3)
+        obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
+        state = parts.init(key_net, obs, config)
+        return DQNRunner(*state, env_state, obs, key, jnp.zeros((), jnp.int32))
+
+    def env_step(carry, t, config):
+        runner, first_step = carry
+        key, key_act, key_env = jax.random.split(runner.key, 3)
+        rate = epsilon(config, (first_step + t) * config.num_envs)
+        action = parts.act(runner.train_state.params, runner.obs, key_act, rate)
+        env_action = action[..., 0] if scalar_action else action
+        next_obs, env_state, reward, terminated, done, final_obs, info = step(
+            jax.random.split(key_env, config.num_envs), runner.env_state, env_action, env_params
+        )
+        state = parts.store(DQNState(*runner[:4]), {
+            "obs": runner.obs, "action": action, "reward": reward, "next_obs": final_obs,
+            "terminated": terminated, "done": done,
+        }, first_step + t, config)
+        runner = DQNRunner(*state, env_state, next_obs, key, runner.update)
+        return (runner, first_step), (step_info(info, terminated), rate)
+
     def update(runner: DQNRunner, config):
         first_step = runner.update * config.num_steps
         (runner, _), (infos, rates) = jax.lax.scan(
             lambda c, t: env_step(c, t, config), (runner, first_step), jnp.arange(config.num_steps)
         )
         env_steps = (first_step + config.num_steps) * config.num_envs
-        learning = env_steps >= config.learning_starts
         key, key_learn = jax.random.split(runner.key)
-        (train_state, target_params, _), losses = jax.lax.scan(
-            lambda c, k: gradient_step(c, k, config, learning),
-            (runner.train_state, runner.target_params, runner.buffer),
-            jax.random.split(key_learn, config.gradient_steps),
-        )
-        runner = runner._replace(train_state=train_state, target_params=target_params, key=key,
-                                 update=runner.update + 1)
-        metrics = {**episode_metrics(infos), **jax.tree.map(jnp.mean, losses), "epsilon": rates[-1]}
+        state, losses = parts.learn(DQNState(*runner[:4]), key_learn,
+                                    env_steps >= config.learning_starts, config)
+        runner = DQNRunner(*state, *runner[4:6], key, runner.update + 1)
+        metrics = {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
         return runner, metrics
 
     def run(runner: DQNRunner, config=config, num_updates: int = total_updates, callback=None):
@@ -204,7 +303,7 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
     def train(key, config=config):
         return run(init(key, config), config)
 
-    return Learner(init, run, train, network, total_updates)
+    return Learner(init, run, train, parts.network, total_updates)
 
 
 def make_train(config: DQNConfig, env, env_params):

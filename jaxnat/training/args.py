@@ -80,7 +80,7 @@ class TrainArgs:
                                                   help_behavior_hint="")] = None
     """Network trunk (unset: the paper's trunk for the observation size)."""
     eval_every: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
-    """Updates per chunk: evaluate, log and checkpoint after every this many updates (unset: about 20 evaluations over the run)."""
+    """Updates per chunk: evaluate, log and checkpoint after every this many updates (unset: about 20 evaluations over the run). Host-emulated envs (NaturalAtari) checkpoint only; their seeds are evaluated when each finishes."""
     eval_episodes: int = 1000
     """Test episodes per seed per evaluation."""
     run_dir: Annotated[Optional[Path], tyro.conf.arg(metavar="PATH", help_behavior_hint="")] = None

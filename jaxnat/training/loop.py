@@ -18,7 +18,7 @@ import numpy as np
 import jaxnat
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.checkpoints import Checkpoints
-from jaxnat.training.host import is_host_env, train_on_host
+from jaxnat.training.host import is_host_run, train_on_host
 from jaxnat.training.programs import accepts, compiled_program, make_envs, set_progress_sink
 from jaxnat.training.progress import Progress
 from jaxnat.training.records import (
@@ -147,8 +147,8 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     from rich.console import Console
 
     console = console or Console()
-    if is_host_env(args.env_id):  # NaturalAtari/*: emulated on the host, a host loop trains
-        return train_on_host(args, console, compiler_options)
+    if is_host_run(args):  # NaturalAtari/*: emulated on the host, a host loop trains
+        return train_on_host(args, console, compiler_options, stop_after_chunks)
     session_start = time.perf_counter()
     spec, run_dir, saved = _setup(args)
     _print_config(console, spec, run_dir)
