@@ -194,12 +194,43 @@ def _nearest_root(a, b, c):
     return jnp.where(valid & (t > _EPS), t, _MISS)
 
 
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
 def _sphere(o, d, radius, z_offset=0.0, unit=False):
-    ox, oy, oz = o[0], o[1], o[2] - z_offset
-    a = 1.0 if unit else d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-    b = ox * d[0] + oy * d[1] + oz * d[2]
-    c = ox * ox + oy * oy + oz * oz - radius * radius
-    return _nearest_root(a, b, c)
+    o = (o[0], o[1], o[2] - z_offset)
+    return _nearest_root(1.0 if unit else _dot(d, d), _dot(o, d), _dot(o, o) - radius * radius)
+
+
+def _capsule_from_invariants(od, oo, dd, oz, dz, radius, half):
+    """The capsule around the z axis (|z| <= half, radius `radius`), from the ray's invariants in
+    its frame: `od = o.d`, `oo = |o|^2`, `dd = |d|^2` (the float 1.0 for unit rays), and the
+    axial components `oz`, `dz`. Rotation-free, so a world-frame ray needs only two dot products
+    per pixel (`o.d` and `d.axis`): the rest is per frame.
+
+    Two square roots, not three: the ray can only enter the capsule through the lateral surface,
+    where it enters the infinite cylinder, or else through the end cap on the side where it
+    enters that cylinder (or, starting inside it, on its own side)."""
+    a = dd - dz * dz
+    b = od - oz * dz
+    c = oo - oz * oz - radius * radius
+    disc = b * b - a * c
+    parallel = a <= 1e-12
+    t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.where(parallel, 1.0, a)
+    z_side = oz + t_side * dz
+    side = ~parallel & (disc >= 0) & (t_side > _EPS) & (jnp.abs(z_side) <= half)
+    inside = parallel | (c < 0)
+    cap_z = jnp.where(inside, jnp.sign(oz), jnp.sign(z_side)) * half
+    # The cap sphere centred at z = cap_z: o' = o - cap_z e_z.
+    t_cap = _nearest_root(dd, od - cap_z * dz, oo - cap_z * (2.0 * oz - cap_z) - radius * radius)
+    t_cap = jnp.where(inside | (disc >= 0), t_cap, _MISS)
+    return jnp.where(side, t_side, t_cap)
+
+
+def _capsule(o, d, size, unit=False):
+    return _capsule_from_invariants(_dot(o, d), _dot(o, o), 1.0 if unit else _dot(d, d),
+                                    o[2], d[2], size[0], size[1])
 
 
 def _side(o, d, radius, half):
@@ -209,25 +240,6 @@ def _side(o, d, radius, half):
     c = o[0] * o[0] + o[1] * o[1] - radius * radius
     t = _nearest_root(a, b, c)
     return jnp.where(jnp.abs(o[2] + t * d[2]) <= half, t, _MISS)
-
-
-def _capsule(o, d, size, unit=False):
-    """Two square roots, not three: the ray can only enter the capsule through the lateral
-    surface, where it enters the infinite cylinder, or else through the end cap on the side
-    where it enters that cylinder (or, starting inside it, on its own side)."""
-    radius, half = size[0], size[1]
-    a = d[0] * d[0] + d[1] * d[1]
-    b = o[0] * d[0] + o[1] * d[1]
-    c = o[0] * o[0] + o[1] * o[1] - radius * radius
-    disc = b * b - a * c
-    parallel = a <= 1e-12
-    t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.where(parallel, 1.0, a)
-    z_side = o[2] + t_side * d[2]
-    side = ~parallel & (disc >= 0) & (t_side > _EPS) & (jnp.abs(z_side) <= half)
-    inside = parallel | (c < 0)
-    cap_z = jnp.where(inside, jnp.sign(o[2]), jnp.sign(z_side)) * half
-    t_cap = jnp.where(inside | (disc >= 0), _sphere(o, d, radius, cap_z, unit), _MISS)
-    return jnp.where(side, t_side, t_cap)
 
 
 def _ellipsoid(o, d, size, unit=False):
@@ -297,14 +309,16 @@ def intersect(geom_type: int, size, origin, direction) -> jax.Array:
 
 
 def _local_normal(geom_type: int, size, p):
-    """Unnormalised outward normal at local surface point p (tuple of arrays)."""
+    """Unnormalised outward normal at local surface point p (tuple of arrays); `size` may hold
+    host numbers or per-pixel arrays (the winning geom's sizes)."""
     x, y, z = p
     zero = jnp.zeros_like(x)
     if geom_type == PLANE:
         return zero, zero, zero + 1.0
     if geom_type in (SPHERE, CAPSULE):
-        half = size[1] if geom_type == CAPSULE else 0.0
-        return x, y, z - jnp.clip(z, -half, half)
+        if geom_type == SPHERE:
+            return x, y, z
+        return x, y, z - jnp.clip(z, -size[1], size[1])
     if geom_type == ELLIPSOID:
         return tuple(p[i] / (size[i] * size[i]) for i in range(3))
     if geom_type == CYLINDER:
@@ -328,6 +342,13 @@ def _to_world(vec, xmat):
     return tuple(xmat[i, 0] * vec[0] + xmat[i, 1] * vec[1] + xmat[i, 2] * vec[2] for i in range(3))
 
 
+# Columns of the per-frame geom terms (`Renderer._frame_terms`): the camera relative to the geom
+# in world axes (w = cam_pos - xpos), its orientation (xmat, row-major), |w|^2 and w in the
+# geom's axes (R^T w).
+_W, _XMAT, _WW, _W_LOCAL = slice(0, 3), slice(3, 12), 12, slice(13, 16)
+_AXIS_Z = (3 + 2, 3 + 5, 3 + 8)  # xmat[:, 2]: a capsule's axis in the world
+
+
 class Renderer:
     """Renders one frame of a `GeomTable` scene; `vmap` it for a batch.
 
@@ -340,6 +361,17 @@ class Renderer:
             about twice the work, three times the compile time).
         sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
             Gymnasium's skybox).
+
+    Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
+    image, with nothing of size pixels x geoms and no `[..., 3]` vectors in between, so XLA
+    fuses the cast, the normal, the floor texture and the shading into one kernel that writes
+    only the frame. Per frame, the few numbers each geom contributes (its position relative to
+    the camera, its axes) are computed once, packed in one small array and kept out of the
+    kernel (`optimization_barrier`), so the kernel does not redo them per pixel. Spheres and
+    capsules (all of Gymnasium's robots) are intersected in the world frame from two dot
+    products per pixel. A camera orientation given as host numbers (a tracking camera's never
+    changes) makes the ray directions compile-time constants. The normal is computed once per
+    pixel, for the winning geom only (its pose gathered by geom index).
     """
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
@@ -365,99 +397,174 @@ class Renderer:
     def channels(self) -> int:
         return 1 if self.grayscale else 3
 
+    # --- public API -------------------------------------------------------------------------
+
     def cast(self, cam_pos, cam_mat, geom_xpos, geom_xmat) -> Hit:
         """Nearest hit per pixel for a camera at `cam_pos [3]` with orientation `cam_mat [3, 3]`
         (columns = camera axes in the world) and geoms at `geom_xpos [ngeom, 3]`, `geom_xmat
         [ngeom, 3, 3]` or `[ngeom, 9]`, indexed like the model (the table picks its geoms)."""
-        table = self.table
-        cam_pos = jnp.asarray(cam_pos, jnp.float32)
-        cam_mat = jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)
-        xpos = jnp.asarray(geom_xpos, jnp.float32)[table.geom_ids]
-        xmat = jnp.asarray(geom_xmat, jnp.float32).reshape(-1, 3, 3)[table.geom_ids]
-        rays = jnp.asarray(self._camera_rays)
-        d = tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
-                  + rays[..., 2] * cam_mat[i, 2] for i in range(3))
-        best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
-        best_g = jnp.full(d[0].shape, -1, jnp.int32)
-        for g in range(table.num_geoms):  # unrolled: G is small and static
-            o_local = _to_local(tuple(cam_pos[i] - xpos[g, i] for i in range(3)), xmat[g])
-            t = _INTERSECT[int(table.types[g])](o_local, _to_local(d, xmat[g]),
-                                                tuple(float(s) for s in table.sizes[g]), True)
-            closer = t < best_t
-            best_t = jnp.where(closer, t, best_t)
-            best_g = jnp.where(closer, g, best_g)
-        hit_any = best_g >= 0
-        t = jnp.where(hit_any, best_t, 0.0)
-        point = tuple(cam_pos[i] + t * d[i] for i in range(3))
-        normal = self._normals(point, best_g, xpos, xmat)
-        lit = self._lit(point, best_g, xpos, xmat) if self.shadows else jnp.ones_like(t)
-        return Hit(depth=best_t, geom=best_g, normal=jnp.stack(normal, -1),
-                   point=jnp.stack(point, -1), lit=lit)
-
-    def _normals(self, point, best_g, xpos, xmat):
-        normal = (jnp.zeros_like(point[0]),) * 3
-        for g in range(self.table.num_geoms):
-            local = _to_local(tuple(point[i] - xpos[g, i] for i in range(3)), xmat[g])
-            n = _to_world(_local_normal(int(self.table.types[g]),
-                                        tuple(float(s) for s in self.table.sizes[g]), local), xmat[g])
-            mine = best_g == g
-            normal = tuple(jnp.where(mine, n[i], normal[i]) for i in range(3))
-        norm = jnp.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
-        return tuple(n / jnp.maximum(norm, 1e-12) for n in normal)
-
-    def _lit(self, point, best_g, xpos, xmat):
-        """1.0 where a ray from the hit point towards the first light hits no geom."""
-        to_light = tuple(-float(c) for c in self.table.light_dirs[0])
-        blocked = jnp.zeros(point[0].shape, jnp.bool_)
-        for g in np.flatnonzero(self.table.cast_shadows):
-            o_local = _to_local(tuple(point[i] - xpos[g, i] for i in range(3)), xmat[g])
-            d_local = _to_local(tuple(jnp.full((), c, jnp.float32) for c in to_light), xmat[g])
-            t = _INTERSECT[int(self.table.types[g])](o_local, d_local,
-                                                     tuple(float(s) for s in self.table.sizes[g]), True)
-            blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
-        return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
+        t, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
+        return Hit(depth=t, geom=g, normal=jnp.stack(normal, -1), point=jnp.stack(point, -1),
+                   lit=lit)
 
     def shade(self, hit: Hit, cam_mat, floor_rgb=None) -> jax.Array:
         """uint8 `[H, W, C]` image of `hit` seen from a camera oriented by `cam_mat` (it aims
         the headlight). `floor_rgb [H, W, 3]` (float in [0, 1]) colours the floor pixels
         (see `floor.py`); without it the floor keeps its geom colour."""
-        table = self.table
-        g = hit.geom
-        rgb = jnp.asarray(table.rgb)[jnp.maximum(g, 0)]  # one small-table lookup per pixel
-        if table.floor >= 0 and floor_rgb is not None:
-            rgb = jnp.where((g == table.floor)[..., None], floor_rgb, rgb)
-        n = hit.normal
-        cam_forward = -jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)[:, 2]
-        # Elementwise, not `n @ cam_forward`: with an unbatched camera under `vmap` (a tracking
-        # camera's orientation is constant) that dot made XLA's CPU program ~150x slower.
-        head = jnp.maximum(-(n[..., 0] * cam_forward[0] + n[..., 1] * cam_forward[1]
-                             + n[..., 2] * cam_forward[2]), 0.0)
-        light = jnp.asarray(table.headlight_ambient + table.light_ambient)
-        light = light + head[..., None] * jnp.asarray(table.headlight_diffuse)
-        for k in range(len(table.light_dirs)):
-            cos = jnp.maximum(-(n @ jnp.asarray(table.light_dirs[k])), 0.0)
-            if k == 0:
-                cos = cos * hit.lit
-            light = light + cos[..., None] * jnp.asarray(table.light_diffuse[k])
-        if table.floor >= 0:
-            # A lit floor shows its texture unchanged (a video or noise keeps its values);
-            # only shadows darken it.
-            light = jnp.where((g == table.floor)[..., None], jnp.minimum(light, 1.0), light)
-        colour = jnp.clip(rgb * light, 0.0, 1.0)
-        colour = jnp.where((g < 0)[..., None], self._sky(), colour)
-        return self._to_uint8(colour)
+        normal = tuple(hit.normal[..., i] for i in range(3))
+        point = tuple(hit.point[..., i] for i in range(3))
+        return self._shade(hit.geom, normal, point, hit.lit, cam_mat, floor_rgb)
 
     def render(self, cam_pos, cam_mat, geom_xpos, geom_xmat, floor_rgb=None) -> jax.Array:
-        """`shade(cast(...))`: one uint8 `[H, W, C]` frame."""
-        hit = self.cast(cam_pos, cam_mat, geom_xpos, geom_xmat)
-        return self.shade(hit, cam_mat, floor_rgb)
+        """`shade(cast(...))` in one pass: one uint8 `[H, W, C]` frame. `floor_rgb` may also be a
+        function of the hit points' world `xy [H, W, 2]` returning `[H, W, 3]` (see
+        `floor.floor_rgb`): the floor texture is then looked up inside the same kernel."""
+        _, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
+        return self._shade(g, normal, point, lit, cam_mat, floor_rgb)
+
+    # --- the per-pixel work -------------------------------------------------------------------
+
+    def _rays(self, cam_mat):
+        """World ray directions, a tuple of three `[H, W]` arrays (host constants when the
+        camera orientation is not traced)."""
+        rays = self._camera_rays
+        if not isinstance(cam_mat, jax.core.Tracer):
+            world = rays @ np.asarray(cam_mat, np.float32).reshape(3, 3).T
+            return tuple(world[..., i] for i in range(3))
+        cam_mat = jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)
+        return tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
+                     + rays[..., 2] * cam_mat[i, 2] for i in range(3))
+
+    def _frame_terms(self, cam_pos, geom_xpos, geom_xmat):
+        """float32 [G, 16]: per geom, the columns named by `_W`, `_XMAT`, `_WW`, `_W_LOCAL`."""
+        ids = self.table.geom_ids
+        xpos = jnp.asarray(geom_xpos, jnp.float32)[ids]
+        xmat = jnp.asarray(geom_xmat, jnp.float32).reshape(-1, 3, 3)[ids]
+        w = jnp.asarray(cam_pos, jnp.float32) - xpos
+        ww = jnp.sum(w * w, axis=-1, keepdims=True)
+        w_local = jnp.sum(xmat * w[:, :, None], axis=1)  # R^T w, elementwise (no tiny dot)
+        terms = jnp.concatenate([w, xmat.reshape(-1, 9), ww, w_local], axis=-1)
+        # Computed once per frame, not once per pixel inside the fused kernel.
+        return jax.lax.optimization_barrier(terms)
+
+    def _trace(self, cam_pos, cam_mat, geom_xpos, geom_xmat):
+        """(depth, geom, normal, point, lit): the nearest hit per pixel, vectors as tuples."""
+        table = self.table
+        d = self._rays(cam_mat)
+        terms = self._frame_terms(cam_pos, geom_xpos, geom_xmat)
+        best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
+        best_g = jnp.full(d[0].shape, -1, jnp.int32)
+        for g in range(table.num_geoms):  # unrolled: G is small and static
+            t = self._intersect(g, terms[g], d)
+            closer = t < best_t
+            best_t = jnp.where(closer, t, best_t)
+            best_g = jnp.where(closer, g, best_g)
+        t = jnp.where(best_g >= 0, best_t, 0.0)
+        cam_pos = jnp.asarray(cam_pos, jnp.float32)
+        point = tuple(cam_pos[i] + t * d[i] for i in range(3))
+        normal = self._normal(best_g, jnp.maximum(best_g, 0), terms, t, d)
+        if self.shadows:
+            lit = self._lit(point, best_g, terms, cam_pos)
+        else:
+            lit = jnp.ones_like(t)
+        return best_t, best_g, normal, point, lit
+
+    def _intersect(self, g: int, terms, d):
+        """t along the unit world rays `d` to geom `g` (its frame terms: one row)."""
+        geom_type = int(self.table.types[g])
+        size = tuple(float(s) for s in self.table.sizes[g])
+        w = tuple(terms[_W][i] for i in range(3))
+        if geom_type == SPHERE:
+            return _nearest_root(1.0, _dot(w, d), terms[_WW] - size[0] * size[0])
+        if geom_type == CAPSULE:
+            axis = tuple(terms[k] for k in _AXIS_Z)
+            return _capsule_from_invariants(_dot(w, d), terms[_WW], 1.0, terms[_W_LOCAL][2],
+                                            _dot(axis, d), size[0], size[1])
+        # Other primitives in their own frame (unused components are dead code to XLA).
+        xmat = terms[_XMAT].reshape(3, 3)
+        w_local = tuple(terms[_W_LOCAL][i] for i in range(3))
+        return _INTERSECT[geom_type](w_local, _to_local(d, xmat), size, True)
+
+    def _normal(self, best_g, safe_g, terms, t, d):
+        """Unit world normal of the winning geom at each pixel's hit (0 where nothing is hit):
+        its pose is gathered by geom index, so the normal is computed once per pixel."""
+        table = self.table
+        row = terms[safe_g]  # [H, W, 16]: the winner's frame terms
+        xmat = row[..., _XMAT].reshape(row.shape[:-1] + (3, 3))
+        xmat = {(i, j): xmat[..., i, j] for i in range(3) for j in range(3)}
+        rel = tuple(row[..., i] + t * d[i] for i in range(3))  # hit point - geom origin
+        local = tuple(rel[0] * xmat[0, j] + rel[1] * xmat[1, j] + rel[2] * xmat[2, j]
+                      for j in range(3))
+        sizes = tuple(jnp.asarray(table.sizes[:, i])[safe_g] for i in range(3))
+        geom_type = jnp.asarray(table.types)[safe_g]
+        normal = None
+        for kind in sorted(set(int(k) for k in table.types)):
+            n = _local_normal(kind, sizes, local)
+            normal = n if normal is None else tuple(
+                jnp.where(geom_type == kind, n[i], normal[i]) for i in range(3))
+        world = tuple(xmat[i, 0] * normal[0] + xmat[i, 1] * normal[1] + xmat[i, 2] * normal[2]
+                      for i in range(3))
+        inv = jax.lax.rsqrt(jnp.maximum(_dot(world, world), 1e-24))
+        inv = jnp.where(best_g >= 0, inv, 0.0)
+        return tuple(n * inv for n in world)
+
+    def _lit(self, point, best_g, terms, cam_pos):
+        """1.0 where a ray from the hit point towards the first light hits no geom."""
+        to_light = tuple(-float(c) for c in self.table.light_dirs[0])
+        blocked = jnp.zeros(point[0].shape, jnp.bool_)
+        for g in np.flatnonzero(self.table.cast_shadows):
+            xmat = terms[g, _XMAT].reshape(3, 3)
+            # point - xpos = point - cam_pos + w
+            rel = tuple(point[i] - cam_pos[i] + terms[g, i] for i in range(3))
+            d_local = _to_local(tuple(jnp.full((), c, jnp.float32) for c in to_light), xmat)
+            t = _INTERSECT[int(self.table.types[g])](_to_local(rel, xmat), d_local,
+                                                     tuple(float(s) for s in self.table.sizes[g]), True)
+            blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
+        return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
+
+    def _shade(self, g, normal, point, lit, cam_mat, floor_rgb):
+        """uint8 `[H, W, C]` from per-pixel geom ids, normals and points (tuples of arrays)."""
+        table = self.table
+        safe_g = jnp.maximum(g, 0)
+        rgb = [jnp.asarray(table.rgb[:, c])[safe_g] for c in range(3)]  # small-table lookups
+        on_floor = (g == table.floor) if table.floor >= 0 else None
+        if on_floor is not None and floor_rgb is not None:
+            if callable(floor_rgb):
+                floor_rgb = floor_rgb(jnp.stack(point[:2], -1))
+            rgb = [jnp.where(on_floor, floor_rgb[..., c], rgb[c]) for c in range(3)]
+        # The headlight shines along the view axis: -(n . forward) = n . cam_mat[:, 2].
+        back = cam_mat[:, 2] if not isinstance(cam_mat, jax.core.Tracer) else None
+        if back is None:
+            back = jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)[:, 2]
+        else:
+            back = np.asarray(cam_mat, np.float32).reshape(3, 3)[:, 2]
+        head = jnp.maximum(_dot(normal, back), 0.0)
+        cosines = [jnp.maximum(-_dot(normal, table.light_dirs[k]), 0.0)
+                   for k in range(len(table.light_dirs))]
+        if cosines:
+            cosines[0] = cosines[0] * lit
+        ambient = table.headlight_ambient + table.light_ambient
+        sky = self._sky()
+        colour = []
+        for c in range(3):
+            light = float(ambient[c]) + head * float(table.headlight_diffuse[c])
+            for k, cos in enumerate(cosines):
+                light = light + cos * float(table.light_diffuse[k][c])
+            if on_floor is not None:
+                # A lit floor shows its texture unchanged (a video or noise keeps its values);
+                # only shadows darken it.
+                light = jnp.where(on_floor, jnp.minimum(light, 1.0), light)
+            value = jnp.clip(rgb[c] * light, 0.0, 1.0)
+            colour.append(jnp.where(g < 0, sky[c], value))
+        return self._to_uint8(colour)
 
     def _sky(self):
-        top, horizon = jnp.asarray(self.sky[0]), jnp.asarray(self.sky[1])
-        rows = jnp.linspace(1.0, 0.0, self.height)[:, None, None]
-        return horizon + (top - horizon) * rows * jnp.ones((1, self.width, 1))
+        """Per channel, `[H, 1]` host constants: the sky's vertical gradient."""
+        top, horizon = self.sky
+        rows = np.linspace(1.0, 0.0, self.height, dtype=np.float32)[:, None]
+        return [horizon[c] + (top[c] - horizon[c]) * rows for c in range(3)]
 
     def _to_uint8(self, colour):
         if self.grayscale:
-            colour = (colour @ jnp.asarray([0.299, 0.587, 0.114], jnp.float32))[..., None]
-        return jnp.round(colour * 255.0).astype(jnp.uint8)
+            colour = [0.299 * colour[0] + 0.587 * colour[1] + 0.114 * colour[2]]
+        return jnp.stack([jnp.round(c * 255.0).astype(jnp.uint8) for c in colour], axis=-1)
