@@ -42,6 +42,8 @@ PLANE, HFIELD, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX, MESH = range(8)
 _SUPPORTED = {PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule", ELLIPSOID: "ellipsoid",
               CYLINDER: "cylinder", BOX: "box"}
 _MISS = jnp.inf
+# `Renderer.render`'s ops carry this name in a compiled program's metadata (tests count renders).
+RENDER_SCOPE = "jaxnat_render"
 # Hits closer than this (metres) are ignored: it keeps shadow rays from re-hitting their own
 # starting surface.
 _EPS = 1e-4
@@ -419,8 +421,9 @@ class Renderer:
         """`shade(cast(...))` in one pass: one uint8 `[H, W, C]` frame. `floor_rgb` may also be a
         function of the hit points' world `xy [H, W, 2]` returning `[H, W, 3]` (see
         `floor.floor_rgb`): the floor texture is then looked up inside the same kernel."""
-        _, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
-        return self._shade(g, normal, point, lit, cam_mat, floor_rgb)
+        with jax.named_scope(RENDER_SCOPE):  # names its ops in compiled programs
+            _, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
+            return self._shade(g, normal, point, lit, cam_mat, floor_rgb)
 
     # --- the per-pixel work -------------------------------------------------------------------
 
