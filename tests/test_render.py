@@ -260,6 +260,26 @@ def test_vmap_gives_each_env_its_own_frame_deterministically(cheetah):
     np.testing.assert_allclose(renderer.render(p, m, d.geom_xpos, d.geom_xmat), frames[1], atol=1)
 
 
+def test_pallas_kernel_gives_the_xla_frames(cheetah):
+    """The Pallas nearest-hit kernel (interpreted on a CPU) renders the XLA path's frames
+    exactly, batched, at a size that is no multiple of its pixel block."""
+    model, table, camera = cheetah
+    datas = [posed(model, s) for s in range(2)]
+    pos = jnp.stack([jnp.asarray(camera.pose(d)[0]) for d in datas])
+    xpos = jnp.stack([jnp.asarray(d.geom_xpos) for d in datas])
+    xmat = jnp.stack([jnp.asarray(d.geom_xmat) for d in datas])
+    frames = []
+    for kernel in ("xla", "pallas"):
+        renderer = Renderer(table, 24, 40, fovy=camera.fovy, grayscale=True, kernel=kernel)
+        render = jax.jit(jax.vmap(lambda p, x, m, r=renderer: r.render(p, camera.mat, x, m)))
+        frames.append(np.asarray(render(pos, xpos, xmat)))
+    assert 24 * 40 % 512 != 0
+    np.testing.assert_array_equal(frames[1], frames[0])
+    assert len(np.unique(frames[0])) > 5
+    with pytest.raises(ValueError, match="kernel must be one of"):
+        Renderer(table, kernel="cuda")
+
+
 def test_shading_normals_and_shadows(cheetah):
     model, table, camera = cheetah
     data = posed(model, 0)

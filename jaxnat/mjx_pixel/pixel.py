@@ -99,6 +99,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         height, width: frame size in pixels (84x84).
         grayscale: 1 channel per frame (True, the paper's preprocessing) or RGB.
         shadows: render the light's shadows (off by default: about twice the render work).
+        render_kernel: the renderer's nearest-hit search: "xla" (plain JAX) or "pallas" (one
+            Pallas kernel; see `pallas_cast.py`).
         videos: natural video sources for floor="video" (None: opencv-doc's videos; else files,
             a directory or a glob; see `jaxnat.natural.load_videos`).
         video_split: "train", "test" (disjoint videos) or "all".
@@ -126,6 +128,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         video_shape: tuple[int, int] = (128, 128),
         video_max_frames: int | None = None,
         physics: Environment | None = None,
+        render_kernel: str = "xla",
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -146,7 +149,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.camera = TrackingCamera.from_model(physics.model)
         self.table = GeomTable.from_model(physics.model)
         self.renderer = Renderer(self.table, height, width, fovy=self.camera.fovy,
-                                 grayscale=grayscale, shadows=shadows)
+                                 grayscale=grayscale, shadows=shadows, kernel=render_kernel)
         self._video = None
         if observation == "pixels" and floor == "video":
             from jaxnat import natural

@@ -44,6 +44,7 @@ _SUPPORTED = {PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule", ELLIPSOID: "
 _MISS = jnp.inf
 # `Renderer.render`'s ops carry this name in a compiled program's metadata (tests count renders).
 RENDER_SCOPE = "jaxnat_render"
+KERNELS = ("xla", "pallas")
 # Hits closer than this (metres) are ignored: it keeps shadow rays from re-hitting their own
 # starting surface.
 _EPS = 1e-4
@@ -347,8 +348,13 @@ def _to_world(vec, xmat):
 # Columns of the per-frame geom terms (`Renderer._frame_terms`): the camera relative to the geom
 # in world axes (w = cam_pos - xpos), its orientation (xmat, row-major), |w|^2 and w in the
 # geom's axes (R^T w).
-_W, _XMAT, _WW, _W_LOCAL = slice(0, 3), slice(3, 12), 12, slice(13, 16)
-_AXIS_Z = (3 + 2, 3 + 5, 3 + 8)  # xmat[:, 2]: a capsule's axis in the world
+_W, _XMAT, _WW, _W_LOCAL = 0, 3, 12, 13
+NUM_TERMS = 16
+
+
+def _xmat_of(term):
+    """{(i, j): xmat[i, j]} from a geom's terms (`term(column)`), for `_to_local`/`_to_world`."""
+    return {(i, j): term(_XMAT + 3 * i + j) for i in range(3) for j in range(3)}
 
 
 class Renderer:
@@ -363,6 +369,8 @@ class Renderer:
             about twice the work, three times the compile time).
         sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
             Gymnasium's skybox).
+        kernel: "xla" (plain JAX, the default, any backend) or "pallas": the nearest-hit
+            search as one Pallas kernel (`pallas_cast.py`; a GPU kernel, interpreted on CPU).
 
     Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
     image, with nothing of size pixels x geoms and no `[..., 3]` vectors in between, so XLA
@@ -378,9 +386,12 @@ class Renderer:
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
                  grayscale: bool = False, shadows: bool = False,
-                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0))):
+                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0)), kernel: str = "xla"):
         if height < 1 or width < 1:
             raise ValueError(f"image size must be positive, got {height}x{width}")
+        if kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+        self.kernel = kernel
         self.table = table
         self.height, self.width = int(height), int(width)
         self.fovy = float(fovy)
@@ -439,7 +450,7 @@ class Renderer:
                      + rays[..., 2] * cam_mat[i, 2] for i in range(3))
 
     def _frame_terms(self, cam_pos, geom_xpos, geom_xmat):
-        """float32 [G, 16]: per geom, the columns named by `_W`, `_XMAT`, `_WW`, `_W_LOCAL`."""
+        """float32 [G, NUM_TERMS]: per geom, the columns from `_W`, `_XMAT`, `_WW`, `_W_LOCAL`."""
         ids = self.table.geom_ids
         xpos = jnp.asarray(geom_xpos, jnp.float32)[ids]
         xmat = jnp.asarray(geom_xmat, jnp.float32).reshape(-1, 3, 3)[ids]
@@ -457,11 +468,12 @@ class Renderer:
         terms = self._frame_terms(cam_pos, geom_xpos, geom_xmat)
         best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
         best_g = jnp.full(d[0].shape, -1, jnp.int32)
-        for g in range(table.num_geoms):  # unrolled: G is small and static
-            t = self._intersect(g, terms[g], d)
-            closer = t < best_t
-            best_t = jnp.where(closer, t, best_t)
-            best_g = jnp.where(closer, g, best_g)
+        if self.kernel == "pallas":
+            from jaxnat.mjx_pixel.pallas_cast import nearest_hit
+
+            best_t, best_g = nearest_hit(self, terms, d)
+        else:
+            best_t, best_g = self.nearest(lambda g, k: terms[g, k], d)
         t = jnp.where(best_g >= 0, best_t, 0.0)
         cam_pos = jnp.asarray(cam_pos, jnp.float32)
         point = tuple(cam_pos[i] + t * d[i] for i in range(3))
@@ -472,32 +484,43 @@ class Renderer:
             lit = jnp.ones_like(t)
         return best_t, best_g, normal, point, lit
 
-    def _intersect(self, g: int, terms, d):
-        """t along the unit world rays `d` to geom `g` (its frame terms: one row)."""
+    def nearest(self, term, d):
+        """(t, geom) of the nearest hit along unit world rays `d` (a tuple of three arrays):
+        `term(g, k)` reads column k of geom g's frame terms. Shared by the XLA path and the
+        Pallas kernel (`pallas_cast.py`), which reads the terms from its own buffers."""
+        best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
+        best_g = jnp.full(d[0].shape, -1, jnp.int32)
+        for g in range(self.table.num_geoms):  # unrolled: G is small and static
+            t = self._intersect(g, lambda k, g=g: term(g, k), d)
+            closer = t < best_t
+            best_t = jnp.where(closer, t, best_t)
+            best_g = jnp.where(closer, g, best_g)
+        return best_t, best_g
+
+    def _intersect(self, g: int, term, d):
+        """t along the unit world rays `d` to geom `g` (`term(k)`: its frame terms)."""
         geom_type = int(self.table.types[g])
         size = tuple(float(s) for s in self.table.sizes[g])
-        w = tuple(terms[_W][i] for i in range(3))
+        w = tuple(term(_W + i) for i in range(3))
         if geom_type == SPHERE:
-            return _nearest_root(1.0, _dot(w, d), terms[_WW] - size[0] * size[0])
+            return _nearest_root(1.0, _dot(w, d), term(_WW) - size[0] * size[0])
+        xmat = _xmat_of(term)
         if geom_type == CAPSULE:
-            axis = tuple(terms[k] for k in _AXIS_Z)
-            return _capsule_from_invariants(_dot(w, d), terms[_WW], 1.0, terms[_W_LOCAL][2],
+            axis = tuple(xmat[i, 2] for i in range(3))
+            return _capsule_from_invariants(_dot(w, d), term(_WW), 1.0, term(_W_LOCAL + 2),
                                             _dot(axis, d), size[0], size[1])
         # Other primitives in their own frame (unused components are dead code to XLA).
-        xmat = terms[_XMAT].reshape(3, 3)
-        w_local = tuple(terms[_W_LOCAL][i] for i in range(3))
+        w_local = tuple(term(_W_LOCAL + i) for i in range(3))
         return _INTERSECT[geom_type](w_local, _to_local(d, xmat), size, True)
 
     def _normal(self, best_g, safe_g, terms, t, d):
         """Unit world normal of the winning geom at each pixel's hit (0 where nothing is hit):
         its pose is gathered by geom index, so the normal is computed once per pixel."""
         table = self.table
-        row = terms[safe_g]  # [H, W, 16]: the winner's frame terms
-        xmat = row[..., _XMAT].reshape(row.shape[:-1] + (3, 3))
-        xmat = {(i, j): xmat[..., i, j] for i in range(3) for j in range(3)}
-        rel = tuple(row[..., i] + t * d[i] for i in range(3))  # hit point - geom origin
-        local = tuple(rel[0] * xmat[0, j] + rel[1] * xmat[1, j] + rel[2] * xmat[2, j]
-                      for j in range(3))
+        row = terms[safe_g]  # [H, W, NUM_TERMS]: the winner's frame terms
+        xmat = _xmat_of(lambda k: row[..., k])
+        rel = tuple(row[..., _W + i] + t * d[i] for i in range(3))  # hit point - geom origin
+        local = _to_local(rel, xmat)
         sizes = tuple(jnp.asarray(table.sizes[:, i])[safe_g] for i in range(3))
         geom_type = jnp.asarray(table.types)[safe_g]
         normal = None
@@ -505,8 +528,7 @@ class Renderer:
             n = _local_normal(kind, sizes, local)
             normal = n if normal is None else tuple(
                 jnp.where(geom_type == kind, n[i], normal[i]) for i in range(3))
-        world = tuple(xmat[i, 0] * normal[0] + xmat[i, 1] * normal[1] + xmat[i, 2] * normal[2]
-                      for i in range(3))
+        world = _to_world(normal, xmat)
         inv = jax.lax.rsqrt(jnp.maximum(_dot(world, world), 1e-24))
         inv = jnp.where(best_g >= 0, inv, 0.0)
         return tuple(n * inv for n in world)
@@ -516,9 +538,9 @@ class Renderer:
         to_light = tuple(-float(c) for c in self.table.light_dirs[0])
         blocked = jnp.zeros(point[0].shape, jnp.bool_)
         for g in np.flatnonzero(self.table.cast_shadows):
-            xmat = terms[g, _XMAT].reshape(3, 3)
+            xmat = _xmat_of(lambda k, g=g: terms[g, k])
             # point - xpos = point - cam_pos + w
-            rel = tuple(point[i] - cam_pos[i] + terms[g, i] for i in range(3))
+            rel = tuple(point[i] - cam_pos[i] + terms[g, _W + i] for i in range(3))
             d_local = _to_local(tuple(jnp.full((), c, jnp.float32) for c in to_light), xmat)
             t = _INTERSECT[int(self.table.types[g])](_to_local(rel, xmat), d_local,
                                                      tuple(float(s) for s in self.table.sizes[g]), True)
