@@ -5,7 +5,8 @@ loop to XLA, which may cut it into several kernels that pass `[N, H, W]` interme
 memory. This kernel runs the same `Renderer.nearest` code on a block of `BLOCK` pixels of one
 frame, keeps them in registers through every geom and writes only the nearest `t` and geom id
 (8 bytes a pixel); the normal, the floor texture and the shading stay in XLA, one pass over
-those. The geoms' per-frame terms are read as scalars. Under `vmap` the frames become a grid
+those. A geom whose bounding sphere no ray of the block meets is skipped for the whole block
+(`Renderer.nearest(cull=True)`): each robot part covers a small part of the frame. The geoms' per-frame terms are read as scalars. Under `vmap` the frames become a grid
 axis; the ray directions, the same for every frame, are read by all.
 
 On a CPU (tests) the kernel runs through Pallas' interpreter: same arithmetic, slowly.
@@ -18,9 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import pallas as pl
 
-__all__ = ["nearest_hit", "BLOCK"]
+__all__ = ["nearest_hit", "BLOCK", "CULL"]
 
 BLOCK = 512  # pixels per kernel instance (a power of two, as Triton wants)
+CULL = True  # skip a geom for a block when no ray of the block meets its bounding sphere
 
 
 def nearest_hit(renderer, terms, d):
@@ -37,7 +39,7 @@ def nearest_hit(renderer, terms, d):
 
     def kernel(terms_ref, dx_ref, dy_ref, dz_ref, t_ref, g_ref):
         rays = (dx_ref[...], dy_ref[...], dz_ref[...])
-        t, g = renderer.nearest(lambda geom, k: terms_ref[geom * NUM_TERMS + k], rays)
+        t, g = renderer.nearest(lambda geom, k: terms_ref[geom * NUM_TERMS + k], rays, cull=CULL)
         t_ref[...] = t
         g_ref[...] = g
 

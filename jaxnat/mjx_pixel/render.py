@@ -231,6 +231,13 @@ def _capsule_from_invariants(od, oo, dd, oz, dz, radius, half):
     return jnp.where(side, t_side, t_cap)
 
 
+def _may_hit_sphere(w, ww, radius, d):
+    """bool: unit rays `d` from a point at `w` from a sphere's centre (|w|^2 = ww) pass through
+    it ahead (or start inside it)."""
+    od = _dot(w, d)
+    return (ww <= radius * radius) | ((od < 0) & (od * od >= ww - radius * radius))
+
+
 def _capsule(o, d, size, unit=False):
     return _capsule_from_invariants(_dot(o, d), _dot(o, o), 1.0 if unit else _dot(d, d),
                                     o[2], d[2], size[0], size[1])
@@ -484,18 +491,39 @@ class Renderer:
             lit = jnp.ones_like(t)
         return best_t, best_g, normal, point, lit
 
-    def nearest(self, term, d):
+    def nearest(self, term, d, cull: bool = False):
         """(t, geom) of the nearest hit along unit world rays `d` (a tuple of three arrays):
         `term(g, k)` reads column k of geom g's frame terms. Shared by the XLA path and the
-        Pallas kernel (`pallas_cast.py`), which reads the terms from its own buffers."""
-        best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
-        best_g = jnp.full(d[0].shape, -1, jnp.int32)
+        Pallas kernel (`pallas_cast.py`), which reads the terms from its own buffers.
+
+        `cull=True` (the kernel, where `d` is a block of pixels): a geom is tested only if a
+        ray of the block passes through its bounding sphere (`lax.cond` on the block, which
+        a GPU kernel skips as a whole; plain XLA would evaluate both sides)."""
+        best = (jnp.full(d[0].shape, _MISS, jnp.float32), jnp.full(d[0].shape, -1, jnp.int32))
         for g in range(self.table.num_geoms):  # unrolled: G is small and static
-            t = self._intersect(g, lambda k, g=g: term(g, k), d)
-            closer = t < best_t
-            best_t = jnp.where(closer, t, best_t)
-            best_g = jnp.where(closer, g, best_g)
-        return best_t, best_g
+            term_g = lambda k, g=g: term(g, k)  # noqa: E731
+
+            def update(best, g=g, term_g=term_g):
+                t = self._intersect(g, term_g, d)
+                closer = t < best[0]
+                return jnp.where(closer, t, best[0]), jnp.where(closer, g, best[1])
+
+            radius = self._bounding_radius(g)
+            if cull and radius is not None:
+                maybe = _may_hit_sphere(tuple(term_g(_W + i) for i in range(3)), term_g(_WW),
+                                        radius, d)
+                any_maybe = jnp.max(maybe.astype(jnp.int32)) > 0
+                best = jax.lax.cond(any_maybe, update, lambda best: best, best)
+            else:
+                best = update(best)
+        return best
+
+    def _bounding_radius(self, g: int) -> float | None:
+        """Radius of a sphere around geom g's origin that holds it (None: a plane)."""
+        size = [float(s) for s in self.table.sizes[g]]
+        return {SPHERE: size[0], CAPSULE: size[0] + size[1], ELLIPSOID: max(size),
+                CYLINDER: math.hypot(size[0], size[1]),
+                BOX: math.sqrt(sum(s * s for s in size))}.get(int(self.table.types[g]))
 
     def _intersect(self, g: int, term, d):
         """t along the unit world rays `d` to geom `g` (`term(k)`: its frame terms)."""
