@@ -231,6 +231,9 @@ def main(argv=None):
                         help="the envs' renderer kernel")
     parser.add_argument("--kernels", nargs="+", default=[], choices=KERNELS,
                         help="also time the renderer alone with these kernels")
+    parser.add_argument("--videos", default=None,
+                        help="video files, a directory or a glob for the video floor (default: "
+                             "opencv-doc's)")
     parser.add_argument("--compile-workers", type=int, default=min(16, os.cpu_count() or 1))
     parser.add_argument("--strip-only", action="store_true")
     parser.add_argument("--no-record", action="store_true")
@@ -256,7 +259,8 @@ def main(argv=None):
         env_id = f"PixelMuJoCo/{IDS[robot]}-v0"
         envs = {}
         try:
-            envs["video"] = jaxnat.make(env_id, floor="video", video_max_frames=2000, **common_kwargs)
+            envs["video"] = jaxnat.make(env_id, floor="video", video_max_frames=2000,
+                                        videos=args.videos, **common_kwargs)
         except Exception as err:  # no natural videos on this machine (opencv-doc)
             print(f"  no video floor ({type(err).__name__}: {str(err).splitlines()[0]})")
         envs["checker"] = jaxnat.make(env_id, floor="checker", **common_kwargs)
