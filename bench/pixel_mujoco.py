@@ -41,11 +41,11 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 sys.path.insert(1, str(pathlib.Path(__file__).resolve().parents[1]))  # this checkout's jaxnat
 import common  # noqa: E402
+from jaxnat.mjx_pixel.render import KERNELS  # noqa: E402
 
 ROBOTS = ("ant", "half_cheetah", "hopper", "swimmer")
 IDS = {"ant": "Ant", "half_cheetah": "HalfCheetah", "hopper": "Hopper", "swimmer": "Swimmer"}
 FLOORS = ("video", "checker", "noise")
-KERNELS = ("xla", "pallas")
 
 
 def stored_poses(model, count: int, seed: int = 0):

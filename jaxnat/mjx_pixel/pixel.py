@@ -72,7 +72,7 @@ OBSERVATIONS = ("pixels", "noise", "state")
 @struct.dataclass
 class PixelState(EnvState):
     physics: Any  # the physics env's state; `physics.data` is its mjx.Data
-    key: jax.Array  # draws this state's noise (noise floor, noise observation)
+    key: jax.Array  # uint32 data of the key that draws this state's noise (floor, observation)
     latest: jax.Array  # "pixels": the newest frame [H, W, C]; "state": the physics obs
     history: jax.Array  # "pixels": the frame_stack - 1 frames before it, oldest first
     fresh: jax.Array  # bool: the episode's first state (the stack is `latest` repeated)
@@ -184,13 +184,14 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         if self.observation == "noise":
             from jaxnat.natural import gaussian_noise
 
-            return gaussian_noise(state.key, self.observation_space(params).shape)
+            return gaussian_noise(_noise_key(state), self.observation_space(params).shape)
         return state.latest
 
     def observe(self, state: PixelState, params: PixelParams):
         """Render the newest frame of `state` ("pixels") and write it; `(obs, state)`."""
         if self.observation == "pixels":
-            state = state.replace(latest=self.render(state.key, state.physics, params, state.cursor))
+            frame = self.render(_noise_key(state), state.physics, params, state.cursor)
+            state = state.replace(latest=frame)
         return self.get_obs(state, params), state
 
     def render(self, key, physics_state, params: PixelParams, cursor=None) -> jax.Array:
@@ -221,7 +222,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             cursor = cursor_reset(key_video, params.video)
         # The frames are placeholders until `observe` renders the first one.
         latest, history = self._placeholders(physics_obs, params)
-        state = PixelState(time=jnp.zeros((), jnp.int32), physics=physics_state, key=key_obs,
+        state = PixelState(time=jnp.zeros((), jnp.int32), physics=physics_state,
+                           key=jax.random.key_data(key_obs),
                            latest=latest, history=history, fresh=jnp.ones((), jnp.bool_),
                            cursor=cursor)
         return self.observe(state, params)
@@ -238,7 +240,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         latest, history = self._placeholders(physics_obs, params)
         if self.observation == "pixels":  # the stack so far, less its oldest frame
             history = self.get_obs(state, params)[..., self.renderer.channels:]
-        state = state.replace(physics=physics_state, key=key_obs, latest=latest, history=history,
+        state = state.replace(physics=physics_state, key=jax.random.key_data(key_obs),
+                              latest=latest, history=history,
                               fresh=jnp.zeros((), jnp.bool_), cursor=cursor)
         obs, state = self.observe(state, params)
         return obs, state, reward, terminated, info
@@ -274,3 +277,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         (state, obs, total, done, info), _ = jax.lax.scan(
             body, init, jax.random.split(key, self.frame_skip))
         return obs, state, total, done, info
+
+
+def _noise_key(state: PixelState) -> jax.Array:
+    """The typed key of `state`'s noise (the state holds its data: plain uint32 arrays)."""
+    return jax.random.wrap_key_data(state.key)

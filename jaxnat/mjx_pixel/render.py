@@ -44,7 +44,7 @@ _SUPPORTED = {PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule", ELLIPSOID: "
 _MISS = jnp.inf
 # `Renderer.render`'s ops carry this name in a compiled program's metadata (tests count renders).
 RENDER_SCOPE = "jaxnat_render"
-KERNELS = ("xla", "pallas")
+KERNELS = ("xla", "pallas", "auto")
 # Hits closer than this (metres) are ignored: it keeps shadow rays from re-hitting their own
 # starting surface.
 _EPS = 1e-4
@@ -376,8 +376,9 @@ class Renderer:
             about twice the work, three times the compile time).
         sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
             Gymnasium's skybox).
-        kernel: "xla" (plain JAX, the default, any backend) or "pallas": the nearest-hit
-            search as one Pallas kernel (`pallas_cast.py`; a GPU kernel, interpreted on CPU).
+        kernel: "xla" (plain JAX, any backend), "pallas" (the nearest-hit search as one Pallas
+            kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU) or "auto" (Pallas when
+            JAX's default backend is a GPU, else XLA).
 
     Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
     image, with nothing of size pixels x geoms and no `[..., 3]` vectors in between, so XLA
@@ -475,7 +476,7 @@ class Renderer:
         terms = self._frame_terms(cam_pos, geom_xpos, geom_xmat)
         best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
         best_g = jnp.full(d[0].shape, -1, jnp.int32)
-        if self.kernel == "pallas":
+        if self.kernel == "pallas" or (self.kernel == "auto" and jax.default_backend() == "gpu"):
             from jaxnat.mjx_pixel.pallas_cast import nearest_hit
 
             best_t, best_g = nearest_hit(self, terms, d)
