@@ -343,6 +343,15 @@ def _local_normal(geom_type: int, size, p):
             jnp.where(az, jnp.sign(z), 0.0))
 
 
+def _orientation(cam_mat):
+    """`cam_mat` as a float32 3x3: numpy when its values are known now (a tracking camera's
+    constant orientation, so what depends on it is computed on the host), else traced."""
+    try:
+        return np.asarray(cam_mat, np.float32).reshape(3, 3)
+    except jax.errors.TracerArrayConversionError:
+        return jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)
+
+
 def _to_local(vec, xmat):
     """R^T v for world vectors `vec` (tuple of arrays) and one geom's 3x3 `xmat`."""
     return tuple(vec[0] * xmat[0, j] + vec[1] * xmat[1, j] + vec[2] * xmat[2, j] for j in range(3))
@@ -450,10 +459,10 @@ class Renderer:
         """World ray directions, a tuple of three `[H, W]` arrays (host constants when the
         camera orientation is not traced)."""
         rays = self._camera_rays
-        if not isinstance(cam_mat, jax.core.Tracer):
-            world = rays @ np.asarray(cam_mat, np.float32).reshape(3, 3).T
+        cam_mat = _orientation(cam_mat)
+        if isinstance(cam_mat, np.ndarray):
+            world = rays @ cam_mat.T
             return tuple(world[..., i] for i in range(3))
-        cam_mat = jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)
         return tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
                      + rays[..., 2] * cam_mat[i, 2] for i in range(3))
 
@@ -587,11 +596,7 @@ class Renderer:
                 floor_rgb = floor_rgb(jnp.stack(point[:2], -1))
             rgb = [jnp.where(on_floor, floor_rgb[..., c], rgb[c]) for c in range(3)]
         # The headlight shines along the view axis: -(n . forward) = n . cam_mat[:, 2].
-        back = cam_mat[:, 2] if not isinstance(cam_mat, jax.core.Tracer) else None
-        if back is None:
-            back = jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)[:, 2]
-        else:
-            back = np.asarray(cam_mat, np.float32).reshape(3, 3)[:, 2]
+        back = _orientation(cam_mat)[:, 2]
         head = jnp.maximum(_dot(normal, back), 0.0)
         cosines = [jnp.maximum(-_dot(normal, table.light_dirs[k]), 0.0)
                    for k in range(len(table.light_dirs))]
