@@ -280,6 +280,29 @@ def test_pallas_kernel_gives_the_xla_frames(cheetah):
         Renderer(table, kernel="cuda")
 
 
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_row_spans_hold_every_pixel_of_their_geom(robot):
+    """The Pallas kernel skips a geom for blocks of rows outside its bounding sphere's row span
+    (computed per frame): each span must hold every pixel the geom is nearest at, and leave
+    out most rows (else culling saves nothing)."""
+    model = gym_model(robot)
+    table, camera = GeomTable.from_model(model), TrackingCamera.from_model(model)
+    renderer = Renderer(table, 84, 84, fovy=camera.fovy)
+    covered = []
+    for seed in range(4):
+        data = posed(model, seed)
+        pos, mat = camera.pose(data)
+        terms = np.asarray(renderer._frame_terms(pos, mat, data.geom_xpos, data.geom_xmat))
+        geom = np.asarray(renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat).geom)
+        for g in range(table.num_geoms):
+            first, last = terms[g, render._ROW_LO], terms[g, render._ROW_HI]
+            rows = np.flatnonzero(np.any(geom == g, axis=1))
+            assert np.all((rows >= first) & (rows <= last)), f"geom {g}: rows {rows} vs {first}..{last}"
+            if g != table.floor:
+                covered.append(np.clip(min(last, 83) - max(first, 0) + 1, 0, 84) / 84)
+    assert np.mean(covered) < 0.5
+
+
 def test_shading_normals_and_shadows(cheetah):
     model, table, camera = cheetah
     data = posed(model, 0)

@@ -5,8 +5,9 @@ loop to XLA, which may cut it into several kernels that pass `[N, H, W]` interme
 memory. This kernel runs the same `Renderer.nearest` code on a block of `BLOCK` pixels of one
 frame, keeps them in registers through every geom and writes only the nearest `t` and geom id
 (8 bytes a pixel); the normal, the floor texture and the shading stay in XLA, one pass over
-those. A geom whose bounding sphere no ray of the block meets is skipped for the whole block
-(`Renderer.nearest(cull=True)`): each robot part covers a small part of the frame. The geoms' per-frame terms are read as scalars. Under `vmap` the frames become a grid
+those. A geom is skipped for the whole block when its bounding sphere cannot cover the block's
+image rows (`Renderer.nearest(rows=...)`; the rows are worked out once per frame and geom, so
+the test costs nothing per pixel): each robot part covers a small part of the frame. The geoms' per-frame terms are read as scalars. Under `vmap` the frames become a grid
 axis; the ray directions, the same for every frame, are read by all.
 
 On a CPU (tests) the kernel runs through Pallas' interpreter: same arithmetic, slowly.
@@ -22,7 +23,7 @@ from jax.experimental import pallas as pl
 __all__ = ["nearest_hit", "BLOCK", "CULL"]
 
 BLOCK = 512  # pixels per kernel instance (a power of two, as Triton wants)
-CULL = True  # skip a geom for a block when no ray of the block meets its bounding sphere
+CULL = True  # skip a geom for a block of rows its bounding sphere cannot cover
 
 
 def nearest_hit(renderer, terms, d):
@@ -37,9 +38,15 @@ def nearest_hit(renderer, terms, d):
     flat_terms = jnp.ravel(jnp.asarray(terms, jnp.float32))
     flat_terms = _pad(flat_terms, 1 << max(int(flat_terms.shape[0]) - 1, 0).bit_length())
 
+    width = shape[-1]
+    cull = CULL
+
     def kernel(terms_ref, dx_ref, dy_ref, dz_ref, t_ref, g_ref):
         rays = (dx_ref[...], dy_ref[...], dz_ref[...])
-        t, g = renderer.nearest(lambda geom, k: terms_ref[geom * NUM_TERMS + k], rays, cull=CULL)
+        block = pl.program_id(0)
+        rows = ((block * BLOCK // width).astype(jnp.float32),
+                ((block * BLOCK + BLOCK - 1) // width).astype(jnp.float32)) if cull else None
+        t, g = renderer.nearest(lambda geom, k: terms_ref[geom * NUM_TERMS + k], rays, rows)
         t_ref[...] = t
         g_ref[...] = g
 

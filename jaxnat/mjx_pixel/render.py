@@ -231,13 +231,6 @@ def _capsule_from_invariants(od, oo, dd, oz, dz, radius, half):
     return jnp.where(side, t_side, t_cap)
 
 
-def _may_hit_sphere(w, ww, radius, d):
-    """bool: unit rays `d` from a point at `w` from a sphere's centre (|w|^2 = ww) pass through
-    it ahead (or start inside it)."""
-    od = _dot(w, d)
-    return (ww <= radius * radius) | ((od < 0) & (od * od >= ww - radius * radius))
-
-
 def _capsule(o, d, size, unit=False):
     return _capsule_from_invariants(_dot(o, d), _dot(o, o), 1.0 if unit else _dot(d, d),
                                     o[2], d[2], size[0], size[1])
@@ -363,9 +356,9 @@ def _to_world(vec, xmat):
 
 # Columns of the per-frame geom terms (`Renderer._frame_terms`): the camera relative to the geom
 # in world axes (w = cam_pos - xpos), its orientation (xmat, row-major), |w|^2 and w in the
-# geom's axes (R^T w).
-_W, _XMAT, _WW, _W_LOCAL = 0, 3, 12, 13
-NUM_TERMS = 16
+# geom's axes (R^T w), and the image rows its bounding sphere may cover (`_row_span`).
+_W, _XMAT, _WW, _W_LOCAL, _ROW_LO, _ROW_HI = 0, 3, 12, 13, 16, 17
+NUM_TERMS = 18
 
 
 def _xmat_of(term):
@@ -466,15 +459,17 @@ class Renderer:
         return tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
                      + rays[..., 2] * cam_mat[i, 2] for i in range(3))
 
-    def _frame_terms(self, cam_pos, geom_xpos, geom_xmat):
-        """float32 [G, NUM_TERMS]: per geom, the columns from `_W`, `_XMAT`, `_WW`, `_W_LOCAL`."""
+    def _frame_terms(self, cam_pos, cam_mat, geom_xpos, geom_xmat):
+        """float32 [G, NUM_TERMS]: per geom, the columns from `_W`, `_XMAT`, `_WW`, `_W_LOCAL`,
+        `_ROW_LO`, `_ROW_HI`."""
         ids = self.table.geom_ids
         xpos = jnp.asarray(geom_xpos, jnp.float32)[ids]
         xmat = jnp.asarray(geom_xmat, jnp.float32).reshape(-1, 3, 3)[ids]
         w = jnp.asarray(cam_pos, jnp.float32) - xpos
         ww = jnp.sum(w * w, axis=-1, keepdims=True)
         w_local = jnp.sum(xmat * w[:, :, None], axis=1)  # R^T w, elementwise (no tiny dot)
-        terms = jnp.concatenate([w, xmat.reshape(-1, 9), ww, w_local], axis=-1)
+        rows = self._row_span(w, _orientation(cam_mat))
+        terms = jnp.concatenate([w, xmat.reshape(-1, 9), ww, w_local, rows], axis=-1)
         # Computed once per frame, not once per pixel inside the fused kernel.
         return jax.lax.optimization_barrier(terms)
 
@@ -482,7 +477,7 @@ class Renderer:
         """(depth, geom, normal, point, lit): the nearest hit per pixel, vectors as tuples."""
         table = self.table
         d = self._rays(cam_mat)
-        terms = self._frame_terms(cam_pos, geom_xpos, geom_xmat)
+        terms = self._frame_terms(cam_pos, cam_mat, geom_xpos, geom_xmat)
         best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
         best_g = jnp.full(d[0].shape, -1, jnp.int32)
         if self.kernel == "pallas" or (self.kernel == "auto" and jax.default_backend() == "gpu"):
@@ -501,14 +496,15 @@ class Renderer:
             lit = jnp.ones_like(t)
         return best_t, best_g, normal, point, lit
 
-    def nearest(self, term, d, cull: bool = False):
+    def nearest(self, term, d, rows=None):
         """(t, geom) of the nearest hit along unit world rays `d` (a tuple of three arrays):
         `term(g, k)` reads column k of geom g's frame terms. Shared by the XLA path and the
         Pallas kernel (`pallas_cast.py`), which reads the terms from its own buffers.
 
-        `cull=True` (the kernel, where `d` is a block of pixels): a geom is tested only if a
-        ray of the block passes through its bounding sphere (`lax.cond` on the block, which
-        a GPU kernel skips as a whole; plain XLA would evaluate both sides)."""
+        `rows=(first, last)` (the kernel, where `d` is a block of pixels): the image rows the
+        block spans. A geom is then tested only if its bounding sphere may cover one of them
+        (`lax.cond` on the block, which a GPU kernel skips as a whole; plain XLA would
+        evaluate both sides)."""
         best = (jnp.full(d[0].shape, _MISS, jnp.float32), jnp.full(d[0].shape, -1, jnp.int32))
         for g in range(self.table.num_geoms):  # unrolled: G is small and static
             term_g = lambda k, g=g: term(g, k)  # noqa: E731
@@ -518,15 +514,40 @@ class Renderer:
                 closer = t < best[0]
                 return jnp.where(closer, t, best[0]), jnp.where(closer, g, best[1])
 
-            radius = self._bounding_radius(g)
-            if cull and radius is not None:
-                maybe = _may_hit_sphere(tuple(term_g(_W + i) for i in range(3)), term_g(_WW),
-                                        radius, d)
-                any_maybe = jnp.max(maybe.astype(jnp.int32)) > 0
-                best = jax.lax.cond(any_maybe, update, lambda best: best, best)
+            if rows is not None and self._bounding_radius(g) is not None:
+                seen = (term_g(_ROW_LO) <= rows[1]) & (term_g(_ROW_HI) >= rows[0])
+                best = jax.lax.cond(seen, update, lambda best: best, best)
             else:
                 best = update(best)
         return best
+
+    def _row_span(self, w, cam_mat):
+        """float32 [G, 2]: a range of image rows (first, last; may reach past the image) that
+        holds every pixel whose ray can meet geom g's bounding sphere, for geoms at `-w` from
+        the camera (`w [G, 3]`): one row to spare each side. Empty (first > last) for spheres
+        behind the camera; the whole image for planes and spheres across the camera's plane.
+
+        A pixel row's rays all have the slope y / depth = `row_slope` in camera coordinates.
+        The planes through the camera's x axis tangent to the sphere bound its slopes:
+        (cy + s cz)^2 = R^2 (1 + s^2) for the centre (cx, cy, cz) in camera axes."""
+        table = self.table
+        radius = np.array([r if r is not None else np.inf
+                           for r in map(self._bounding_radius, range(table.num_geoms))], np.float32)
+        centre = [-sum(w[:, i] * cam_mat[i, j] for i in range(3)) for j in range(3)]
+        cy, cz = centre[1], centre[2]
+        r2 = np.where(np.isfinite(radius), radius * radius, 0.0)
+        a = cz * cz - r2
+        across = (a <= 0) | ~np.isfinite(radius)
+        root = jnp.sqrt(jnp.maximum(r2 * (cy * cy + cz * cz - r2), 0.0))
+        safe_a = jnp.where(across, 1.0, a)
+        slope_lo, slope_hi = (-cy * cz - root) / safe_a, (-cy * cz + root) / safe_a
+        tan_half = math.tan(math.radians(self.fovy) / 2)
+        row_of = lambda s: (1.0 - s / tan_half) * (self.height / 2) - 0.5  # noqa: E731
+        first, last = jnp.floor(row_of(slope_hi)) - 1.0, jnp.ceil(row_of(slope_lo)) + 1.0
+        big = float(4 * self.height)
+        first = jnp.where(across, -big, jnp.where(cz > 0, big, first))
+        last = jnp.where(across, big, jnp.where(cz > 0, -big, last))
+        return jnp.stack([first, last], axis=-1)
 
     def _bounding_radius(self, g: int) -> float | None:
         """Radius of a sphere around geom g's origin that holds it (None: a plane)."""
