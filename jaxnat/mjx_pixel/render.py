@@ -576,9 +576,9 @@ class Renderer:
         """Unit world normal of the winning geom at each pixel's hit (0 where nothing is hit):
         its pose is gathered by geom index, so the normal is computed once per pixel."""
         table = self.table
-        row = terms[safe_g]  # [H, W, NUM_TERMS]: the winner's frame terms
-        xmat = _xmat_of(lambda k: row[..., k])
-        rel = tuple(row[..., _W + i] + t * d[i] for i in range(3))  # hit point - geom origin
+        winner = lambda k: terms[:, k][safe_g]  # noqa: E731  (one [G] lookup per column used)
+        xmat = _xmat_of(winner)
+        rel = tuple(winner(_W + i) + t * d[i] for i in range(3))  # hit point - geom origin
         local = _to_local(rel, xmat)
         sizes = tuple(jnp.asarray(table.sizes[:, i])[safe_g] for i in range(3))
         geom_type = jnp.asarray(table.types)[safe_g]
