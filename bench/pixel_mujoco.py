@@ -32,7 +32,15 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 # MuJoCo's renderer: EGL where there is an NVIDIA GPU, OSMesa (software) elsewhere.
-os.environ.setdefault("MUJOCO_GL", "egl" if os.path.exists("/dev/nvidia0") else "osmesa")
+# Without libEGL (a bare GPU machine: see the device notes on .gl) `import mujoco` itself fails
+# under MUJOCO_GL=egl, so it is set only where EGL is found; mujoco.Renderer is then skipped.
+if os.path.exists("/dev/nvidia0"):
+    import ctypes.util
+
+    if ctypes.util.find_library("EGL"):
+        os.environ.setdefault("MUJOCO_GL", "egl")
+else:
+    os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -227,8 +235,8 @@ def main(argv=None):
     parser.add_argument("--no-env", action="store_true", help="renderer and MuJoCo only")
     parser.add_argument("--no-mujoco", action="store_true", help="skip mujoco.Renderer")
     parser.add_argument("--shadows", action="store_true", help="render shadows (env default: off)")
-    parser.add_argument("--render-kernel", default="xla", choices=KERNELS,
-                        help="the envs' renderer kernel")
+    parser.add_argument("--render-kernel", default="auto", choices=KERNELS,
+                        help="the envs' renderer kernel (auto: Pallas on a GPU, else XLA)")
     parser.add_argument("--kernels", nargs="+", default=[], choices=KERNELS,
                         help="also time the renderer alone with these kernels")
     parser.add_argument("--videos", default=None,
@@ -259,8 +267,9 @@ def main(argv=None):
         env_id = f"PixelMuJoCo/{IDS[robot]}-v0"
         envs = {}
         try:
-            envs["video"] = jaxnat.make(env_id, floor="video", video_max_frames=2000,
-                                        videos=args.videos, **common_kwargs)
+            if not args.no_env:
+                envs["video"] = jaxnat.make(env_id, floor="video", video_max_frames=2000,
+                                            videos=args.videos, **common_kwargs)
         except Exception as err:  # no natural videos on this machine (opencv-doc)
             print(f"  no video floor ({type(err).__name__}: {str(err).splitlines()[0]})")
         envs["checker"] = jaxnat.make(env_id, floor="checker", **common_kwargs)

@@ -22,7 +22,9 @@ from jax.experimental import pallas as pl
 
 __all__ = ["nearest_hit", "BLOCK", "CULL"]
 
-BLOCK = 512  # pixels per kernel instance (a power of two, as Triton wants)
+# Pixels per kernel instance (a power of two, as Triton wants). Ant on an H200 at 16,384 envs:
+# 4.1e6 frames/s with 256, 3.5e6 with 512, 2.5e6 with 1024 (smaller blocks cull more).
+BLOCK = 256
 CULL = True  # skip a geom for a block of rows its bounding sphere cannot cover
 
 

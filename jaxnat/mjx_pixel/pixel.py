@@ -99,8 +99,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         height, width: frame size in pixels (84x84).
         grayscale: 1 channel per frame (True, the paper's preprocessing) or RGB.
         shadows: render the light's shadows (off by default: about twice the render work).
-        render_kernel: the renderer's nearest-hit search: "xla" (plain JAX) or "pallas" (one
-            Pallas kernel; see `pallas_cast.py`).
+        render_kernel: the renderer's nearest-hit search: "auto" (a Pallas kernel on a GPU,
+            plain JAX elsewhere), "xla" or "pallas" (see `render.Renderer`, `pallas_cast.py`).
         videos: natural video sources for floor="video" (None: opencv-doc's videos; else files,
             a directory or a glob; see `jaxnat.natural.load_videos`).
         video_split: "train", "test" (disjoint videos) or "all".
@@ -128,7 +128,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         video_shape: tuple[int, int] = (128, 128),
         video_max_frames: int | None = None,
         physics: Environment | None = None,
-        render_kernel: str = "xla",
+        render_kernel: str = "auto",
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")

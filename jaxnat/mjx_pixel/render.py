@@ -378,9 +378,10 @@ class Renderer:
             about twice the work, three times the compile time).
         sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
             Gymnasium's skybox).
-        kernel: "xla" (plain JAX, any backend), "pallas" (the nearest-hit search as one Pallas
-            kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU) or "auto" (Pallas when
-            JAX's default backend is a GPU, else XLA).
+        kernel: "auto" (the default: Pallas when JAX's default backend is a GPU, else XLA),
+            "xla" (plain JAX, any backend) or "pallas" (the nearest-hit search as one Pallas
+            kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU). Both render the same
+            frames (tests on CPU; on an H200 too, 0 of 256 x 7,056 pixels differed).
 
     Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
     image, with nothing of size pixels x geoms and no `[..., 3]` vectors in between, so XLA
@@ -396,7 +397,7 @@ class Renderer:
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
                  grayscale: bool = False, shadows: bool = False,
-                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0)), kernel: str = "xla"):
+                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0)), kernel: str = "auto"):
         if height < 1 or width < 1:
             raise ValueError(f"image size must be positive, got {height}x{width}")
         if kernel not in KERNELS:
