@@ -7,8 +7,9 @@ frame, keeps them in registers through every geom and writes only the nearest `t
 (8 bytes a pixel); the normal, the floor texture and the shading stay in XLA, one pass over
 those. A geom is skipped for the whole block when its bounding sphere cannot cover the block's
 image rows (`Renderer.nearest(rows=...)`; the rows are worked out once per frame and geom, so
-the test costs nothing per pixel): each robot part covers a small part of the frame. The geoms' per-frame terms are read as scalars. Under `vmap` the frames become a grid
-axis; the ray directions, the same for every frame, are read by all.
+the test costs nothing per pixel): each robot part covers a small part of the frame. The
+geoms' per-frame terms are read as scalars. Under `vmap` the frames become a grid axis; the
+ray directions, the same for every frame, are read by all.
 
 On a CPU (tests) the kernel runs through Pallas' interpreter: same arithmetic, slowly.
 """
@@ -23,7 +24,8 @@ from jax.experimental import pallas as pl
 __all__ = ["nearest_hit", "BLOCK", "CULL"]
 
 # Pixels per kernel instance (a power of two, as Triton wants). Ant on an H200 at 16,384 envs:
-# 4.1e6 frames/s with 256, 3.5e6 with 512, 2.5e6 with 1024 (smaller blocks cull more).
+# 3.5e6 frames/s with 128, 3.9e6-4.1e6 with 256, 3.5e6 with 512, 2.5e6 with 1024 (smaller
+# blocks cull more, until the blocks get too small to keep the GPU busy).
 BLOCK = 256
 CULL = True  # skip a geom for a block of rows its bounding sphere cannot cover
 
