@@ -263,10 +263,11 @@ def compiled_renders(fn, *args):
 
 @pytest.fixture(scope="module")
 def autoreset_batch(physics):
-    """An autoresetting batch of 6 where some envs end at the first step (stop_x = 0)."""
+    """An autoresetting batch of 6 where some envs end at the first step (stop_x = 0). The XLA
+    renderer on any backend: the render counter reads its ops in the compiled program."""
     from jaxnat.wrappers import AutoResetWrapper
 
-    env = make_env(physics)
+    env = make_env(physics, render_kernel="xla")
     params = env.default_params
     params = params.replace(physics=params.physics.replace(stop_x=0.0))
     keys = jax.random.split(jax.random.key(5), 6)
