@@ -82,6 +82,13 @@ class Environment(Generic[TState, TParams]):
         the state (and params) alone; `has_state_observation` then reports True."""
         raise NotImplementedError
 
+    def observe(self, state: TState, params: TParams) -> tuple[Any, TState]:
+        """`(get_obs(state, params), state)` by default. An env whose observation must also be
+        written into the state (a frame stack holding the newest rendered frame) overrides it
+        to return the state with that written; `AutoResetWrapper` calls it once, after its
+        select, so the select carries no observation and a batched step renders one."""
+        return self.get_obs(state, params), state
+
     @property
     def has_state_observation(self) -> bool:
         """True when `get_obs(state, params)` is implemented (observation = f(state))."""

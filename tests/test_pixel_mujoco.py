@@ -252,6 +252,75 @@ def test_noise_floor_follows_the_noise_law(checker):
     assert (frames[0] != frames[1]).mean() > 0.4
 
 
+def compiled_renders(fn, *args):
+    """Square roots the renderer's ops leave in the compiled program of `fn`: proportional to
+    the number of frames it renders (XLA has dropped dead renders by then)."""
+    from jaxnat.mjx_pixel.render import RENDER_SCOPE
+
+    text = jax.jit(fn).lower(*args).compile().as_text()
+    return sum(1 for line in text.splitlines() if RENDER_SCOPE in line and " sqrt(" in line)
+
+
+@pytest.fixture(scope="module")
+def autoreset_batch(physics):
+    """An autoresetting batch of 6 where some envs end at the first step (stop_x = 0). The XLA
+    renderer on any backend: the render counter reads its ops in the compiled program."""
+    from jaxnat.wrappers import AutoResetWrapper
+
+    env = make_env(physics, render_kernel="xla")
+    params = env.default_params
+    params = params.replace(physics=params.physics.replace(stop_x=0.0))
+    keys = jax.random.split(jax.random.key(5), 6)
+    _, state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+    return env, AutoResetWrapper(env), params, state
+
+
+def test_autoreset_renders_one_frame_per_step(autoreset_batch):
+    env, auto, params, state = autoreset_batch
+    keys = jax.random.split(jax.random.key(6), 6)
+    args = (keys, state, jnp.zeros((6, 6)), params)
+    one = compiled_renders(jax.vmap(env.observe, in_axes=(0, None)), state, params)
+    assert one > 0
+
+    def step(*a):  # what a training loop keeps: everything but info
+        return auto.step(*a)[:5]
+
+    def two_renders(key, state, action, params):  # a step and a reset, observations selected
+        key_step, key_reset = jax.random.split(key)
+        obs, *_, terminated, truncated, _ = env.step(key_step, state, action, params)
+        return jnp.where(terminated | truncated, env.reset(key_reset, params)[0], obs)
+
+    batched = lambda f: jax.vmap(f, in_axes=(0, 0, 0, None))  # noqa: E731
+    assert compiled_renders(batched(step), *args) == one
+    assert compiled_renders(batched(two_renders), *args) == 2 * one  # the counter can tell
+    # Reading the final observation needs the stepped frame too.
+    final = batched(lambda *a: (auto.step(*a)[0], auto.step(*a)[5]["final_observation"]))
+    assert compiled_renders(final, *args) == 2 * one
+
+
+def test_autoreset_observations_are_those_of_step_or_reset(autoreset_batch):
+    """The observation rendered after the select equals the stepped env's observation where
+    the episode goes on and the fresh episode's first observation where it ended."""
+    env, auto, params, state = autoreset_batch
+    step = jax.jit(jax.vmap(auto.step, in_axes=(0, 0, 0, None)))
+    raw_step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    ended = 0
+    for t in range(3):
+        keys = jax.random.split(jax.random.key(10 + t), 6)
+        key_step, key_reset = jax.vmap(jax.random.split, out_axes=1)(keys)
+        obs, next_state, _, terminated, truncated, info = step(keys, state, jnp.zeros((6, 6)), params)
+        raw_obs = raw_step(key_step, state, jnp.zeros((6, 6)), params)[0]
+        first_obs = reset(key_reset, params)[0]
+        done = np.asarray(terminated | truncated)
+        ended += done.sum()
+        expected = np.where(done[:, None, None, None], first_obs, raw_obs)
+        np.testing.assert_array_equal(obs, expected)
+        np.testing.assert_array_equal(info["final_observation"], raw_obs)
+        state = next_state
+    assert 0 < ended < 18, "some episodes should end and some go on"
+
+
 def test_state_observation(physics):
     env = make_env(physics, observation="state")
     params = env.default_params

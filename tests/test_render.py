@@ -260,6 +260,51 @@ def test_vmap_gives_each_env_its_own_frame_deterministically(cheetah):
     np.testing.assert_allclose(renderer.render(p, m, d.geom_xpos, d.geom_xmat), frames[1], atol=1)
 
 
+def test_pallas_kernel_gives_the_xla_frames(cheetah):
+    """The Pallas nearest-hit kernel (interpreted on a CPU) renders the XLA path's frames
+    exactly, batched, at a size that is no multiple of its pixel block."""
+    model, table, camera = cheetah
+    datas = [posed(model, s) for s in range(2)]
+    pos = jnp.stack([jnp.asarray(camera.pose(d)[0]) for d in datas])
+    xpos = jnp.stack([jnp.asarray(d.geom_xpos) for d in datas])
+    xmat = jnp.stack([jnp.asarray(d.geom_xmat) for d in datas])
+    frames = []
+    for kernel in ("xla", "pallas"):
+        renderer = Renderer(table, 24, 40, fovy=camera.fovy, grayscale=True, kernel=kernel)
+        render = jax.jit(jax.vmap(lambda p, x, m, r=renderer: r.render(p, camera.mat, x, m)))
+        frames.append(np.asarray(render(pos, xpos, xmat)))
+    from jaxnat.mjx_pixel.pallas_cast import BLOCK
+
+    assert 24 * 40 % BLOCK != 0
+    np.testing.assert_array_equal(frames[1], frames[0])
+    assert len(np.unique(frames[0])) > 5
+    with pytest.raises(ValueError, match="kernel must be one of"):
+        Renderer(table, kernel="cuda")
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_row_spans_hold_every_pixel_of_their_geom(robot):
+    """The Pallas kernel skips a geom for blocks of rows outside its bounding sphere's row span
+    (computed per frame): each span must hold every pixel the geom is nearest at, and leave
+    out most rows (else culling saves nothing)."""
+    model = gym_model(robot)
+    table, camera = GeomTable.from_model(model), TrackingCamera.from_model(model)
+    renderer = Renderer(table, 84, 84, fovy=camera.fovy)
+    covered = []
+    for seed in range(4):
+        data = posed(model, seed)
+        pos, mat = camera.pose(data)
+        terms = np.asarray(renderer._frame_terms(pos, mat, data.geom_xpos, data.geom_xmat))
+        geom = np.asarray(renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat).geom)
+        for g in range(table.num_geoms):
+            first, last = terms[g, render._ROW_LO], terms[g, render._ROW_HI]
+            rows = np.flatnonzero(np.any(geom == g, axis=1))
+            assert np.all((rows >= first) & (rows <= last)), f"geom {g}: rows {rows} vs {first}..{last}"
+            if g != table.floor:
+                covered.append(np.clip(min(last, 83) - max(first, 0) + 1, 0, 84) / 84)
+    assert np.mean(covered) < 0.5
+
+
 def test_shading_normals_and_shadows(cheetah):
     model, table, camera = cheetah
     data = posed(model, 0)

@@ -70,10 +70,12 @@ class TrackingCamera:
                    mat=np.asarray(mat, np.float32).reshape(3, 3), fovy=float(model.cam_fovy[cam]))
 
     def pose(self, data) -> tuple:
-        """`(pos [3], mat [3, 3])` in the world for `data` (mjx.Data or MjData), jittable."""
+        """`(pos [3], mat [3, 3])` in the world for `data` (mjx.Data or MjData), jittable. A
+        track/trackcom camera's orientation comes back as host numbers (numpy): it never
+        changes, and the renderer then makes its ray directions compile-time constants."""
         if self.mode == _TRACKCOM:
-            return jnp.asarray(data.subtree_com[self.body]) + self.offset, jnp.asarray(self.mat)
+            return jnp.asarray(data.subtree_com[self.body]) + self.offset, self.mat
         if self.mode == _TRACK:
-            return jnp.asarray(data.xpos[self.body]) + self.offset, jnp.asarray(self.mat)
+            return jnp.asarray(data.xpos[self.body]) + self.offset, self.mat
         body_mat = jnp.asarray(data.xmat[self.body]).reshape(3, 3)
         return jnp.asarray(data.xpos[self.body]) + body_mat @ self.offset, body_mat @ self.mat

@@ -23,29 +23,31 @@ __all__ = ["FLOOR_MODES", "texture_at", "floor_rgb"]
 FLOOR_MODES = ("checker", "video", "noise")
 
 
-def texture_at(texture, xy, tile) -> jax.Array:
+def texture_at(texture, xy, tile, index=None) -> jax.Array:
     """Nearest texel of `texture [h, w, C]` at world points `xy [..., 2]` -> `[..., C]`.
 
     One copy of the texture covers `tile = (tx, ty)` metres and repeats; columns run along +x
     and rows along -y, so an image lies upright when seen from a camera looking along +y (the
-    robots' tracking cameras)."""
-    h, w = texture.shape[0], texture.shape[1]
+    robots' tracking cameras). With `index`, `texture` is a stack `[F, h, w, C]` (a video
+    bank) and texels come from `texture[index]`, read in place (the frame is never copied)."""
+    h, w = texture.shape[-3], texture.shape[-2]
     u = xy[..., 0] / tile[0]
     v = xy[..., 1] / tile[1]
     col = jnp.clip(jnp.floor((u - jnp.floor(u)) * w), 0, w - 1).astype(jnp.int32)
     row = jnp.clip(jnp.floor((jnp.ceil(v) - v) * h), 0, h - 1).astype(jnp.int32)
-    return texture[row, col]
+    return texture[row, col] if index is None else texture[index, row, col]
 
 
-def floor_rgb(mode: str, table, xy, *, frame=None, tile=None, key=None, channels: int = 3
-              ) -> jax.Array:
+def floor_rgb(mode: str, table, xy, *, frame=None, frame_index=None, tile=None, key=None,
+              channels: int = 3) -> jax.Array:
     """float32 `[..., 3]` in [0, 1]: the floor's colour at world points `xy [..., 2]`.
 
     Args:
         mode: one of `FLOOR_MODES`.
         table: the scene's `render.GeomTable` (its floor texture, for "checker").
         xy: world x-y of each pixel's hit point (only floor pixels use the result).
-        frame: uint8 `[h, w, C]` (C = 1 or 3): the video frame, for "video".
+        frame: uint8 `[h, w, C]` (C = 1 or 3): the video frame, for "video"; or, with
+            `frame_index`, the bank's frames `[F, h, w, C]` and the index of the current one.
         tile: metres (x, y) one video frame covers, for "video".
         key: a PRNG key, for "noise".
         channels: 1 draws one noise value per pixel (gray: the law survives the grayscale
@@ -58,7 +60,7 @@ def floor_rgb(mode: str, table, xy, *, frame=None, tile=None, key=None, channels
     if mode == "video":
         if frame is None or tile is None:
             raise ValueError('floor="video" needs the current video frame and its tile size')
-        colour = texture_at(frame, xy, jnp.asarray(tile, jnp.float32))
+        colour = texture_at(frame, xy, jnp.asarray(tile, jnp.float32), frame_index)
         return _unit_rgb(colour)
     if mode == "noise":
         if key is None:

@@ -23,9 +23,14 @@ Semantics: `shared/spec/environments.md` section 4.
   step; `video_split` "train"/"test" picks disjoint videos) or `"noise"` (fresh Gaussian
   noise each frame). See `floor.py`.
 - **Info**: the physics env's info of the last repeat that ran.
-- **Cost**: the stack lives in the state and `get_obs` returns it. A batched autoresetting step
-  (`jaxnat.make`'s default) therefore renders twice per agent step under `vmap`: the stepped
-  frame and the reset's first frame, selected afterwards (see docs/design.md).
+- **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
+  default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
+  the key of its noise; `observe` renders the newest frame from the state and writes it. A step
+  carries the older frames over without rendering them again, and `AutoResetWrapper` selects
+  between the stepped and the reset state first and calls `observe` once on the result, so the
+  frames the step and the reset rendered are dead code to XLA (unless the caller reads
+  `info["final_observation"]`, which needs the stepped frame). The noise observation is drawn
+  the same way, once per step.
 
 Example::
 
@@ -67,7 +72,10 @@ OBSERVATIONS = ("pixels", "noise", "state")
 @struct.dataclass
 class PixelState(EnvState):
     physics: Any  # the physics env's state; `physics.data` is its mjx.Data
-    obs: jax.Array  # the current observation (the frame stack for "pixels")
+    key: jax.Array  # uint32 data of the key that draws this state's noise (floor, observation)
+    latest: jax.Array  # "pixels": the newest frame [H, W, C]; "state": the physics obs
+    history: jax.Array  # "pixels": the frame_stack - 1 frames before it, oldest first
+    fresh: jax.Array  # bool: the episode's first state (the stack is `latest` repeated)
     cursor: Any = None  # natural.VideoCursor with floor="video", else None
 
 
@@ -91,6 +99,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         height, width: frame size in pixels (84x84).
         grayscale: 1 channel per frame (True, the paper's preprocessing) or RGB.
         shadows: render the light's shadows (off by default: about twice the render work).
+        render_kernel: the renderer's nearest-hit search: "auto" (a Pallas kernel on a GPU,
+            plain JAX elsewhere), "xla" or "pallas" (see `render.Renderer`, `pallas_cast.py`).
         videos: natural video sources for floor="video" (None: opencv-doc's videos; else files,
             a directory or a glob; see `jaxnat.natural.load_videos`).
         video_split: "train", "test" (disjoint videos) or "all".
@@ -118,6 +128,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         video_shape: tuple[int, int] = (128, 128),
         video_max_frames: int | None = None,
         physics: Environment | None = None,
+        render_kernel: str = "auto",
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -138,7 +149,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.camera = TrackingCamera.from_model(physics.model)
         self.table = GeomTable.from_model(physics.model)
         self.renderer = Renderer(self.table, height, width, fovy=self.camera.fovy,
-                                 grayscale=grayscale, shadows=shadows)
+                                 grayscale=grayscale, shadows=shadows, kernel=render_kernel)
         self._video = None
         if observation == "pixels" and floor == "video":
             from jaxnat import natural
@@ -167,23 +178,39 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         return spaces.Box(0, 255, (r.height, r.width, r.channels * self.frame_stack), jnp.uint8)
 
     def get_obs(self, state: PixelState, params: PixelParams) -> jax.Array:
-        return state.obs
+        if self.observation == "pixels":
+            stack = jnp.concatenate([state.history, state.latest], axis=-1)
+            return jnp.where(state.fresh, jnp.tile(state.latest, self.frame_stack), stack)
+        if self.observation == "noise":
+            from jaxnat.natural import gaussian_noise
+
+            return gaussian_noise(_noise_key(state), self.observation_space(params).shape)
+        return state.latest
+
+    def observe(self, state: PixelState, params: PixelParams):
+        """Render the newest frame of `state` ("pixels") and write it; `(obs, state)`."""
+        if self.observation == "pixels":
+            frame = self.render(_noise_key(state), state.physics, params, state.cursor)
+            state = state.replace(latest=frame)
+        return self.get_obs(state, params), state
 
     def render(self, key, physics_state, params: PixelParams, cursor=None) -> jax.Array:
         """One uint8 `[H, W, C]` frame of `physics_state` with this env's floor. `key` draws the
         noise floor; `cursor` picks the video frame (floor="video")."""
         data = physics_state.data
         cam_pos, cam_mat = self.camera.pose(data)
-        hit = self.renderer.cast(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat)
-        frame = None
+        frames = frame_index = None
         if self.floor == "video":
-            from jaxnat.natural import cursor_frame
+            video = params.video
+            frames = video.frames
+            frame_index = jnp.asarray(video.starts)[cursor.video] + cursor.offset
 
-            frame = cursor_frame(params.video, cursor)
-        colour = floor_rgb(self.floor, self.table, hit.point[..., :2], frame=frame,
-                           tile=(params.video_tile, params.video_tile), key=key,
-                           channels=self.renderer.channels)
-        return self.renderer.shade(hit, cam_mat, colour)
+        def floor(xy):
+            return floor_rgb(self.floor, self.table, xy, frame=frames, frame_index=frame_index,
+                             tile=(params.video_tile, params.video_tile), key=key,
+                             channels=self.renderer.channels)
+
+        return self.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor)
 
     def reset_env(self, key, params: PixelParams):
         key_physics, key_video, key_obs = jax.random.split(key, 3)
@@ -193,39 +220,42 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             from jaxnat.natural import cursor_reset
 
             cursor = cursor_reset(key_video, params.video)
-        if self.observation == "pixels":
-            frame = self.render(key_obs, physics_state, params, cursor)
-            obs = jnp.concatenate([frame] * self.frame_stack, axis=-1)
-        else:
-            obs = self._non_pixel_obs(key_obs, physics_obs, params)
-        state = PixelState(time=jnp.zeros((), jnp.int32), physics=physics_state, obs=obs,
+        # The frames are placeholders until `observe` renders the first one.
+        latest, history = self._placeholders(physics_obs, params)
+        state = PixelState(time=jnp.zeros((), jnp.int32), physics=physics_state,
+                           key=jax.random.key_data(key_obs),
+                           latest=latest, history=history, fresh=jnp.ones((), jnp.bool_),
                            cursor=cursor)
-        return obs, state
+        return self.observe(state, params)
 
     def step_env(self, key, state: PixelState, action, params: PixelParams):
         key_physics, key_video, key_obs = jax.random.split(key, 3)
         physics_obs, physics_state, reward, terminated, info = self._repeat(
             key_physics, state.physics, action, params)
-        if self.observation == "pixels":
-            cursor = state.cursor
-            if cursor is not None:
-                from jaxnat.natural import cursor_step
+        cursor = state.cursor
+        if cursor is not None:
+            from jaxnat.natural import cursor_step
 
-                cursor = cursor_step(key_video, cursor, params.video)
-            frame = self.render(key_obs, physics_state, params, cursor)
-            obs = jnp.concatenate([state.obs[..., frame.shape[-1]:], frame], axis=-1)
-            state = state.replace(cursor=cursor)
-        else:
-            obs = self._non_pixel_obs(key_obs, physics_obs, params)
-        state = state.replace(physics=physics_state, obs=obs)
+            cursor = cursor_step(key_video, cursor, params.video)
+        latest, history = self._placeholders(physics_obs, params)
+        if self.observation == "pixels":  # the stack so far, less its oldest frame
+            history = self.get_obs(state, params)[..., self.renderer.channels:]
+        state = state.replace(physics=physics_state, key=jax.random.key_data(key_obs),
+                              latest=latest, history=history,
+                              fresh=jnp.zeros((), jnp.bool_), cursor=cursor)
+        obs, state = self.observe(state, params)
         return obs, state, reward, terminated, info
 
-    def _non_pixel_obs(self, key, physics_obs, params):
+    def _placeholders(self, physics_obs, params):
+        """(latest, history) before `observe`: zero frames ("pixels"), the physics observation
+        ("state"), nothing ("noise")."""
         if self.observation == "state":
-            return physics_obs
-        from jaxnat.natural import gaussian_noise
-
-        return gaussian_noise(key, self.observation_space(params).shape)
+            return physics_obs, jnp.zeros((0,), jnp.uint8)
+        if self.observation == "noise":
+            return jnp.zeros((0,), jnp.uint8), jnp.zeros((0,), jnp.uint8)
+        r = self.renderer
+        frame = jnp.zeros((r.height, r.width, r.channels), jnp.uint8)
+        return frame, jnp.zeros((r.height, r.width, r.channels * (self.frame_stack - 1)), jnp.uint8)
 
     def _repeat(self, key, physics_state, action, params: PixelParams):
         """`frame_skip` physics steps with `action`; steps after a termination are void."""
@@ -247,3 +277,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         (state, obs, total, done, info), _ = jax.lax.scan(
             body, init, jax.random.split(key, self.frame_skip))
         return obs, state, total, done, info
+
+
+def _noise_key(state: PixelState) -> jax.Array:
+    """The typed key of `state`'s noise (the state holds its data: plain uint32 arrays)."""
+    return jax.random.wrap_key_data(state.key)

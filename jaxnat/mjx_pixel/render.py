@@ -8,13 +8,15 @@ or `mujoco.MjData`) and a camera pose (see `camera.py`):
     table = GeomTable.from_model(model)
     renderer = Renderer(table, height=84, width=84)
     hit = renderer.cast(cam_pos, cam_mat, geom_xpos, geom_xmat)   # nearest hit per pixel
-    image = renderer.shade(hit, floor_rgb)                         # uint8 [H, W, 3 or 1]
+    image = renderer.shade(hit, cam_mat, floor_rgb)                # uint8 [H, W, 3 or 1]
+    image = renderer.render(cam_pos, cam_mat, geom_xpos, geom_xmat, floor_fn)  # both, one pass
 
-Everything is jittable and vmappable. Speed on a GPU comes from the layout, not from clever
-culling: the geoms are few and known when tracing, so the geom loop is unrolled in Python and
-every pixel's work is straight-line float32 arithmetic over `[..., H, W]` arrays, with no
-data-dependent loops and no gathers inside the geom loop. XLA fuses it into a few elementwise
-kernels, so nothing of size pixels x geoms is ever written to memory.
+Everything is jittable and vmappable. The geoms are few and known when tracing, so the geom
+loop is unrolled in Python and every pixel's work is straight-line float32 arithmetic over
+`[..., H, W]` arrays, with no data-dependent loops and no gathers inside the geom loop. On a
+GPU the nearest-hit search runs by default as one Pallas kernel that also skips, per block of
+pixels, the geoms that cannot be seen there (`pallas_cast.py`); elsewhere XLA fuses the same
+code. See the `Renderer` docstring and docs/design.md for what makes it fast.
 
 Conventions follow MuJoCo: a geom's local frame is `x_world = xpos + xmat @ x_local`; a camera
 looks along its local -z with +y up and `fovy` the vertical field of view in degrees; image row
@@ -42,6 +44,9 @@ PLANE, HFIELD, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX, MESH = range(8)
 _SUPPORTED = {PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule", ELLIPSOID: "ellipsoid",
               CYLINDER: "cylinder", BOX: "box"}
 _MISS = jnp.inf
+# `Renderer.render`'s ops carry this name in a compiled program's metadata (tests count renders).
+RENDER_SCOPE = "jaxnat_render"
+KERNELS = ("xla", "pallas", "auto")
 # Hits closer than this (metres) are ignored: it keeps shadow rays from re-hitting their own
 # starting surface.
 _EPS = 1e-4
@@ -194,12 +199,43 @@ def _nearest_root(a, b, c):
     return jnp.where(valid & (t > _EPS), t, _MISS)
 
 
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
 def _sphere(o, d, radius, z_offset=0.0, unit=False):
-    ox, oy, oz = o[0], o[1], o[2] - z_offset
-    a = 1.0 if unit else d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
-    b = ox * d[0] + oy * d[1] + oz * d[2]
-    c = ox * ox + oy * oy + oz * oz - radius * radius
-    return _nearest_root(a, b, c)
+    o = (o[0], o[1], o[2] - z_offset)
+    return _nearest_root(1.0 if unit else _dot(d, d), _dot(o, d), _dot(o, o) - radius * radius)
+
+
+def _capsule_from_invariants(od, oo, dd, oz, dz, radius, half):
+    """The capsule around the z axis (|z| <= half, radius `radius`), from the ray's invariants in
+    its frame: `od = o.d`, `oo = |o|^2`, `dd = |d|^2` (the float 1.0 for unit rays), and the
+    axial components `oz`, `dz`. Rotation-free, so a world-frame ray needs only two dot products
+    per pixel (`o.d` and `d.axis`): the rest is per frame.
+
+    Two square roots, not three: the ray can only enter the capsule through the lateral surface,
+    where it enters the infinite cylinder, or else through the end cap on the side where it
+    enters that cylinder (or, starting inside it, on its own side)."""
+    a = dd - dz * dz
+    b = od - oz * dz
+    c = oo - oz * oz - radius * radius
+    disc = b * b - a * c
+    parallel = a <= 1e-12
+    t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.where(parallel, 1.0, a)
+    z_side = oz + t_side * dz
+    side = ~parallel & (disc >= 0) & (t_side > _EPS) & (jnp.abs(z_side) <= half)
+    inside = parallel | (c < 0)
+    cap_z = jnp.where(inside, jnp.sign(oz), jnp.sign(z_side)) * half
+    # The cap sphere centred at z = cap_z: o' = o - cap_z e_z.
+    t_cap = _nearest_root(dd, od - cap_z * dz, oo - cap_z * (2.0 * oz - cap_z) - radius * radius)
+    t_cap = jnp.where(inside | (disc >= 0), t_cap, _MISS)
+    return jnp.where(side, t_side, t_cap)
+
+
+def _capsule(o, d, size, unit=False):
+    return _capsule_from_invariants(_dot(o, d), _dot(o, o), 1.0 if unit else _dot(d, d),
+                                    o[2], d[2], size[0], size[1])
 
 
 def _side(o, d, radius, half):
@@ -209,25 +245,6 @@ def _side(o, d, radius, half):
     c = o[0] * o[0] + o[1] * o[1] - radius * radius
     t = _nearest_root(a, b, c)
     return jnp.where(jnp.abs(o[2] + t * d[2]) <= half, t, _MISS)
-
-
-def _capsule(o, d, size, unit=False):
-    """Two square roots, not three: the ray can only enter the capsule through the lateral
-    surface, where it enters the infinite cylinder, or else through the end cap on the side
-    where it enters that cylinder (or, starting inside it, on its own side)."""
-    radius, half = size[0], size[1]
-    a = d[0] * d[0] + d[1] * d[1]
-    b = o[0] * d[0] + o[1] * d[1]
-    c = o[0] * o[0] + o[1] * o[1] - radius * radius
-    disc = b * b - a * c
-    parallel = a <= 1e-12
-    t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.where(parallel, 1.0, a)
-    z_side = o[2] + t_side * d[2]
-    side = ~parallel & (disc >= 0) & (t_side > _EPS) & (jnp.abs(z_side) <= half)
-    inside = parallel | (c < 0)
-    cap_z = jnp.where(inside, jnp.sign(o[2]), jnp.sign(z_side)) * half
-    t_cap = jnp.where(inside | (disc >= 0), _sphere(o, d, radius, cap_z, unit), _MISS)
-    return jnp.where(side, t_side, t_cap)
 
 
 def _ellipsoid(o, d, size, unit=False):
@@ -297,14 +314,16 @@ def intersect(geom_type: int, size, origin, direction) -> jax.Array:
 
 
 def _local_normal(geom_type: int, size, p):
-    """Unnormalised outward normal at local surface point p (tuple of arrays)."""
+    """Unnormalised outward normal at local surface point p (tuple of arrays); `size` may hold
+    host numbers or per-pixel arrays (the winning geom's sizes)."""
     x, y, z = p
     zero = jnp.zeros_like(x)
     if geom_type == PLANE:
         return zero, zero, zero + 1.0
     if geom_type in (SPHERE, CAPSULE):
-        half = size[1] if geom_type == CAPSULE else 0.0
-        return x, y, z - jnp.clip(z, -half, half)
+        if geom_type == SPHERE:
+            return x, y, z
+        return x, y, z - jnp.clip(z, -size[1], size[1])
     if geom_type == ELLIPSOID:
         return tuple(p[i] / (size[i] * size[i]) for i in range(3))
     if geom_type == CYLINDER:
@@ -319,6 +338,15 @@ def _local_normal(geom_type: int, size, p):
             jnp.where(az, jnp.sign(z), 0.0))
 
 
+def _orientation(cam_mat):
+    """`cam_mat` as a float32 3x3: numpy when its values are known now (a tracking camera's
+    constant orientation, so what depends on it is computed on the host), else traced."""
+    try:
+        return np.asarray(cam_mat, np.float32).reshape(3, 3)
+    except jax.errors.TracerArrayConversionError:
+        return jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)
+
+
 def _to_local(vec, xmat):
     """R^T v for world vectors `vec` (tuple of arrays) and one geom's 3x3 `xmat`."""
     return tuple(vec[0] * xmat[0, j] + vec[1] * xmat[1, j] + vec[2] * xmat[2, j] for j in range(3))
@@ -326,6 +354,18 @@ def _to_local(vec, xmat):
 
 def _to_world(vec, xmat):
     return tuple(xmat[i, 0] * vec[0] + xmat[i, 1] * vec[1] + xmat[i, 2] * vec[2] for i in range(3))
+
+
+# Columns of the per-frame geom terms (`Renderer._frame_terms`): the camera relative to the geom
+# in world axes (w = cam_pos - xpos), its orientation (xmat, row-major), |w|^2 and w in the
+# geom's axes (R^T w), and the image rows its bounding sphere may cover (`_row_span`).
+_W, _XMAT, _WW, _W_LOCAL, _ROW_LO, _ROW_HI = 0, 3, 12, 13, 16, 17
+NUM_TERMS = 18
+
+
+def _xmat_of(term):
+    """{(i, j): xmat[i, j]} from a geom's terms (`term(column)`), for `_to_local`/`_to_world`."""
+    return {(i, j): term(_XMAT + 3 * i + j) for i in range(3) for j in range(3)}
 
 
 class Renderer:
@@ -340,13 +380,31 @@ class Renderer:
             about twice the work, three times the compile time).
         sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
             Gymnasium's skybox).
+        kernel: "auto" (the default: Pallas when JAX's default backend is a GPU, else XLA),
+            "xla" (plain JAX, any backend) or "pallas" (the nearest-hit search as one Pallas
+            kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU). Both render the same
+            frames (tests on CPU; on an H200 too, 0 of 256 x 7,056 pixels differed).
+
+    Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
+    image, with no `dot` and no `[..., 3]` vectors in between, so XLA fuses it into a few
+    kernels (15 for Ant on an H200; the Pallas kernel does the geom loop in one). Per frame,
+    the few numbers each geom contributes (its position relative to
+    the camera, its axes) are computed once, packed in one small array and kept out of the
+    kernel (`optimization_barrier`), so the kernel does not redo them per pixel. Spheres and
+    capsules (all of Gymnasium's robots) are intersected in the world frame from two dot
+    products per pixel. A camera orientation given as host numbers (a tracking camera's never
+    changes) makes the ray directions compile-time constants. The normal is computed once per
+    pixel, for the winning geom only (its pose gathered by geom index).
     """
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
                  grayscale: bool = False, shadows: bool = False,
-                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0))):
+                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0)), kernel: str = "auto"):
         if height < 1 or width < 1:
             raise ValueError(f"image size must be positive, got {height}x{width}")
+        if kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+        self.kernel = kernel
         self.table = table
         self.height, self.width = int(height), int(width)
         self.fovy = float(fovy)
@@ -365,99 +423,228 @@ class Renderer:
     def channels(self) -> int:
         return 1 if self.grayscale else 3
 
+    # --- public API -------------------------------------------------------------------------
+
     def cast(self, cam_pos, cam_mat, geom_xpos, geom_xmat) -> Hit:
         """Nearest hit per pixel for a camera at `cam_pos [3]` with orientation `cam_mat [3, 3]`
         (columns = camera axes in the world) and geoms at `geom_xpos [ngeom, 3]`, `geom_xmat
         [ngeom, 3, 3]` or `[ngeom, 9]`, indexed like the model (the table picks its geoms)."""
-        table = self.table
-        cam_pos = jnp.asarray(cam_pos, jnp.float32)
-        cam_mat = jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)
-        xpos = jnp.asarray(geom_xpos, jnp.float32)[table.geom_ids]
-        xmat = jnp.asarray(geom_xmat, jnp.float32).reshape(-1, 3, 3)[table.geom_ids]
-        rays = jnp.asarray(self._camera_rays)
-        d = tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
-                  + rays[..., 2] * cam_mat[i, 2] for i in range(3))
-        best_t = jnp.full(d[0].shape, _MISS, jnp.float32)
-        best_g = jnp.full(d[0].shape, -1, jnp.int32)
-        for g in range(table.num_geoms):  # unrolled: G is small and static
-            o_local = _to_local(tuple(cam_pos[i] - xpos[g, i] for i in range(3)), xmat[g])
-            t = _INTERSECT[int(table.types[g])](o_local, _to_local(d, xmat[g]),
-                                                tuple(float(s) for s in table.sizes[g]), True)
-            closer = t < best_t
-            best_t = jnp.where(closer, t, best_t)
-            best_g = jnp.where(closer, g, best_g)
-        hit_any = best_g >= 0
-        t = jnp.where(hit_any, best_t, 0.0)
-        point = tuple(cam_pos[i] + t * d[i] for i in range(3))
-        normal = self._normals(point, best_g, xpos, xmat)
-        lit = self._lit(point, best_g, xpos, xmat) if self.shadows else jnp.ones_like(t)
-        return Hit(depth=best_t, geom=best_g, normal=jnp.stack(normal, -1),
-                   point=jnp.stack(point, -1), lit=lit)
-
-    def _normals(self, point, best_g, xpos, xmat):
-        normal = (jnp.zeros_like(point[0]),) * 3
-        for g in range(self.table.num_geoms):
-            local = _to_local(tuple(point[i] - xpos[g, i] for i in range(3)), xmat[g])
-            n = _to_world(_local_normal(int(self.table.types[g]),
-                                        tuple(float(s) for s in self.table.sizes[g]), local), xmat[g])
-            mine = best_g == g
-            normal = tuple(jnp.where(mine, n[i], normal[i]) for i in range(3))
-        norm = jnp.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
-        return tuple(n / jnp.maximum(norm, 1e-12) for n in normal)
-
-    def _lit(self, point, best_g, xpos, xmat):
-        """1.0 where a ray from the hit point towards the first light hits no geom."""
-        to_light = tuple(-float(c) for c in self.table.light_dirs[0])
-        blocked = jnp.zeros(point[0].shape, jnp.bool_)
-        for g in np.flatnonzero(self.table.cast_shadows):
-            o_local = _to_local(tuple(point[i] - xpos[g, i] for i in range(3)), xmat[g])
-            d_local = _to_local(tuple(jnp.full((), c, jnp.float32) for c in to_light), xmat[g])
-            t = _INTERSECT[int(self.table.types[g])](o_local, d_local,
-                                                     tuple(float(s) for s in self.table.sizes[g]), True)
-            blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
-        return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
+        t, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
+        return Hit(depth=t, geom=g, normal=jnp.stack(normal, -1), point=jnp.stack(point, -1),
+                   lit=lit)
 
     def shade(self, hit: Hit, cam_mat, floor_rgb=None) -> jax.Array:
         """uint8 `[H, W, C]` image of `hit` seen from a camera oriented by `cam_mat` (it aims
         the headlight). `floor_rgb [H, W, 3]` (float in [0, 1]) colours the floor pixels
         (see `floor.py`); without it the floor keeps its geom colour."""
-        table = self.table
-        g = hit.geom
-        rgb = jnp.asarray(table.rgb)[jnp.maximum(g, 0)]  # one small-table lookup per pixel
-        if table.floor >= 0 and floor_rgb is not None:
-            rgb = jnp.where((g == table.floor)[..., None], floor_rgb, rgb)
-        n = hit.normal
-        cam_forward = -jnp.asarray(cam_mat, jnp.float32).reshape(3, 3)[:, 2]
-        # Elementwise, not `n @ cam_forward`: with an unbatched camera under `vmap` (a tracking
-        # camera's orientation is constant) that dot made XLA's CPU program ~150x slower.
-        head = jnp.maximum(-(n[..., 0] * cam_forward[0] + n[..., 1] * cam_forward[1]
-                             + n[..., 2] * cam_forward[2]), 0.0)
-        light = jnp.asarray(table.headlight_ambient + table.light_ambient)
-        light = light + head[..., None] * jnp.asarray(table.headlight_diffuse)
-        for k in range(len(table.light_dirs)):
-            cos = jnp.maximum(-(n @ jnp.asarray(table.light_dirs[k])), 0.0)
-            if k == 0:
-                cos = cos * hit.lit
-            light = light + cos[..., None] * jnp.asarray(table.light_diffuse[k])
-        if table.floor >= 0:
-            # A lit floor shows its texture unchanged (a video or noise keeps its values);
-            # only shadows darken it.
-            light = jnp.where((g == table.floor)[..., None], jnp.minimum(light, 1.0), light)
-        colour = jnp.clip(rgb * light, 0.0, 1.0)
-        colour = jnp.where((g < 0)[..., None], self._sky(), colour)
-        return self._to_uint8(colour)
+        normal = tuple(hit.normal[..., i] for i in range(3))
+        point = tuple(hit.point[..., i] for i in range(3))
+        return self._shade(hit.geom, normal, point, hit.lit, cam_mat, floor_rgb)
 
     def render(self, cam_pos, cam_mat, geom_xpos, geom_xmat, floor_rgb=None) -> jax.Array:
-        """`shade(cast(...))`: one uint8 `[H, W, C]` frame."""
-        hit = self.cast(cam_pos, cam_mat, geom_xpos, geom_xmat)
-        return self.shade(hit, cam_mat, floor_rgb)
+        """`shade(cast(...))` in one pass: one uint8 `[H, W, C]` frame. `floor_rgb` may also be a
+        function of the hit points' world `xy [H, W, 2]` returning `[H, W, 3]` (see
+        `floor.floor_rgb`): the floor texture is then looked up inside the same kernel."""
+        with jax.named_scope(RENDER_SCOPE):  # names its ops in compiled programs
+            _, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
+            return self._shade(g, normal, point, lit, cam_mat, floor_rgb)
+
+    # --- the per-pixel work -------------------------------------------------------------------
+
+    def _rays(self, cam_mat):
+        """World ray directions, a tuple of three `[H, W]` arrays (host constants when the
+        camera orientation is not traced)."""
+        rays = self._camera_rays
+        cam_mat = _orientation(cam_mat)
+        if isinstance(cam_mat, np.ndarray):
+            world = rays @ cam_mat.T
+            return tuple(world[..., i] for i in range(3))
+        return tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
+                     + rays[..., 2] * cam_mat[i, 2] for i in range(3))
+
+    def _frame_terms(self, cam_pos, cam_mat, geom_xpos, geom_xmat):
+        """float32 [G, NUM_TERMS]: per geom, the columns from `_W`, `_XMAT`, `_WW`, `_W_LOCAL`,
+        `_ROW_LO`, `_ROW_HI`."""
+        ids = self.table.geom_ids
+        xpos = jnp.asarray(geom_xpos, jnp.float32)[ids]
+        xmat = jnp.asarray(geom_xmat, jnp.float32).reshape(-1, 3, 3)[ids]
+        w = jnp.asarray(cam_pos, jnp.float32) - xpos
+        ww = jnp.sum(w * w, axis=-1, keepdims=True)
+        w_local = jnp.sum(xmat * w[:, :, None], axis=1)  # R^T w, elementwise (no tiny dot)
+        rows = self._row_span(w, _orientation(cam_mat))
+        terms = jnp.concatenate([w, xmat.reshape(-1, 9), ww, w_local, rows], axis=-1)
+        # Computed once per frame, not once per pixel inside the fused kernel.
+        return jax.lax.optimization_barrier(terms)
+
+    def _trace(self, cam_pos, cam_mat, geom_xpos, geom_xmat):
+        """(depth, geom, normal, point, lit): the nearest hit per pixel, vectors as tuples."""
+        d = self._rays(cam_mat)
+        terms = self._frame_terms(cam_pos, cam_mat, geom_xpos, geom_xmat)
+        if self.kernel == "pallas" or (self.kernel == "auto" and jax.default_backend() == "gpu"):
+            from jaxnat.mjx_pixel.pallas_cast import nearest_hit
+
+            best_t, best_g = nearest_hit(self, terms, d)
+        else:
+            best_t, best_g = self.nearest(lambda g, k: terms[g, k], d)
+        t = jnp.where(best_g >= 0, best_t, 0.0)
+        cam_pos = jnp.asarray(cam_pos, jnp.float32)
+        point = tuple(cam_pos[i] + t * d[i] for i in range(3))
+        normal = self._normal(best_g, jnp.maximum(best_g, 0), terms, t, d)
+        if self.shadows:
+            lit = self._lit(point, best_g, terms, cam_pos)
+        else:
+            lit = jnp.ones_like(t)
+        return best_t, best_g, normal, point, lit
+
+    def nearest(self, term, d, rows=None):
+        """(t, geom) of the nearest hit along unit world rays `d` (a tuple of three arrays):
+        `term(g, k)` reads column k of geom g's frame terms. Shared by the XLA path and the
+        Pallas kernel (`pallas_cast.py`), which reads the terms from its own buffers.
+
+        `rows=(first, last)` (the kernel, where `d` is a block of pixels): the image rows the
+        block spans. A geom is then tested only if its bounding sphere may cover one of them
+        (`lax.cond` on the block, which a GPU kernel skips as a whole; plain XLA would
+        evaluate both sides)."""
+        best = (jnp.full(d[0].shape, _MISS, jnp.float32), jnp.full(d[0].shape, -1, jnp.int32))
+        for g in range(self.table.num_geoms):  # unrolled: G is small and static
+            term_g = lambda k, g=g: term(g, k)  # noqa: E731
+
+            def update(best, g=g, term_g=term_g):
+                t = self._intersect(g, term_g, d)
+                closer = t < best[0]
+                return jnp.where(closer, t, best[0]), jnp.where(closer, g, best[1])
+
+            if rows is not None and self._bounding_radius(g) is not None:
+                seen = (term_g(_ROW_LO) <= rows[1]) & (term_g(_ROW_HI) >= rows[0])
+                best = jax.lax.cond(seen, update, lambda best: best, best)
+            else:
+                best = update(best)
+        return best
+
+    def _row_span(self, w, cam_mat):
+        """float32 [G, 2]: a range of image rows (first, last; may reach past the image) that
+        holds every pixel whose ray can meet geom g's bounding sphere, for geoms at `-w` from
+        the camera (`w [G, 3]`): one row to spare each side. Empty (first > last) for spheres
+        behind the camera; the whole image for planes and spheres across the camera's plane.
+
+        A pixel row's rays all have the slope y / depth = `row_slope` in camera coordinates.
+        The planes through the camera's x axis tangent to the sphere bound its slopes:
+        (cy + s cz)^2 = R^2 (1 + s^2) for the centre (cx, cy, cz) in camera axes."""
+        table = self.table
+        radius = np.array([r if r is not None else np.inf
+                           for r in map(self._bounding_radius, range(table.num_geoms))], np.float32)
+        centre = [-sum(w[:, i] * cam_mat[i, j] for i in range(3)) for j in range(3)]
+        cy, cz = centre[1], centre[2]
+        r2 = np.where(np.isfinite(radius), radius * radius, 0.0)
+        a = cz * cz - r2
+        across = (a <= 0) | ~np.isfinite(radius)
+        root = jnp.sqrt(jnp.maximum(r2 * (cy * cy + cz * cz - r2), 0.0))
+        safe_a = jnp.where(across, 1.0, a)
+        slope_lo, slope_hi = (-cy * cz - root) / safe_a, (-cy * cz + root) / safe_a
+        tan_half = math.tan(math.radians(self.fovy) / 2)
+        row_of = lambda s: (1.0 - s / tan_half) * (self.height / 2) - 0.5  # noqa: E731
+        first, last = jnp.floor(row_of(slope_hi)) - 1.0, jnp.ceil(row_of(slope_lo)) + 1.0
+        big = float(4 * self.height)
+        first = jnp.where(across, -big, jnp.where(cz > 0, big, first))
+        last = jnp.where(across, big, jnp.where(cz > 0, -big, last))
+        return jnp.stack([first, last], axis=-1)
+
+    def _bounding_radius(self, g: int) -> float | None:
+        """Radius of a sphere around geom g's origin that holds it (None: a plane)."""
+        size = [float(s) for s in self.table.sizes[g]]
+        return {SPHERE: size[0], CAPSULE: size[0] + size[1], ELLIPSOID: max(size),
+                CYLINDER: math.hypot(size[0], size[1]),
+                BOX: math.sqrt(sum(s * s for s in size))}.get(int(self.table.types[g]))
+
+    def _intersect(self, g: int, term, d):
+        """t along the unit world rays `d` to geom `g` (`term(k)`: its frame terms)."""
+        geom_type = int(self.table.types[g])
+        size = tuple(float(s) for s in self.table.sizes[g])
+        w = tuple(term(_W + i) for i in range(3))
+        if geom_type == SPHERE:
+            return _nearest_root(1.0, _dot(w, d), term(_WW) - size[0] * size[0])
+        xmat = _xmat_of(term)
+        if geom_type == CAPSULE:
+            axis = tuple(xmat[i, 2] for i in range(3))
+            return _capsule_from_invariants(_dot(w, d), term(_WW), 1.0, term(_W_LOCAL + 2),
+                                            _dot(axis, d), size[0], size[1])
+        # Other primitives in their own frame (unused components are dead code to XLA).
+        w_local = tuple(term(_W_LOCAL + i) for i in range(3))
+        return _INTERSECT[geom_type](w_local, _to_local(d, xmat), size, True)
+
+    def _normal(self, best_g, safe_g, terms, t, d):
+        """Unit world normal of the winning geom at each pixel's hit (0 where nothing is hit):
+        its pose is gathered by geom index, so the normal is computed once per pixel."""
+        table = self.table
+        winner = lambda k: terms[:, k][safe_g]  # noqa: E731  (one [G] lookup per column used)
+        xmat = _xmat_of(winner)
+        rel = tuple(winner(_W + i) + t * d[i] for i in range(3))  # hit point - geom origin
+        local = _to_local(rel, xmat)
+        sizes = tuple(jnp.asarray(table.sizes[:, i])[safe_g] for i in range(3))
+        geom_type = jnp.asarray(table.types)[safe_g]
+        normal = None
+        for kind in sorted({int(k) for k in table.types}):
+            n = _local_normal(kind, sizes, local)
+            normal = n if normal is None else tuple(
+                jnp.where(geom_type == kind, n[i], normal[i]) for i in range(3))
+        world = _to_world(normal, xmat)
+        inv = jax.lax.rsqrt(jnp.maximum(_dot(world, world), 1e-24))
+        inv = jnp.where(best_g >= 0, inv, 0.0)
+        return tuple(n * inv for n in world)
+
+    def _lit(self, point, best_g, terms, cam_pos):
+        """1.0 where a ray from the hit point towards the first light hits no geom."""
+        to_light = tuple(-float(c) for c in self.table.light_dirs[0])
+        blocked = jnp.zeros(point[0].shape, jnp.bool_)
+        for g in np.flatnonzero(self.table.cast_shadows):
+            xmat = _xmat_of(lambda k, g=g: terms[g, k])
+            # point - xpos = point - cam_pos + w
+            rel = tuple(point[i] - cam_pos[i] + terms[g, _W + i] for i in range(3))
+            d_local = _to_local(tuple(jnp.full((), c, jnp.float32) for c in to_light), xmat)
+            t = _INTERSECT[int(self.table.types[g])](_to_local(rel, xmat), d_local,
+                                                     tuple(float(s) for s in self.table.sizes[g]), True)
+            blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
+        return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
+
+    def _shade(self, g, normal, point, lit, cam_mat, floor_rgb):
+        """uint8 `[H, W, C]` from per-pixel geom ids, normals and points (tuples of arrays)."""
+        table = self.table
+        safe_g = jnp.maximum(g, 0)
+        rgb = [jnp.asarray(table.rgb[:, c])[safe_g] for c in range(3)]  # small-table lookups
+        on_floor = (g == table.floor) if table.floor >= 0 else None
+        if on_floor is not None and floor_rgb is not None:
+            if callable(floor_rgb):
+                floor_rgb = floor_rgb(jnp.stack(point[:2], -1))
+            rgb = [jnp.where(on_floor, floor_rgb[..., c], rgb[c]) for c in range(3)]
+        # The headlight shines along the view axis: -(n . forward) = n . cam_mat[:, 2].
+        back = _orientation(cam_mat)[:, 2]
+        head = jnp.maximum(_dot(normal, back), 0.0)
+        cosines = [jnp.maximum(-_dot(normal, table.light_dirs[k]), 0.0)
+                   for k in range(len(table.light_dirs))]
+        if cosines:
+            cosines[0] = cosines[0] * lit
+        ambient = table.headlight_ambient + table.light_ambient
+        sky = self._sky()
+        colour = []
+        for c in range(3):
+            light = float(ambient[c]) + head * float(table.headlight_diffuse[c])
+            for k, cos in enumerate(cosines):
+                light = light + cos * float(table.light_diffuse[k][c])
+            if on_floor is not None:
+                # A lit floor shows its texture unchanged (a video or noise keeps its values);
+                # only shadows darken it.
+                light = jnp.where(on_floor, jnp.minimum(light, 1.0), light)
+            value = jnp.clip(rgb[c] * light, 0.0, 1.0)
+            colour.append(jnp.where(g < 0, sky[c], value))
+        return self._to_uint8(colour)
 
     def _sky(self):
-        top, horizon = jnp.asarray(self.sky[0]), jnp.asarray(self.sky[1])
-        rows = jnp.linspace(1.0, 0.0, self.height)[:, None, None]
-        return horizon + (top - horizon) * rows * jnp.ones((1, self.width, 1))
+        """Per channel, `[H, 1]` host constants: the sky's vertical gradient."""
+        top, horizon = self.sky
+        rows = np.linspace(1.0, 0.0, self.height, dtype=np.float32)[:, None]
+        return [horizon[c] + (top[c] - horizon[c]) * rows for c in range(3)]
 
     def _to_uint8(self, colour):
         if self.grayscale:
-            colour = (colour @ jnp.asarray([0.299, 0.587, 0.114], jnp.float32))[..., None]
-        return jnp.round(colour * 255.0).astype(jnp.uint8)
+            colour = [0.299 * colour[0] + 0.587 * colour[1] + 0.114 * colour[2]]
+        return jnp.stack([jnp.round(c * 255.0).astype(jnp.uint8) for c in colour], axis=-1)

@@ -18,8 +18,9 @@ class AutoResetWrapper(Wrapper):
     The reset sits behind `lax.cond`: unbatched, it runs only when the episode ended; under
     `vmap` the cond becomes a select. When the inner env renders its observation from the state
     alone (`has_state_observation`), the select is over states and one observation is rendered
-    from the result, so a batched step renders once, not twice; `final_observation` is then
-    computed only if the caller uses it (XLA drops it otherwise).
+    from the result (`observe`, which may also write it into the state), so a batched step
+    renders once, not twice; `final_observation` is then computed only if the caller uses it
+    (XLA drops it otherwise).
     """
 
     def step(self, key, state, action, params=None):
@@ -36,7 +37,7 @@ class AutoResetWrapper(Wrapper):
             next_state = jax.lax.cond(
                 done, lambda: self._env.reset(key_reset, params)[1], lambda: stepped
             )
-            next_obs = self._env.get_obs(next_state, params)
+            next_obs, next_state = self._env.observe(next_state, params)
         else:
             next_obs, next_state = jax.lax.cond(
                 done, lambda: self._env.reset(key_reset, params), lambda: (obs, stepped)
