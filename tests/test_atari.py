@@ -95,13 +95,18 @@ def test_batched_resize_equals_per_image_resize():
 
 def test_frame_stack_order_and_reset():
     stack = FrameStack(3)
-    f = [np.full((2, 2, 2), v, np.uint8) for v in (1, 2, 3, 4)]
-    np.testing.assert_array_equal(stack.reset(f[0])[0, 0, 0], (0, 0, 1))
-    np.testing.assert_array_equal(stack.preview(f[1])[0, 0, 0], (0, 1, 2))
-    obs = stack.push(f[1], reset=np.array([False, True]))
-    np.testing.assert_array_equal(obs[0, 0, 0], (0, 1, 2))
-    np.testing.assert_array_equal(obs[1, 0, 0], (0, 0, 2))  # a new episode: zeros, then its frame
-    assert stack.push(f[2]).shape == (2, 2, 2, 3)
+    stack.allocate(2, (2, 2))
+    for value in (1, 2):
+        stack.rotate()[:] = value
+    np.testing.assert_array_equal(stack.observation()[:, 0, 0], [(0, 1, 2), (0, 1, 2)])
+    stack.rotate()[:] = 3
+    final = stack.with_newest([1], np.full((1, 2, 2), 9, np.uint8))
+    np.testing.assert_array_equal(final[0, 0, 0], (1, 2, 9))  # the frames before, then its own
+    stack.clear_older(np.array([False, True]))  # env 1 starts a new episode with frame 3
+    obs = stack.observation()
+    np.testing.assert_array_equal(obs[0, 0, 0], (1, 2, 3))
+    np.testing.assert_array_equal(obs[1, 0, 0], (0, 0, 3))  # zeros, then its first frame
+    assert obs.shape == (2, 2, 2, 3) and obs.flags.c_contiguous
 
 
 def test_only_black_has_gray_level_zero_on_real_screens():
@@ -457,6 +462,59 @@ def test_threaded_host_work_equals_serial(clips, background, autoreset_mode):
             np.testing.assert_array_equal(a, b)
 
 
+class PerEnvReference(NaturalAtariVecEnv):
+    """The host work one env at a time in plain numpy, from the definitions: composite with
+    `np.where` on the gray screen, resize each image, stack in a deque per env. Same emulator
+    and background draws as the env; only the host path differs."""
+
+    def __init__(self, *args, **kwargs):
+        self.history = None  # per env: a deque of its last frames
+        super().__init__(*args, **kwargs)
+        self.history = [None] * self.num_envs
+
+    def _observe(self, screens, new_episode, final_backgrounds=None, ended=None,
+                 final_screens=None):
+        from collections import deque
+
+        def frame(screen, background):
+            composited = np.where(screen == 0, background, screen)
+            return cv2.resize(composited, self.obs_size[::-1], interpolation=cv2.INTER_AREA)
+
+        backgrounds = self._background.frames()
+        frames = [frame(s, b) for s, b in zip(screens, backgrounds, strict=True)]
+        finals = {}
+        for k, e in enumerate([] if ended is None else ended):
+            background = backgrounds[e] if final_backgrounds is None else final_backgrounds[k]
+            older = list(self.history[e])[1:]
+            finals[e] = np.stack([*older, frame(final_screens[k], background)], axis=-1)
+        depth = self._stack.depth
+        for e, new in enumerate(new_episode):
+            if new:
+                self.history[e] = deque([np.zeros_like(frames[e])] * depth, maxlen=depth)
+            self.history[e].append(frames[e])
+        obs = np.stack([np.stack(list(h), axis=-1) for h in self.history])
+        final = obs.copy()
+        for e, stack in finals.items():
+            final[e] = stack
+        return obs, final
+
+
+@pytest.mark.parametrize("background", ["noise", "video"])
+@pytest.mark.parametrize("autoreset_mode", ["same_step", "next_step"])
+def test_whole_batch_host_work_equals_the_per_env_definition(clips, background, autoreset_mode):
+    def run(cls, host_threads):
+        env = cls("Breakout", 5, background=background, split="all", video_sources=str(clips),
+                  max_episode_steps=6, autoreset_mode=autoreset_mode, num_threads=2,
+                  host_threads=host_threads, seed=9)
+        return _trajectory(env, 14)
+
+    reference = run(PerEnvReference, 1)
+    assert any(x.dtype == bool and x.any() for x in reference)  # episodes ended (time limit)
+    for host_threads in (1, 2):
+        for a, b in zip(reference, run(NaturalAtariVecEnv, host_threads), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_step_timings_add_up():
     env = NaturalAtariVecEnv("Breakout", 2, num_threads=1, host_threads=2)
     env.reset(seed=0)
@@ -464,6 +522,7 @@ def test_step_timings_add_up():
         env.step(np.zeros(2, np.int64))
     timings = env.step_timings
     assert timings["steps"] == 3 and timings["ale_s"] > 0 and timings["host_s"] > 0
+    assert timings["ahead_s"] >= 0
     env.close()
 
 
