@@ -144,6 +144,50 @@ def _rgb_background(env, bg):
     return bank.frames[bank.num_frames // 2][None]
 
 
+def host_pieces(num_envs: int, repeats: int = 20) -> str:
+    """Microseconds per env of each piece of the host work, one whole-batch call each, on one
+    core (OpenCV limited to 1 thread here): what the host threads have to share out."""
+    from jaxnat.atari.compositor import FrameStack, GrayNoiseSampler, composite_pooled_gray, resize_area
+
+    rng = np.random.default_rng(0)
+    screens = rng.integers(1, 256, (num_envs, 210, 160), dtype=np.uint8)
+    screens[rng.random(screens.shape) < 0.8] = 0  # mostly background, as Breakout
+    bank = rng.integers(0, 256, (256, 210, 160), dtype=np.uint8)
+    backgrounds = np.empty_like(screens)
+    stack = FrameStack(4)
+    stack.allocate(num_envs, (84, 84))
+    sampler = GrayNoiseSampler(rng)
+    rngs = [np.random.default_rng(i) for i in range(num_envs)]
+    index = rng.integers(0, len(bank), num_envs)
+    work = screens.copy()
+    pieces = {
+        "video gather": lambda: np.take(bank, index, axis=0, out=backgrounds, mode="clip"),
+        "screen copy+mask+composite": lambda: composite_pooled_gray(
+            np.copyto(work, screens) or work, backgrounds),
+        "resize": lambda: resize_area(work, (84, 84), out=stack.rotate()),
+        "stack merge": stack.observation,
+        "noise draws": lambda: [sampler.sample((210, 160), r, out=b) for r, b in zip(rngs, backgrounds)],
+    }
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        out = []
+        for name, piece in pieces.items():
+            piece()
+            best = min(_seconds(piece, repeats) for _ in range(3))
+            out.append(f"{name} {1e6 * best / num_envs:.1f}")
+    finally:
+        cv2.setNumThreads(threads)
+    return ", ".join(out)
+
+
+def _seconds(piece, repeats: int) -> float:
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        piece()
+    return (time.perf_counter() - t0) / repeats
+
+
 def main(argv=None):
     cores = os.cpu_count() or 1
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -235,6 +279,7 @@ def main(argv=None):
         "target": "video >= 0.90 of ale-py at the same threads",
         f"video vs ale-py at {most} threads": f"{video[0]['vs_ale_py']:.2f}" if video else "not run",
         "video sources": args.video_sources or "opencv-doc",
+        f"host pieces, us/env on one core ({args.num_envs} envs)": host_pieces(args.num_envs),
     }
     if not args.no_record:
         # Photos come from opencv-doc only (--video-sources names videos).

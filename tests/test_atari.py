@@ -148,44 +148,52 @@ def test_gray_noise_is_the_gray_level_of_the_papers_rgb_noise():
 
 
 # -- agreement with ale-py -----------------------------------------------------------------
-def _run_both(game, maxpool, steps, pool="gray", seed=3):
+def _run_both(game, maxpool, steps, pool="gray", seed=3, episode_steps=27_000):
+    """(ours, ale-py's) observation pairs of the same run, and then final observation pairs
+    of the steps where an episode ended."""
     ours = NaturalAtariVecEnv(game, 2, sticky_actions=0.0, maxpool=maxpool, pool=pool,
-                              num_threads=1, seed=seed)
+                              num_threads=1, seed=seed, max_episode_steps=episode_steps)
     ref = ale_py.vector_env.AtariVectorEnv(
         GAMES[game], 2, maxpool=maxpool, use_fire_reset=False, reward_clipping=False,
         repeat_action_probability=0.0, num_threads=1, autoreset_mode="SameStep",
+        max_num_frames_per_episode=4 * episode_steps,
     )
     obs, _ = ours.reset(seed=seed)
     ref_obs, _ = ref.reset(seed=seed)
     pairs = [(obs, ref_obs.transpose(0, 2, 3, 1))]  # ale-py stacks channels-first
+    finals = []
     rng = np.random.default_rng(0)
     for _ in range(steps):
         actions = rng.integers(0, ours.single_action_space.n, 2)
-        obs, reward, terminated, truncated, _ = ours.step(actions)
-        ref_obs, ref_reward, ref_terminated, ref_truncated, _ = ref.step(actions)
+        obs, reward, terminated, truncated, info = ours.step(actions)
+        ref_obs, ref_reward, ref_terminated, ref_truncated, ref_info = ref.step(actions)
         np.testing.assert_array_equal(reward, ref_reward)
         np.testing.assert_array_equal(terminated, ref_terminated)
         np.testing.assert_array_equal(truncated, ref_truncated)
         pairs.append((obs, ref_obs.transpose(0, 2, 3, 1)))
+        if (terminated | truncated).any():
+            finals.append((info["final_observation"], ref_info["final_obs"].transpose(0, 2, 3, 1)))
     ours.close()
     ref.close()
-    return pairs
+    return pairs, finals
 
 
 @pytest.mark.parametrize("game", ["Breakout", "SpaceInvaders", "Alien"])
 def test_background_none_equals_ale_py_preprocessing(game):
-    for obs, ref_obs in _run_both(game, maxpool=True, steps=60):
+    pairs, finals = _run_both(game, maxpool=True, steps=60, episode_steps=25)
+    assert len(finals) == 2  # time limits at steps 25 and 50
+    for obs, ref_obs in pairs + finals:
         np.testing.assert_array_equal(obs, ref_obs)
 
 
 @pytest.mark.parametrize("game", ["Breakout", "Alien"])
 def test_rgb_pooling_equals_ale_py_without_pooling_and_differs_only_by_flicker(game):
     # Without max-pool both orders are one frame: bit-identical.
-    for obs, ref_obs in _run_both(game, maxpool=False, steps=40, pool="rgb"):
+    for obs, ref_obs in _run_both(game, maxpool=False, steps=40, pool="rgb")[0]:
         np.testing.assert_array_equal(obs, ref_obs)
     # With it, gray(max(a, b)) >= max(gray(a), gray(b)): equal on Breakout (nothing flickers),
     # brighter on Alien's flickering sprites.
-    pairs = _run_both(game, maxpool=True, steps=40, pool="rgb")
+    pairs, _ = _run_both(game, maxpool=True, steps=40, pool="rgb")
     diffs = np.array([np.mean(obs != ref) for obs, ref in pairs])
     assert all((obs >= ref).all() for obs, ref in pairs)
     assert (diffs == 0).all() if game == "Breakout" else 0 < diffs.max() < 0.05
