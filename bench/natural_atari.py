@@ -147,7 +147,12 @@ def _rgb_background(env, bg):
 def host_pieces(num_envs: int, repeats: int = 20) -> str:
     """Microseconds per env of each piece of the host work, one whole-batch call each, on one
     core (OpenCV limited to 1 thread here): what the host threads have to share out."""
-    from jaxnat.atari.compositor import FrameStack, GrayNoiseSampler, composite_pooled_gray, resize_area
+    from jaxnat.atari.compositor import (
+        FrameStack,
+        GrayNoiseSampler,
+        composite_pooled_gray,
+        resize_area,
+    )
 
     rng = np.random.default_rng(0)
     screens = rng.integers(1, 256, (num_envs, 210, 160), dtype=np.uint8)

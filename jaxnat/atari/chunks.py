@@ -1,7 +1,7 @@
 """Split a batch's host work into row chunks and run them on a pool of threads.
 
-What runs in a chunk is a few whole-chunk numpy/OpenCV calls that release the GIL (compositing
-and resizing a chunk of envs' screens; drawing their noise), so chunks run in parallel; the
+What runs in a chunk is a few whole-chunk numpy/OpenCV calls that release the GIL (compositing,
+resizing and stacking a chunk of envs' screens; drawing their noise), so chunks run in parallel; the
 Python between those calls is a few microseconds a chunk. (Many small per-env calls in each
 chunk would serialise on the GIL instead: more threads, more host time.) A chunk of a few envs
 is small enough that OpenCV keeps its own call single-threaded (it splits a resize only above

@@ -172,18 +172,20 @@ class FrameStack:
         for slot in self.slots()[:-1]:
             self.ring[slot, rows] = 0
 
-    def observation(self) -> np.ndarray:
-        """Every env's stack, a new `uint8[B, h, w, depth]`."""
-        return self._merge([self.ring[s] for s in self.slots()])
+    def observation(self, rows: slice = slice(None), out: np.ndarray | None = None) -> np.ndarray:
+        """The stacks of `rows` (a slice of envs), channels-last `uint8[n, h, w, depth]`:
+        written into `out[rows]` when given (threads may fill disjoint rows), else new."""
+        return self._merge([self.ring[s, rows] for s in self.slots()],
+                           None if out is None else out[rows])
 
     def with_newest(self, rows, frames: np.ndarray) -> np.ndarray:
         """The stacks of `rows` with `frames` (`[n, h, w]`) in place of their newest frame
         (final observations: the frame an episode ended on, after the step's `rotate`)."""
         return self._merge([self.ring[s, rows] for s in self.slots()[:-1]] + [frames])
 
-    def _merge(self, frames: list[np.ndarray]) -> np.ndarray:
+    def _merge(self, frames: list[np.ndarray], out: np.ndarray | None = None) -> np.ndarray:
         b, h, w = frames[0].shape
-        out = np.empty((b, h, w, self.depth), np.uint8)
+        out = _output(out, (b, h, w, self.depth))
         if self.depth == 1:
             np.copyto(out[..., 0], frames[0])
         else:

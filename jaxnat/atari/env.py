@@ -71,7 +71,7 @@ class NaturalAtariVecEnv:
 
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
-    host work after it (compositing and resizing: a few OpenCV calls, which release the GIL) is
+    host work after it (compositing, resizing, stacking: OpenCV calls, which release the GIL) is
     split into `host_threads` chunks of envs run in parallel, as are the noise draws (0: as many
     as ALE's threads, at least 4 envs a chunk; 1: one whole-batch call on the calling thread,
     which OpenCV itself splits over its threads). Observations do not depend on either count:
@@ -272,21 +272,25 @@ class NaturalAtariVecEnv:
         `obs` where no episode ended."""
         backgrounds = self._background.frames()
         newest = self._stack.rotate()
-        if self._ale_resizes:
-            np.copyto(newest, screens)
-        else:
-            def composite_and_resize(lo: int, hi: int) -> None:
-                bg = None if backgrounds is None else backgrounds[lo:hi]
-                self._frames(screens[lo:hi], bg, out=newest[lo:hi])
-
-            self._runner.run(composite_and_resize)
         if ended is not None and ended.size:  # before clear_older: their older frames
             if final_backgrounds is None and backgrounds is not None:
                 final_backgrounds = backgrounds[ended]  # noise: this step's draws
-            final_stacks = self._stack.with_newest(ended, self._frames(final_screens, final_backgrounds))
+            final_frames = self._frames(final_screens, final_backgrounds)
+            final_stacks = self._stack.with_newest(ended, final_frames)
         if new_episode.any():
             self._stack.clear_older(new_episode)
-        obs = self._stack.observation()
+        obs = np.empty((self.num_envs, *self.obs_size, self._stack.depth), np.uint8)
+
+        def rows(lo: int, hi: int) -> None:  # a chunk of envs: whole-chunk, GIL-free calls
+            bg = None if backgrounds is None else backgrounds[lo:hi]
+            self._frames(screens[lo:hi], bg, out=newest[lo:hi])
+            self._stack.observation(slice(lo, hi), out=obs)
+
+        if self._ale_resizes:  # nothing to composite or resize: one copy, one merge
+            np.copyto(newest, screens)
+            self._stack.observation(out=obs)
+        else:
+            self._runner.run(rows)
         if ended is None or not ended.size:
             return obs, obs
         final = obs.copy()
