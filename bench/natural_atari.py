@@ -4,14 +4,17 @@ env with the same preprocessing and threads, side by side in one run, and thread
 For each thread count, every contender steps `--num-envs` envs of `--game` with the same random
 actions (sticky actions 0.25, up to 30 no-ops at reset, frame skip 4 with max-pool, 84x84 gray,
 stack 4, no FIRE at reset, unclipped rewards); ale-py does all preprocessing in its C++ threads,
-we ask it for the max-pooled 210x160 gray screen and composite, resize and stack on the host.
-Also timed at the largest thread count: ale-py returning that screen alone (the emulation share
-of our step), our env with `pool="rgb"` (RGB screens, the spec's literal pooling order) with the
-video background, and the video background with fewer host threads (the host work after ALE is
-split over `host_threads` chunks of envs; 1 = all on the calling thread).
+with a background we ask it for the max-pooled 210x160 gray screen and composite, resize and
+stack on the host (background none: ALE resizes, we stack). Also timed at the largest thread
+count: ale-py returning that screen alone (the emulation share of our step), our env with
+`pool="rgb"` (RGB screens, the spec's literal pooling order) with the video background, and the
+video and noise backgrounds with fewer host threads (the compositing and resizing after ALE, and
+the noise draws, are split over `host_threads` chunks of envs; 1 = one whole-batch call on the
+calling thread, which OpenCV splits over its own threads).
 Contenders are timed in interleaved rounds (median), so load from other processes hits them
 alike. For our env the table also splits a batched step into the wait for ALE's emulation and
-the host work around it (ms per batched step, from `env.step_timings`).
+the background work done while ALE emulates (next video frames, noise draws) and the host work
+after it (ms per batched step, from `env.step_timings`; host us/env = that host work per env).
 Target (performance.md): video >= 90% of ale-py's own throughput.
 
 Also writes bench/results/natural_atari_frames.png: one row per background, the agent's newest
@@ -75,15 +78,17 @@ def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_po
                extras):
     """name -> env: ale-py's own env and ours with each background; with `extras` (the largest
     thread count: constructing 64 emulators takes seconds, so the sweep keeps to the essentials)
-    also ale-py's bare screen, the video background with `host_threads` host threads and with
-    `pool="rgb"`."""
+    also ale-py's bare screen, the video and noise backgrounds with `host_threads` host threads,
+    and video with `pool="rgb"`."""
     envs = {"ale-py (gray 84x84x4)": ale_py_env(game, num_envs, threads, screen=False, seed=seed)}
     if extras:
         envs["ale-py 210x160 screen only"] = ale_py_env(game, num_envs, threads, screen=True,
                                                         seed=seed)
     variants = [(bg, "gray", 0) for bg in backgrounds]
+    if extras:
+        variants += [(bg, "gray", h) for bg in ("video", "noise") if bg in backgrounds
+                     for h in host_threads if h != threads]
     if "video" in backgrounds and extras:
-        variants += [("video", "gray", h) for h in host_threads if h != threads]
         if rgb_pool:
             variants.append(("video", "rgb", 0))
     for bg, pool, host in variants:
@@ -139,6 +144,55 @@ def _rgb_background(env, bg):
     return bank.frames[bank.num_frames // 2][None]
 
 
+def host_pieces(num_envs: int, repeats: int = 20) -> str:
+    """Microseconds per env of each piece of the host work, one whole-batch call each, on one
+    core (OpenCV limited to 1 thread here): what the host threads have to share out."""
+    from jaxnat.atari.compositor import (
+        FrameStack,
+        GrayNoiseSampler,
+        composite_pooled_gray,
+        resize_area,
+    )
+
+    rng = np.random.default_rng(0)
+    screens = rng.integers(1, 256, (num_envs, 210, 160), dtype=np.uint8)
+    screens[rng.random(screens.shape) < 0.8] = 0  # mostly background, as Breakout
+    bank = rng.integers(0, 256, (256, 210, 160), dtype=np.uint8)
+    backgrounds = np.empty_like(screens)
+    stack = FrameStack(4)
+    stack.allocate(num_envs, (84, 84))
+    sampler = GrayNoiseSampler(rng)
+    rngs = [np.random.default_rng(i) for i in range(num_envs)]
+    index = rng.integers(0, len(bank), num_envs)
+    work = screens.copy()
+    pieces = {
+        "video gather": lambda: np.take(bank, index, axis=0, out=backgrounds, mode="clip"),
+        "screen copy+mask+composite": lambda: composite_pooled_gray(
+            np.copyto(work, screens) or work, backgrounds),
+        "resize": lambda: resize_area(work, (84, 84), out=stack.rotate()),
+        "stack merge": stack.observation,
+        "noise draws": lambda: [sampler.sample((210, 160), r, out=b) for r, b in zip(rngs, backgrounds)],
+    }
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        out = []
+        for name, piece in pieces.items():
+            piece()
+            best = min(_seconds(piece, repeats) for _ in range(3))
+            out.append(f"{name} {1e6 * best / num_envs:.1f}")
+    finally:
+        cv2.setNumThreads(threads)
+    return ", ".join(out)
+
+
+def _seconds(piece, repeats: int) -> float:
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        piece()
+    return (time.perf_counter() - t0) / repeats
+
+
 def main(argv=None):
     cores = os.cpu_count() or 1
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -154,8 +208,8 @@ def main(argv=None):
     parser.add_argument("--video-sources", default=None, help="default: opencv-doc's videos")
     parser.add_argument("--no-rgb-pool", action="store_true", help="skip the pool='rgb' variant")
     parser.add_argument("--host-threads", type=int, nargs="*", default=None,
-                        help="at the largest thread count, also time the video background with "
-                             "these host-thread counts (default: 1, a quarter and a half of "
+                        help="at the largest thread count, also time the video and noise "
+                             "backgrounds with these host-thread counts (default: 1, a quarter and a half of "
                              "the threads)")
     parser.add_argument("--quick", action="store_true", help="few envs and steps, one thread count")
     parser.add_argument("--no-record", action="store_true")
@@ -188,7 +242,7 @@ def main(argv=None):
         for env in envs.values():
             steps_per_second(env, warm)
             if hasattr(env, "step_timings"):
-                env.step_timings.update(steps=0, ale_s=0.0, host_s=0.0)
+                env.step_timings.update(steps=0, ale_s=0.0, ahead_s=0.0, host_s=0.0)
         rates = {name: [] for name in envs}
         for _ in range(args.rounds):
             steps = max(min(args.steps, 25), args.steps * threads // most)
@@ -204,7 +258,9 @@ def main(argv=None):
             if timings:
                 row["host_threads"] = envs[name]._runner.threads
                 row["ale_wait_ms"] = 1e3 * timings["ale_s"] / timings["steps"]
+                row["ahead_ms"] = 1e3 * timings["ahead_s"] / timings["steps"]
                 row["host_ms"] = 1e3 * timings["host_s"] / timings["steps"]
+                row["host_us_per_env"] = 1e3 * row["host_ms"] / args.num_envs
             rows.append(row)
         for env in envs.values():
             env.close()
@@ -213,7 +269,8 @@ def main(argv=None):
         ("threads", "threads", "d"), ("env", "env", "s"), ("num_envs", "envs", "d"),
         ("steps_per_s", "env steps/s", ",.0f"), ("vs_ale_py", "vs ale-py", ".2f"),
         ("host_threads", "host threads", "d"), ("ale_wait_ms", "ALE wait ms/step", ".2f"),
-        ("host_ms", "host ms/step", ".2f"),
+        ("ahead_ms", "during ALE ms/step", ".2f"), ("host_ms", "host ms/step", ".2f"),
+        ("host_us_per_env", "host us/env", ".1f"),
     ])
     video = [r for r in rows if r["env"] == "jaxnat video" and r["threads"] == most]
     summary = {
@@ -227,6 +284,7 @@ def main(argv=None):
         "target": "video >= 0.90 of ale-py at the same threads",
         f"video vs ale-py at {most} threads": f"{video[0]['vs_ale_py']:.2f}" if video else "not run",
         "video sources": args.video_sources or "opencv-doc",
+        f"host pieces, us/env on one core ({args.num_envs} envs)": host_pieces(args.num_envs),
     }
     if not args.no_record:
         # Photos come from opencv-doc only (--video-sources names videos).

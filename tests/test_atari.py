@@ -95,13 +95,18 @@ def test_batched_resize_equals_per_image_resize():
 
 def test_frame_stack_order_and_reset():
     stack = FrameStack(3)
-    f = [np.full((2, 2, 2), v, np.uint8) for v in (1, 2, 3, 4)]
-    np.testing.assert_array_equal(stack.reset(f[0])[0, 0, 0], (0, 0, 1))
-    np.testing.assert_array_equal(stack.preview(f[1])[0, 0, 0], (0, 1, 2))
-    obs = stack.push(f[1], reset=np.array([False, True]))
-    np.testing.assert_array_equal(obs[0, 0, 0], (0, 1, 2))
-    np.testing.assert_array_equal(obs[1, 0, 0], (0, 0, 2))  # a new episode: zeros, then its frame
-    assert stack.push(f[2]).shape == (2, 2, 2, 3)
+    stack.allocate(2, (2, 2))
+    for value in (1, 2):
+        stack.rotate()[:] = value
+    np.testing.assert_array_equal(stack.observation()[:, 0, 0], [(0, 1, 2), (0, 1, 2)])
+    stack.rotate()[:] = 3
+    final = stack.with_newest([1], np.full((1, 2, 2), 9, np.uint8))
+    np.testing.assert_array_equal(final[0, 0, 0], (1, 2, 9))  # the frames before, then its own
+    stack.clear_older(np.array([False, True]))  # env 1 starts a new episode with frame 3
+    obs = stack.observation()
+    np.testing.assert_array_equal(obs[0, 0, 0], (1, 2, 3))
+    np.testing.assert_array_equal(obs[1, 0, 0], (0, 0, 3))  # zeros, then its first frame
+    assert obs.shape == (2, 2, 2, 3) and obs.flags.c_contiguous
 
 
 def test_only_black_has_gray_level_zero_on_real_screens():
@@ -143,44 +148,52 @@ def test_gray_noise_is_the_gray_level_of_the_papers_rgb_noise():
 
 
 # -- agreement with ale-py -----------------------------------------------------------------
-def _run_both(game, maxpool, steps, pool="gray", seed=3):
+def _run_both(game, maxpool, steps, pool="gray", seed=3, episode_steps=27_000):
+    """(ours, ale-py's) observation pairs of the same run, and then final observation pairs
+    of the steps where an episode ended."""
     ours = NaturalAtariVecEnv(game, 2, sticky_actions=0.0, maxpool=maxpool, pool=pool,
-                              num_threads=1, seed=seed)
+                              num_threads=1, seed=seed, max_episode_steps=episode_steps)
     ref = ale_py.vector_env.AtariVectorEnv(
         GAMES[game], 2, maxpool=maxpool, use_fire_reset=False, reward_clipping=False,
         repeat_action_probability=0.0, num_threads=1, autoreset_mode="SameStep",
+        max_num_frames_per_episode=4 * episode_steps,
     )
     obs, _ = ours.reset(seed=seed)
     ref_obs, _ = ref.reset(seed=seed)
     pairs = [(obs, ref_obs.transpose(0, 2, 3, 1))]  # ale-py stacks channels-first
+    finals = []
     rng = np.random.default_rng(0)
     for _ in range(steps):
         actions = rng.integers(0, ours.single_action_space.n, 2)
-        obs, reward, terminated, truncated, _ = ours.step(actions)
-        ref_obs, ref_reward, ref_terminated, ref_truncated, _ = ref.step(actions)
+        obs, reward, terminated, truncated, info = ours.step(actions)
+        ref_obs, ref_reward, ref_terminated, ref_truncated, ref_info = ref.step(actions)
         np.testing.assert_array_equal(reward, ref_reward)
         np.testing.assert_array_equal(terminated, ref_terminated)
         np.testing.assert_array_equal(truncated, ref_truncated)
         pairs.append((obs, ref_obs.transpose(0, 2, 3, 1)))
+        if (terminated | truncated).any():
+            finals.append((info["final_observation"], ref_info["final_obs"].transpose(0, 2, 3, 1)))
     ours.close()
     ref.close()
-    return pairs
+    return pairs, finals
 
 
 @pytest.mark.parametrize("game", ["Breakout", "SpaceInvaders", "Alien"])
 def test_background_none_equals_ale_py_preprocessing(game):
-    for obs, ref_obs in _run_both(game, maxpool=True, steps=60):
+    pairs, finals = _run_both(game, maxpool=True, steps=60, episode_steps=25)
+    assert len(finals) == 2  # time limits at steps 25 and 50
+    for obs, ref_obs in pairs + finals:
         np.testing.assert_array_equal(obs, ref_obs)
 
 
 @pytest.mark.parametrize("game", ["Breakout", "Alien"])
 def test_rgb_pooling_equals_ale_py_without_pooling_and_differs_only_by_flicker(game):
     # Without max-pool both orders are one frame: bit-identical.
-    for obs, ref_obs in _run_both(game, maxpool=False, steps=40, pool="rgb"):
+    for obs, ref_obs in _run_both(game, maxpool=False, steps=40, pool="rgb")[0]:
         np.testing.assert_array_equal(obs, ref_obs)
     # With it, gray(max(a, b)) >= max(gray(a), gray(b)): equal on Breakout (nothing flickers),
     # brighter on Alien's flickering sprites.
-    pairs = _run_both(game, maxpool=True, steps=40, pool="rgb")
+    pairs, _ = _run_both(game, maxpool=True, steps=40, pool="rgb")
     diffs = np.array([np.mean(obs != ref) for obs, ref in pairs])
     assert all((obs >= ref).all() for obs, ref in pairs)
     assert (diffs == 0).all() if game == "Breakout" else 0 < diffs.max() < 0.05
@@ -457,6 +470,59 @@ def test_threaded_host_work_equals_serial(clips, background, autoreset_mode):
             np.testing.assert_array_equal(a, b)
 
 
+class PerEnvReference(NaturalAtariVecEnv):
+    """The host work one env at a time in plain numpy, from the definitions: composite with
+    `np.where` on the gray screen, resize each image, stack in a deque per env. Same emulator
+    and background draws as the env; only the host path differs."""
+
+    def __init__(self, *args, **kwargs):
+        self.history = None  # per env: a deque of its last frames
+        super().__init__(*args, **kwargs)
+        self.history = [None] * self.num_envs
+
+    def _observe(self, screens, new_episode, final_backgrounds=None, ended=None,
+                 final_screens=None):
+        from collections import deque
+
+        def frame(screen, background):
+            composited = np.where(screen == 0, background, screen)
+            return cv2.resize(composited, self.obs_size[::-1], interpolation=cv2.INTER_AREA)
+
+        backgrounds = self._background.frames()
+        frames = [frame(s, b) for s, b in zip(screens, backgrounds, strict=True)]
+        finals = {}
+        for k, e in enumerate([] if ended is None else ended):
+            background = backgrounds[e] if final_backgrounds is None else final_backgrounds[k]
+            older = list(self.history[e])[1:]
+            finals[e] = np.stack([*older, frame(final_screens[k], background)], axis=-1)
+        depth = self._stack.depth
+        for e, new in enumerate(new_episode):
+            if new:
+                self.history[e] = deque([np.zeros_like(frames[e])] * depth, maxlen=depth)
+            self.history[e].append(frames[e])
+        obs = np.stack([np.stack(list(h), axis=-1) for h in self.history])
+        final = obs.copy()
+        for e, stack in finals.items():
+            final[e] = stack
+        return obs, final
+
+
+@pytest.mark.parametrize("background", ["noise", "video"])
+@pytest.mark.parametrize("autoreset_mode", ["same_step", "next_step"])
+def test_whole_batch_host_work_equals_the_per_env_definition(clips, background, autoreset_mode):
+    def run(cls, host_threads):
+        env = cls("Breakout", 5, background=background, split="all", video_sources=str(clips),
+                  max_episode_steps=6, autoreset_mode=autoreset_mode, num_threads=2,
+                  host_threads=host_threads, seed=9)
+        return _trajectory(env, 14)
+
+    reference = run(PerEnvReference, 1)
+    assert any(x.dtype == bool and x.any() for x in reference)  # episodes ended (time limit)
+    for host_threads in (1, 2):
+        for a, b in zip(reference, run(NaturalAtariVecEnv, host_threads), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_step_timings_add_up():
     env = NaturalAtariVecEnv("Breakout", 2, num_threads=1, host_threads=2)
     env.reset(seed=0)
@@ -464,6 +530,7 @@ def test_step_timings_add_up():
         env.step(np.zeros(2, np.int64))
     timings = env.step_timings
     assert timings["steps"] == 3 and timings["ale_s"] > 0 and timings["host_s"] > 0
+    assert timings["ahead_s"] >= 0
     env.close()
 
 

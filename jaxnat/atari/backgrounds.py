@@ -1,24 +1,23 @@
-"""Background sources for the compositor: one background frame per env per agent step.
+"""Background sources for the compositor: one gray background frame per env per agent step.
 
 `make_background(kind, num_envs, ...)` gives an object with
 
-- `advance()`: move every env on to its next step's background (the next video frame, the
-  next noise, drawn on the host threads). Called once per agent step while ALE emulates: it
-  does not depend on how the step ends;
-- `reset(envs)`: envs (a bool mask, or all for None) start a new background: a new random
-  video at a random offset (video), a new random photo (image); nothing for noise and none.
-  Returns the backgrounds those envs had before (gray `[n, H, W]`, for the frames that ended
-  their episodes) where a reset changes them, else None;
-- `fill(lo, hi)`: this step's gray backgrounds `uint8[hi - lo, H, W]` of envs `lo:hi`, or None
-  (black). Thread-safe for disjoint row ranges (the env composites row chunks in parallel);
-  noise is drawn here, from each env's own generator, so the draws do not depend on how the
-  batch is chunked;
+- `advance()`: move every env on to its next step's background (the next video frame, fresh
+  noise). Called once per agent step right after the actions go to ALE, so the work overlaps
+  the emulation: it does not depend on how the step ends;
+- `reset(envs)`: envs (a bool mask, or every env for None, the env's `reset()`) start a new
+  background: a new random video at a random offset (video), a new random photo (image); for
+  every env, fresh noise (noise). Returns the backgrounds those envs showed before (gray
+  `[n, H, W]`, for the frames that ended their episodes) where a reset changes them, else None;
+- `frames()`: this step's gray backgrounds of the whole batch, `uint8[B, H, W]`, or None
+  (black); waits for draws still running;
 - `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`;
 - `close()`.
 
 Backgrounds are gray levels (through the compositor's grayscale law: the compositor composites
 in gray). Videos and images come from the natural-sources module (`jaxnat.natural`), resized to
-the emulator's 210x160 and split into train and test by whole files.
+the emulator's 210x160, grayed once when loaded (a step is then one gather of the batch's
+frames) and split into train and test by whole files.
 """
 
 from __future__ import annotations
@@ -42,7 +41,7 @@ class NoBackground:
     def reset(self, envs=None) -> np.ndarray | None:
         return None
 
-    def fill(self, lo: int, hi: int) -> np.ndarray | None:
+    def frames(self) -> np.ndarray | None:
         return None
 
     def seed(self, seed: int) -> None:
@@ -55,41 +54,42 @@ class NoBackground:
 class NoiseBackground(NoBackground):
     """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every step, drawn directly
     as its gray level (`GrayNoiseSampler`: the same law as graying RGB noise). Env `i` draws
-    from its own generator (seeded from `seed` and `i`), once per step, so a seed gives one
-    sequence however many threads draw.
+    from its own generator (seeded from `seed` and `i`), once per step and once per `reset()`,
+    so a seed gives one sequence however the batch is chunked.
 
-    With a `runner` (the env's `ChunkRunner`), `advance` starts the step's draws on its pool
-    threads while ALE emulates, and `fill` waits for them; otherwise `fill` draws."""
+    The draws (~2 ns a pixel: ~60 us an env) start in `advance` while ALE emulates: on the
+    `runner`'s pool threads, one chunk of envs each, or on the calling thread without a pool;
+    `frames` waits for them."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0,
                  runner=None):
         self.buffer = np.empty((num_envs, *shape), np.uint8)
         self._sampler = GrayNoiseSampler(np.random.default_rng(seed), scale)
         self._runner = runner
-        self._drawing = None  # futures of this step's draws, started by advance()
+        self._drawing = []  # futures of the draws started by advance()
         self.seed(seed)
 
     def advance(self) -> None:
-        if self._runner is not None:
-            self._drawing = self._runner.submit(self._draw) or None  # None: no pool
-
-    def fill(self, lo: int, hi: int) -> np.ndarray:
-        if self._drawing is None:
-            self._draw(lo, hi)
-        else:
-            for future in self._drawing:  # every chunk's: a step draws once per env
-                future.result()
-        return self.buffer[lo:hi]
+        self._drawing = self._runner.submit(self._draw) if self._runner is not None else []
+        if not self._drawing:  # no pool: draw here, still while ALE emulates
+            self._draw(0, len(self.buffer))
 
     def reset(self, envs=None) -> None:
-        if envs is None:  # the env's reset(): draw in fill, as no step started draws
-            self._drawing = None
+        if envs is None:  # the env's reset(): a first noise field
+            self.advance()
+
+    def frames(self) -> np.ndarray:
+        for future in self._drawing:
+            future.result()
+        self._drawing = []
+        return self.buffer
 
     def _draw(self, lo: int, hi: int) -> None:
         for i in range(lo, hi):
             self._sampler.sample(self.buffer.shape[1:], self._rngs[i], out=self.buffer[i])
 
     def seed(self, seed: int) -> None:
+        self.frames()  # never reseed under running draws
         streams = np.random.SeedSequence(seed).spawn(len(self.buffer))
         self._rngs = [np.random.default_rng(s) for s in streams]
 
@@ -97,7 +97,7 @@ class NoiseBackground(NoBackground):
 class BankBackground(NoBackground):
     """Consecutive frames of natural videos, or one still photo per episode (`still`), gray,
     from a `FrameBank` through `jaxnat.natural.HostVideoSampler`; this step's frames are
-    gathered into `buffer` by `advance` and `reset`, on the env's thread."""
+    gathered into `buffer` (one `np.take` of the batch) by `advance` and `reset`."""
 
     def __init__(self, bank, num_envs: int, seed: int, still: bool = False):
         from jaxnat.natural import HostVideoSampler
@@ -121,8 +121,8 @@ class BankBackground(NoBackground):
         self._sampler.reset(envs, out=self.buffer)
         return before
 
-    def fill(self, lo: int, hi: int) -> np.ndarray:
-        return self.buffer[lo:hi, ..., 0]
+    def frames(self) -> np.ndarray:
+        return self.buffer[..., 0]
 
     def seed(self, seed: int) -> None:
         self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
@@ -140,7 +140,7 @@ def make_background(
     runner=None,
 ):
     """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
-    `runner`: a `ChunkRunner` whose threads may draw noise ahead."""
+    `runner`: a `ChunkRunner` whose pool threads draw the noise while ALE emulates."""
     if kind == "none":
         return NoBackground()
     if kind == "noise":

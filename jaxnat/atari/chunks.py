@@ -1,10 +1,11 @@
 """Split a batch's host work into row chunks and run them on a pool of threads.
 
-The host work of a step (compositing, resizing and stacking each env's frame; drawing noise) is
-per env, and the numpy and OpenCV calls doing it release the GIL, so threads working on
-disjoint row ranges run in parallel. Each chunk is small enough (a few envs) that OpenCV keeps
-its own calls single-threaded (it splits work only above ~65k output pixels), so the pool does
-not stack on OpenCV's threads.
+What runs in a chunk is a few whole-chunk numpy/OpenCV calls that release the GIL (compositing,
+resizing and stacking a chunk of envs' screens; drawing their noise), so chunks run in parallel; the
+Python between those calls is a few microseconds a chunk. (Many small per-env calls in each
+chunk would serialise on the GIL instead: more threads, more host time.) A chunk of a few envs
+is small enough that OpenCV keeps its own call single-threaded (it splits a resize only above
+~65k output pixels, ~9 envs at 84x84), so the pool does not stack on OpenCV's threads.
 """
 
 from __future__ import annotations

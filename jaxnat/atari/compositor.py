@@ -138,10 +138,9 @@ class FrameStack:
     oldest first; a new episode's stack is zeros and then its first frame, as ale-py's.
 
     Kept in a ring buffer `ring[depth, B, h, w]` (no per-step allocation: each step writes its
-    frames into the oldest slot, which becomes the newest) and interleaved with `cv2.merge` (a
-    few us per env) instead of shifting a channels-last array (a strided copy, ten times
-    slower). Row-wise methods (`rows`: a slice or an index array of envs) let threads fill
-    disjoint rows of one step in parallel; `rotate` is the one call that touches every row.
+    frames into the oldest slot, which becomes the newest) and interleaved with one `cv2.merge`
+    of the batch (~2 us an env) instead of shifting a channels-last array (a strided copy, ten
+    times slower).
     """
 
     def __init__(self, depth: int):
@@ -164,44 +163,25 @@ class FrameStack:
 
     def rotate(self) -> np.ndarray:
         """Start a step: the oldest slot becomes the newest; returns it (`[B, h, w]`) for the
-        step's frames to be written into, row by row."""
+        step's frames to be written into."""
         self.head = (self.head + 1) % self.depth
         return self.ring[self.head]
 
     def clear_older(self, rows) -> None:
-        """A new episode for `rows`: every frame but the newest becomes 0."""
+        """A new episode for `rows` (a bool mask or indices): every frame but the newest is 0."""
         for slot in self.slots()[:-1]:
             self.ring[slot, rows] = 0
 
-    def observe(self, rows: slice, out: np.ndarray) -> np.ndarray:
-        """Write the stacks of `rows` (a slice) into `out[rows]`."""
-        return self._merge([self.ring[s, rows] for s in self.slots()], out[rows])
+    def observation(self, rows: slice = slice(None), out: np.ndarray | None = None) -> np.ndarray:
+        """The stacks of `rows` (a slice of envs), channels-last `uint8[n, h, w, depth]`:
+        written into `out[rows]` when given (threads may fill disjoint rows), else new."""
+        return self._merge([self.ring[s, rows] for s in self.slots()],
+                           None if out is None else out[rows])
 
     def with_newest(self, rows, frames: np.ndarray) -> np.ndarray:
         """The stacks of `rows` with `frames` (`[n, h, w]`) in place of their newest frame
         (final observations: the frame an episode ended on, after the step's `rotate`)."""
         return self._merge([self.ring[s, rows] for s in self.slots()[:-1]] + [frames])
-
-    # -- whole-batch conveniences -----------------------------------------------------------
-    def reset(self, frame: np.ndarray) -> np.ndarray:
-        self.allocate(frame.shape[0], frame.shape[1:])
-        self.ring[self.head] = frame
-        return self.observation()
-
-    def push(self, frame: np.ndarray, reset: np.ndarray | None = None) -> np.ndarray:
-        """Append `frame [B, h, w]`; where `reset` is True the env's older frames become 0."""
-        self.rotate()[:] = frame
-        if reset is not None and reset.any():
-            self.clear_older(reset)
-        return self.observation()
-
-    def preview(self, frame: np.ndarray) -> np.ndarray:
-        """The stack that `push(frame)` would give, without pushing (final observations)."""
-        return self._merge([self.ring[s] for s in self.slots()[1:]] + [frame])
-
-    def observation(self) -> np.ndarray:
-        b, h, w = self.ring.shape[1:]
-        return self.observe(slice(None), np.empty((b, h, w, self.depth), np.uint8))
 
     def _merge(self, frames: list[np.ndarray], out: np.ndarray | None = None) -> np.ndarray:
         b, h, w = frames[0].shape

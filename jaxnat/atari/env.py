@@ -8,7 +8,6 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,25 +26,7 @@ __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
-_NO_ROWS = np.zeros(0, np.int64)
-
-
-@dataclass
-class _StepWork:
-    """What the row chunks of one step (or reset) need: ALE's screens, the envs starting a new
-    episode, and (same-step autoreset) the envs whose episode ended, their final screens and
-    the backgrounds those showed, and where to put the observations."""
-
-    screens: np.ndarray  # [B, 210, 160] gray or [B, 210, 160, 3] RGB, composited in place
-    new_episode: np.ndarray  # bool [B]
-    obs: np.ndarray  # uint8 [B, h, w, stack], written row by row
-    final: np.ndarray | None = None  # like obs: final observations (same_step, some env ended)
-    final_rows: np.ndarray = field(default_factory=lambda: _NO_ROWS)  # sorted env indices whose episode ended
-    final_screens: np.ndarray | None = None  # [len(final_rows), 210, 160(, 3)]
-    final_backgrounds: np.ndarray | None = None  # their backgrounds before the reset, or None
-
-    def __post_init__(self):
-        self.any_new_episode = bool(self.new_episode.any())
+_ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
 
 
 class NaturalAtariVecEnv:
@@ -61,13 +42,14 @@ class NaturalAtariVecEnv:
     `[0, noop_max)` at each reset, no FIRE at reset, whole games as episodes (no life loss
     signal), truncation after `max_episode_steps` agent steps.
 
-    Then on the host, vectorised over the batch (jaxnat.atari.compositor): pixels whose three
-    channels are all 0 take this step's background frame (`background`: "none" black, "noise"
-    i.i.d. `clip(N(0,1)*50, 0)` per pixel and channel each step, "video" consecutive frames of a
-    random natural video, one per agent step, a new video at a random offset at every reset,
-    "image" a random still photo per episode); then ALE's grayscale, INTER_AREA resize to
+    Then on the host, whole-batch numpy/OpenCV calls (jaxnat.atari.compositor): pixels whose
+    three channels are all 0 take this step's background frame (`background`: "none" black,
+    "noise" i.i.d. `clip(N(0,1)*50, 0)` per pixel and channel each step, "video" consecutive
+    frames of a random natural video, one per agent step, a new video at a random offset at every
+    reset, "image" a random still photo per episode); then ALE's grayscale, INTER_AREA resize to
     `obs_size`, and a stack of the last `stack` frames, channels-last, oldest first (zeros before
-    the first frame of an episode).
+    the first frame of an episode). With `background="none"` (and `pool="gray"`) nothing is
+    composited, so ALE resizes in its own threads: observations are ale-py's own preprocessing.
 
     Videos and photos come from `jaxnat.natural` (`video_sources`: None = opencv-doc's samples),
     split by whole files: `split="train"` and `"test"` never share a file, `"all"` uses both.
@@ -88,13 +70,15 @@ class NaturalAtariVecEnv:
     `sticky_actions=0` or not: ALE's sticky actions use the emulator's own seeded generator.
 
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
-    ale-py). The host work after it (background draws, compositing, resize, frame stack) is
-    split into `host_threads` chunks of envs run in parallel (0: as many as ALE's threads; 1:
-    all on the calling thread; at most one chunk per env); the next video frames are fetched,
-    and the noise drawn, while ALE emulates. Observations do not depend on either count: each
-    env draws its noise from its own generator. `step_timings` adds up, over steps, the
+    ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
+    host work after it (compositing, resizing, stacking: OpenCV calls, which release the GIL) is
+    split into `host_threads` chunks of envs run in parallel, as are the noise draws (0: as many
+    as ALE's threads, at least 4 envs a chunk; 1: one whole-batch call on the calling thread,
+    which OpenCV itself splits over its threads). Observations do not depend on either count:
+    each env draws its noise from its own generator. `step_timings` adds up, over steps, the
     seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
-    the emulation) and in the rest of `step` (`host_s`).
+    the emulation), on the background while ALE emulates (`ahead_s`), and in the rest of
+    `step` (`host_s`).
     """
 
     def __init__(
@@ -151,11 +135,14 @@ class NaturalAtariVecEnv:
         self.obs_size = (obs_size, obs_size) if isinstance(obs_size, int) else tuple(obs_size)
         self.max_episode_steps = int(max_episode_steps)
         self._seed = int(seed)
+        # Nothing to composite: ALE resizes in its threads, as ale-py's own preprocessing.
+        self._ale_resizes = background == "none" and pool == "gray"
+        ale_shape = self.obs_size if self._ale_resizes else SCREEN_SHAPE
         self._ale = AtariVectorEnv(
             rom_id(game),
             self.num_envs,
-            img_height=SCREEN_SHAPE[0],
-            img_width=SCREEN_SHAPE[1],
+            img_height=ale_shape[0],
+            img_width=ale_shape[1],
             grayscale=pool == "gray",
             stack_num=1,
             frameskip=int(frame_skip),
@@ -171,13 +158,14 @@ class NaturalAtariVecEnv:
             autoreset_mode=_AUTORESET_MODES[autoreset_mode],
         )
         ale_threads = int(num_threads) or default_threads(self.num_envs)
-        self._runner = ChunkRunner(self.num_envs, int(host_threads) or ale_threads)
+        chunks = int(host_threads) or min(ale_threads, self.num_envs // _ENVS_PER_HOST_CHUNK)
+        self._runner = ChunkRunner(self.num_envs, max(1, chunks))
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
             seed=self._seed, noise_scale=noise_scale, runner=self._runner,
         )
         self._stack = FrameStack(stack)
-        self.step_timings = {"steps": 0, "ale_s": 0.0, "host_s": 0.0}
+        self.step_timings = {"steps": 0, "ale_s": 0.0, "ahead_s": 0.0, "host_s": 0.0}
         n_actions = int(self._ale.single_action_space.n)
         self.single_action_space = spaces.Discrete(n_actions)
         self.single_observation_space = spaces.Box(0, 255, (*self.obs_size, int(stack)), np.uint8)
@@ -201,14 +189,12 @@ class NaturalAtariVecEnv:
         raw, info = self._ale.reset(seed=seed)
         self._background.reset(None)
         self._stack.allocate(self.num_envs, self.obs_size)
-        self._stack.rotate()
-        work = _StepWork(raw[:, 0], np.ones(self.num_envs, bool), self._new_observations())
-        self._runner.run(lambda lo, hi: self._process_rows(work, lo, hi))
+        obs, _ = self._observe(raw[:, 0], np.ones(self.num_envs, bool), None)
         self._returns[:] = 0
         self._lengths[:] = 0
         self._ended[:] = False
         self._needs_reset = False
-        return work.obs, {"lives": np.asarray(info["lives"])}
+        return obs, {"lives": np.asarray(info["lives"])}
 
     def step(self, actions):
         """One agent step of every env; numpy in (`int[B]` actions) and out."""
@@ -231,7 +217,7 @@ class NaturalAtariVecEnv:
         self._background.advance()  # next video frames, noise draws: while ALE emulates
         advanced = time.perf_counter()
         raw, reward, terminated, truncated, ale_info = self._ale.recv()
-        waited = sent - start + time.perf_counter() - advanced  # in ALE's send and recv
+        received = time.perf_counter()
         if not np.array_equal(ale_info["env_id"], np.arange(self.num_envs)):  # never seen; cheap
             raise RuntimeError(f"ale-py returned envs out of order: {ale_info['env_id']}")
         reward = reward.astype(np.float32)
@@ -240,26 +226,23 @@ class NaturalAtariVecEnv:
         # same_step: ended envs start their next episode in this step's observation;
         # next_step: envs that ended last step were reset by this one.
         new_episode = done if same_step else self._ended
-        work = _StepWork(raw[:, 0], new_episode, self._new_observations())
-        if same_step and done.any():
-            work.final = self._new_observations()
-            work.final_rows = np.flatnonzero(done)
-            work.final_screens = ale_info["final_obs"][work.final_rows, 0]
-        if new_episode.any():
-            work.final_backgrounds = self._background.reset(new_episode)
-        self._stack.rotate()
-        self._runner.run(lambda lo, hi: self._process_rows(work, lo, hi))
+        final_backgrounds = self._background.reset(new_episode) if new_episode.any() else None
+        ended = np.flatnonzero(done) if same_step else None
+        final_screens = ale_info["final_obs"][ended, 0] if same_step and ended.size else None
+        obs, final = self._observe(raw[:, 0], new_episode, final_backgrounds, ended,
+                                   final_screens)
         info = {"lives": np.asarray(ale_info["lives"])}
         if same_step:
-            info["final_observation"] = work.obs if work.final is None else work.final
+            info["final_observation"] = final
         self._record_episodes(reward, done, self._ended, info)
         if not same_step:
             self._ended = done
         timings = self.step_timings
         timings["steps"] += 1
-        timings["ale_s"] += waited
-        timings["host_s"] += time.perf_counter() - start - waited
-        return work.obs, reward, terminated, truncated, info
+        timings["ale_s"] += sent - start + received - advanced
+        timings["ahead_s"] += advanced - sent
+        timings["host_s"] += time.perf_counter() - received
+        return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
         self._ale.close()
@@ -279,36 +262,49 @@ class NaturalAtariVecEnv:
         self.close()
 
     # -- internals ------------------------------------------------------------------------
-    def _new_observations(self) -> np.ndarray:
-        return np.empty((self.num_envs, *self.obs_size, self._stack.depth), np.uint8)
+    def _observe(self, screens: np.ndarray, new_episode: np.ndarray, final_backgrounds=None,
+                 ended=None, final_screens=None) -> tuple[np.ndarray, np.ndarray]:
+        """This step's observations from ALE's screens `[B, ...]` (composited in place; the envs
+        `new_episode` start an episode: zeros before their frame), and the final observations:
+        the envs `ended` (sorted indices, same-step autoreset) ended on `final_screens`, shown
+        against `final_backgrounds` (the backgrounds they had before this step's background
+        reset, None where it changed none: this step's). Returns `(obs, final)`; `final` is
+        `obs` where no episode ended."""
+        backgrounds = self._background.frames()
+        newest = self._stack.rotate()
+        if ended is not None and ended.size:  # before clear_older: their older frames
+            if final_backgrounds is None and backgrounds is not None:
+                final_backgrounds = backgrounds[ended]  # noise: this step's draws
+            final_frames = self._frames(final_screens, final_backgrounds)
+            final_stacks = self._stack.with_newest(ended, final_frames)
+        if new_episode.any():
+            self._stack.clear_older(new_episode)
+        obs = np.empty((self.num_envs, *self.obs_size, self._stack.depth), np.uint8)
 
-    def _process_rows(self, work: _StepWork, lo: int, hi: int) -> None:
-        """Envs `lo:hi` of a step (one chunk; chunks run in parallel on disjoint rows):
-        composite this step's backgrounds, gray, resize into the stack's newest slot, final
-        observations of the envs that ended, then the observations."""
-        rows = slice(lo, hi)
-        backgrounds = self._background.fill(lo, hi)
-        self._frames(work.screens[rows], backgrounds, out=self._stack.ring[self._stack.head, rows])
-        a, b = np.searchsorted(work.final_rows, (lo, hi)) if work.final is not None else (0, 0)
-        if b > a:  # episodes that ended here: their last frame against their last background
-            ended = work.final_rows[a:b]
-            if work.final_backgrounds is not None:
-                ended_backgrounds = work.final_backgrounds[a:b]
-            else:
-                ended_backgrounds = None if backgrounds is None else backgrounds[ended - lo]
-            final_frames = self._frames(work.final_screens[a:b], ended_backgrounds)
-            ended_obs = self._stack.with_newest(ended, final_frames)
-        if work.any_new_episode:
-            self._stack.clear_older(lo + np.flatnonzero(work.new_episode[rows]))
-        self._stack.observe(rows, work.obs)
-        if work.final is not None:
-            work.final[rows] = work.obs[rows]
-            if b > a:
-                work.final[ended] = ended_obs
+        def rows(lo: int, hi: int) -> None:  # a chunk of envs: whole-chunk, GIL-free calls
+            bg = None if backgrounds is None else backgrounds[lo:hi]
+            self._frames(screens[lo:hi], bg, out=newest[lo:hi])
+            self._stack.observation(slice(lo, hi), out=obs)
+
+        if self._ale_resizes:  # nothing to composite or resize: one copy, one merge
+            np.copyto(newest, screens)
+            self._stack.observation(out=obs)
+        else:
+            self._runner.run(rows)
+        if ended is None or not ended.size:
+            return obs, obs
+        final = obs.copy()
+        final[ended] = final_stacks
+        return obs, final
 
     def _frames(self, screens: np.ndarray, backgrounds, out: np.ndarray | None = None) -> np.ndarray:
         """Pooled screens `[n, 210, 160]` gray (modified in place) or `[n, 210, 160, 3]` RGB, and
-        gray backgrounds `[n, 210, 160]` (or None) -> composited, gray, resized `[n, h, w]`."""
+        gray backgrounds `[n, 210, 160]` (or None) -> composited, gray, resized `[n, h, w]`.
+        Screens ALE resized (background "none") are the frames already."""
+        if self._ale_resizes:
+            if out is not None:
+                np.copyto(out, screens)
+            return screens if out is None else out
         if self.pool == "gray":
             gray = composite_pooled_gray(screens, backgrounds)
         else:
