@@ -27,6 +27,10 @@ __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
+# Default host_threads: more chunks were slower on a 16-core host (64 envs, H100 host, video:
+# 16 chunks 0.72x ale-py, 4 chunks 0.81x, 1 chunk 0.81x; noise: 16 0.60x, 4 0.68x, 1 0.62x;
+# bench/results/natural_atari.md).
+_DEFAULT_HOST_THREADS = 4
 
 
 class NaturalAtariVecEnv:
@@ -73,7 +77,7 @@ class NaturalAtariVecEnv:
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
     host work after it (compositing, resizing, stacking: OpenCV calls, which release the GIL) is
     split into `host_threads` chunks of envs run in parallel, as are the noise draws (0: as many
-    as ALE's threads, at least 4 envs a chunk; 1: one whole-batch call on the calling thread,
+    as ALE's threads but at most 4, at least 4 envs a chunk; 1: one whole-batch call on the calling thread,
     which OpenCV itself splits over its threads). Observations do not depend on either count:
     each env draws its noise from its own generator. `step_timings` adds up, over steps, the
     seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
@@ -158,7 +162,8 @@ class NaturalAtariVecEnv:
             autoreset_mode=_AUTORESET_MODES[autoreset_mode],
         )
         ale_threads = int(num_threads) or default_threads(self.num_envs)
-        chunks = int(host_threads) or min(ale_threads, self.num_envs // _ENVS_PER_HOST_CHUNK)
+        chunks = int(host_threads) or min(ale_threads, _DEFAULT_HOST_THREADS,
+                                          self.num_envs // _ENVS_PER_HOST_CHUNK)
         self._runner = ChunkRunner(self.num_envs, max(1, chunks))
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
