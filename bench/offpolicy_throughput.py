@@ -17,26 +17,22 @@ says so ("-") and gives the best test return seen and when.
 from __future__ import annotations
 
 import argparse
-import functools
 import sys
-import time
 
-import jax
-import numpy as np
 
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import common  # noqa: E402
+import train_throughput  # noqa: E402
 
 import jaxnat  # noqa: E402
 from jaxnat.agents import ALGORITHMS  # noqa: E402
-from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
 
 THRESHOLD = 0.9
 
 
 def _configs(num_envs: int, on_gpu: bool) -> dict:
     """Per algorithm: the config (a budget far beyond the run) and one line describing it."""
-    big = 10**12
+    big = 10**9  # beyond any run here, and its update count fits the schedules' int32
     ppo, a2c, acktr, dqn = (ALGORITHMS[a][0] for a in ("ppo", "a2c", "acktr", "dqn"))
     batch = 256 if on_gpu else 32
     gradient_steps = max(1, 2 * num_envs // batch)  # 2 replayed samples per env step
@@ -61,51 +57,23 @@ def _configs(num_envs: int, on_gpu: bool) -> dict:
 
 
 def bench_algo(algo, config, env, params, test_env, test_params, seeds, chunk, seconds, eval_episodes):
-    _, make_learner = ALGORITHMS[algo]
-    learner = make_learner(config, env, params)
-    evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, eval_episodes)))
-    run = jax.jit(jax.vmap(functools.partial(learner.run, num_updates=chunk)))
-    keys = jax.random.split(jax.random.key(0), seeds)
-    per_update = config.num_envs * config.num_steps
-
-    t0 = time.perf_counter()
-    runner = jax.jit(functools.partial(jax.lax.map, learner.init))(keys)
-    run = run.lower(runner).compile()
-    evaluate = evaluate.lower(runner.train_state.params, keys).compile()
-    compile_s = time.perf_counter() - t0
-
-    train_s, reached, last, best = 0.0, None, None, None
-    while train_s < seconds:
-        t0 = time.perf_counter()
-        runner, metrics = jax.block_until_ready(run(runner))
-        train_s += time.perf_counter() - t0
-        scores = jax.device_get(evaluate(runner.train_state.params, keys))
-        updates = int(runner.update[0])
-        last = {
-            "algo": algo,
-            "updates": updates,
-            "env_steps_per_seed": updates * per_update,
-            "train_s": train_s,
-            "steps_per_s": seeds * updates * per_update / train_s,
-            "test_return": float(np.mean(scores["greedy_return"])),
-            "test_return_std": float(np.std(scores["greedy_return"])),
-            "test_accuracy": float(np.mean(scores["greedy_terminated_fraction"])),
-            "compile_s": compile_s,
-        }
-        print(f"  {algo:5s} {updates:6d} updates, {last['env_steps_per_seed']:>11,} steps/seed, "
-              f"{train_s:6.1f}s: {last['steps_per_s']:.3e} steps/s, test return {last['test_return']:+.3f}, "
-              f"accuracy {last['test_accuracy']:.1%}", flush=True)
-        if reached is None and last["test_return"] >= THRESHOLD:
-            reached = dict(last)
-        if best is None or last["test_return"] > best["test_return"]:
-            best = dict(last)
-    last["threshold_s"] = reached["train_s"] if reached else None
-    last["threshold_steps"] = reached["env_steps_per_seed"] if reached else None
-    last["best_return"] = best["test_return"]
-    last["best_accuracy"] = best["test_accuracy"]
-    last["best_s"] = best["train_s"]
-    last["best_steps"] = best["env_steps_per_seed"]
-    return last
+    """The last chunk's row, with when the threshold was first reached and the best test return."""
+    learner = ALGORITHMS[algo][1](config, env, params)
+    rows, _ = train_throughput.train_in_chunks(
+        learner, test_env, test_params, per_update=config.num_envs * config.num_steps, seeds=seeds,
+        chunk=chunk, seconds=seconds, eval_episodes=eval_episodes, label=f"{algo:5s} ")
+    reached = train_throughput.first_reaching(rows, THRESHOLD)
+    best = max(rows, key=lambda row: row["test_return"])
+    return {
+        **rows[-1],
+        "algo": algo,
+        "threshold_s": reached["train_s"] if reached else None,
+        "threshold_steps": reached["env_steps_per_seed"] if reached else None,
+        "best_return": best["test_return"],
+        "best_accuracy": best["test_accuracy"],
+        "best_s": best["train_s"],
+        "best_steps": best["env_steps_per_seed"],
+    }
 
 
 def main(argv=None):

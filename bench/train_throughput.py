@@ -28,23 +28,14 @@ from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
 from jaxnat.training.args import parse_env_kwargs  # noqa: E402
 
 
-def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int, chunk: int,
-                       seconds: float, lr: float, env_kwargs: dict | None = None,
-                       eval_episodes: int = 1000, target: float = 0.9, update_epochs: int = 4,
-                       num_minibatches: int = 4):
-    """Train PPO on `env_id` with `seeds` seeds vmapped, in chunks of `chunk` updates, for about
-    `seconds` of training; after each chunk evaluate every seed greedily on the test split.
+def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: int, chunk: int,
+                    seconds: float, eval_episodes: int, label: str = ""):
+    """Train `learner` (any `jaxnat.agents` Learner) with `seeds` seeds vmapped, in chunks of
+    `chunk` updates, for about `seconds` of training (compile and evaluation excluded); after
+    each chunk evaluate every seed on the test split, greedy and sampled.
 
-    Returns (rows, compile seconds, training seconds, `{"greedy": row, "sampled": row}`: per
-    policy, the first row whose mean test return reached `target`, or None)."""
-    env_kwargs = env_kwargs or {}
-    env, params = jaxnat.make(env_id, **env_kwargs)
-    test_env, test_params = jaxnat.make(env_id, split="test", autoreset=False, **env_kwargs)
-    per_update = num_envs * num_steps
-    config = ppo.PPOConfig(total_timesteps=per_update * 10**6, num_envs=num_envs,
-                           num_steps=num_steps, update_epochs=update_epochs,
-                           num_minibatches=num_minibatches, lr=lr, anneal_lr=False)
-    learner = ppo.make_ppo(config, env, params)
+    `per_update`: env steps per update and seed (`num_envs * num_steps` of every learner's
+    config). Returns (one row per chunk, compile seconds)."""
     evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, eval_episodes)))
     run = jax.jit(jax.vmap(functools.partial(learner.run, num_updates=chunk)))
     keys = jax.random.split(jax.random.key(0), seeds)
@@ -55,7 +46,7 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
     evaluate = evaluate.lower(runner.train_state.params, keys).compile()
     compile_s = time.perf_counter() - t0
 
-    rows, train_s, reached = [], 0.0, {"greedy": None, "sampled": None}
+    rows, train_s = [], 0.0
     while train_s < seconds:
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run(runner))
@@ -67,22 +58,49 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
             "env_steps_per_seed": updates * per_update,
             "train_s": train_s,
             "steps_per_s": seeds * updates * per_update / train_s,
-            "train_return": float(np.nanmean(np.asarray(metrics["episode_return"])[:, -1])),
+            "train_return": float(np.nanmean(np.asarray(metrics["episode_return"])[:, -1]))
+            if "episode_return" in metrics else float("nan"),
             "test_return": float(np.mean(scores["greedy_return"])),
             "test_return_std": float(np.std(scores["greedy_return"])),
             "test_sampled_return": float(np.mean(scores["sampled_return"])),
             "test_accuracy": float(np.mean(scores["greedy_terminated_fraction"])),
             "test_sampled_accuracy": float(np.mean(scores["sampled_terminated_fraction"])),
+            "compile_s": compile_s,
         }
         rows.append(row)
-        print(f"  {updates:5d} updates, {row['env_steps_per_seed']:>10,} steps/seed, {train_s:6.1f}s: "
+        print(f"  {label}{updates:6d} updates, {row['env_steps_per_seed']:>11,} steps/seed, {train_s:6.1f}s: "
               f"{row['steps_per_s']:.3e} steps/s, test return {row['test_return']:+.3f} greedy, "
               f"{row['test_sampled_return']:+.3f} sampled, "
               f"accuracy {row['test_accuracy']:.1%}", flush=True)
-        for policy, column in (("greedy", "test_return"), ("sampled", "test_sampled_return")):
-            if reached[policy] is None and row[column] >= target:
-                reached[policy] = row
-    return rows, compile_s, train_s, reached
+    return rows, compile_s
+
+
+def first_reaching(rows, target: float, column: str = "test_return"):
+    """The first row whose `column` reached `target`, or None."""
+    return next((row for row in rows if row[column] >= target), None)
+
+
+def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int, chunk: int,
+                       seconds: float, lr: float, env_kwargs: dict | None = None,
+                       eval_episodes: int = 1000, target: float = 0.9, update_epochs: int = 4,
+                       num_minibatches: int = 4):
+    """Train PPO on `env_id` with `seeds` seeds vmapped (`train_in_chunks`).
+
+    Returns (rows, compile seconds, training seconds, `{"greedy": row, "sampled": row}`: per
+    policy, the first row whose mean test return reached `target`, or None)."""
+    env_kwargs = env_kwargs or {}
+    env, params = jaxnat.make(env_id, **env_kwargs)
+    test_env, test_params = jaxnat.make(env_id, split="test", autoreset=False, **env_kwargs)
+    config = ppo.PPOConfig(total_timesteps=num_envs * num_steps * 10**6, num_envs=num_envs,
+                           num_steps=num_steps, update_epochs=update_epochs,
+                           num_minibatches=num_minibatches, lr=lr, anneal_lr=False)
+    learner = ppo.make_ppo(config, env, params)
+    rows, compile_s = train_in_chunks(learner, test_env, test_params, per_update=num_envs * num_steps,
+                                      seeds=seeds, chunk=chunk, seconds=seconds,
+                                      eval_episodes=eval_episodes)
+    reached = {"greedy": first_reaching(rows, target, "test_return"),
+               "sampled": first_reaching(rows, target, "test_sampled_return")}
+    return rows, compile_s, rows[-1]["train_s"], reached
 
 
 def main(argv=None):
