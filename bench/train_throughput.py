@@ -7,6 +7,7 @@ after each chunk every seed is evaluated on the test split, greedy and sampled. 
     python bench/train_throughput.py [--env-id Classify/FashionMNIST-v0] [--seconds 120]
     python bench/train_throughput.py --update-epochs 2 --num-minibatches 2     # throughput
     python bench/train_throughput.py --num-envs 512 --env-kwargs start=center  # authors' start
+    python bench/train_throughput.py --config dtype=bfloat16 ent_coef=0.03       # PPOConfig fields
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: i
                     seconds: float, eval_episodes: int, label: str = ""):
     """Train `learner` (any `jaxnat.agents` Learner) with `seeds` seeds vmapped, in chunks of
     `chunk` updates, for about `seconds` of training (compile and evaluation excluded); after
-    each chunk evaluate every seed on the test split, greedy and sampled.
+    each chunk evaluate every seed on the test split, greedy and sampled. Stops early at the
+    learner's own update count (`learner.num_updates`: where an annealed learning rate ends).
 
     `per_update`: env steps per update and seed (`num_envs * num_steps` of every learner's
     config). Returns (one row per chunk, compile seconds)."""
@@ -47,7 +49,7 @@ def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: i
     compile_s = time.perf_counter() - t0
 
     rows, train_s = [], 0.0
-    while train_s < seconds:
+    while train_s < seconds and (not rows or rows[-1]["updates"] + chunk <= learner.num_updates):
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run(runner))
         train_s += time.perf_counter() - t0
@@ -83,8 +85,9 @@ def first_reaching(rows, target: float, column: str = "test_return"):
 def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int, chunk: int,
                        seconds: float, lr: float, env_kwargs: dict | None = None,
                        eval_episodes: int = 1000, target: float = 0.9, update_epochs: int = 4,
-                       num_minibatches: int = 4):
-    """Train PPO on `env_id` with `seeds` seeds vmapped (`train_in_chunks`).
+                       num_minibatches: int = 4, overrides: dict | None = None):
+    """Train PPO on `env_id` with `seeds` seeds vmapped (`train_in_chunks`); `overrides`:
+    further `PPOConfig` fields (with `anneal_lr=True`, set `total_timesteps` per seed too).
 
     Returns (rows, compile seconds, training seconds, `{"greedy": row, "sampled": row}`: per
     policy, the first row whose mean test return reached `target`, or None)."""
@@ -94,6 +97,7 @@ def train_and_evaluate(env_id: str, *, seeds: int, num_envs: int, num_steps: int
     config = ppo.PPOConfig(total_timesteps=num_envs * num_steps * 10**6, num_envs=num_envs,
                            num_steps=num_steps, update_epochs=update_epochs,
                            num_minibatches=num_minibatches, lr=lr, anneal_lr=False)
+    config = config.replace(**(overrides or {}))
     learner = ppo.make_ppo(config, env, params)
     rows, compile_s = train_in_chunks(learner, test_env, test_params, per_update=num_envs * num_steps,
                                       seeds=seeds, chunk=chunk, seconds=seconds,
@@ -116,6 +120,9 @@ def main(argv=None):
     parser.add_argument("--chunk", type=int, default=10, help="updates between evaluations")
     parser.add_argument("--seconds", type=float, default=120.0, help="training wall-time budget")
     parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--config", nargs="*", default=(), metavar="KEY=VALUE",
+                        help="further PPOConfig fields, e.g. dtype=bfloat16 ent_coef=0.03; "
+                             "anneal_lr=true needs total_timesteps=N (per seed)")
     parser.add_argument("--eval-episodes", type=int, default=1000)
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
@@ -126,10 +133,11 @@ def main(argv=None):
     num_envs = args.num_envs or (32 if on_cpu else 2048)
     minibatches = args.num_minibatches or (8 if on_cpu else 4)
     env_kwargs = parse_env_kwargs(args.env_kwargs)
+    overrides = parse_env_kwargs(args.config)
     rows, compile_s, train_s, reached = train_and_evaluate(
         args.env_id, env_kwargs=env_kwargs, seeds=args.seeds, num_envs=num_envs, num_steps=args.num_steps,
         chunk=args.chunk, seconds=args.seconds, lr=args.lr, eval_episodes=args.eval_episodes,
-        update_epochs=args.update_epochs, num_minibatches=minibatches)
+        update_epochs=args.update_epochs, num_minibatches=minibatches, overrides=overrides)
     table = common.markdown_table(rows, [
         ("updates", "updates", ","), ("env_steps_per_seed", "env steps per seed", ","),
         ("train_s", "train s", ".1f"), ("steps_per_s", "env steps/s (all seeds)", ".3e"),
@@ -142,7 +150,8 @@ def main(argv=None):
         "env": args.env_id + (f" {env_kwargs}" if env_kwargs else ""),
         "setup": f"PPO, {args.seeds} seeds vmapped, {num_envs} envs x {args.num_steps} steps per update, "
                  f"{args.update_epochs} epochs x {minibatches} minibatches, lr {args.lr}, "
-                 f"{args.eval_episodes} test episodes per seed per evaluation",
+                 f"{args.eval_episodes} test episodes per seed per evaluation"
+                 + "".join(f", {key} {value}" for key, value in overrides.items()),
         "compile s": f"{compile_s:.1f}",
         "env steps/s end to end (all seeds, compile excluded)": f"{rows[-1]['steps_per_s']:.3e} (target on one H100: >= 1e6)",
         **{f"time to mean test return >= 0.9 ({policy} policy)":

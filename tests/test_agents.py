@@ -408,3 +408,23 @@ def test_vmapped_init_equals_per_seed_init_for_the_paper_trunk():
         jax.tree_util.tree_map(
             lambda b, a: np.testing.assert_array_equal(b[seed], a), batched, alone
         )
+
+
+def test_bfloat16_trunk_learns_a_probe():
+    env, params = make_probe("sign")
+    learner = make_ppo(CONFIGS["ppo"].replace(dtype="bfloat16"), env, params)
+    runner, metrics = _jit(jax.vmap(learner.train))(jax.random.split(jax.random.key(0), 2))
+    assert {x.dtype for x in jax.tree_util.tree_leaves(runner.train_state.params)} == {jnp.dtype("float32")}
+    assert np.all(final_return(jax.tree_util.tree_map(np.asarray, metrics)) >= 0.9)
+
+
+def test_ppo_weight_decay_is_decoupled_and_off_by_default():
+    from jaxnat.agents.ppo import _optimizer
+
+    params = {"w": jnp.array([1.0, -2.0])}
+    zero_grads = {"w": jnp.zeros(2)}
+    for weight_decay, expected in [(0.0, [0.0, 0.0]), (0.5, [-0.005, 0.01])]:
+        tx = _optimizer(PPOConfig(lr=0.01, anneal_lr=False, weight_decay=weight_decay), 10)
+        updates, _ = tx.update(zero_grads, tx.init(params), params)
+        np.testing.assert_allclose(updates["w"], expected, rtol=1e-6)
+    assert PPOConfig().weight_decay == 0.0

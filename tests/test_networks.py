@@ -80,3 +80,28 @@ def test_incompatible_trunk_is_a_clear_error():
         make_actor_critic(spaces.Box(0, 1, (6,)), spaces.Discrete(4), "mnist")
     with pytest.raises(ValueError, match="Unknown trunk"):
         make_actor_critic(spaces.Box(0, 1, (6,)), spaces.Discrete(4), "vgg")
+
+
+@pytest.mark.parametrize("trunk, shape", [("mnist", (28, 28, 3)), ("resnet18", (8, 8, 2)), ("mlp", (6,))])
+def test_bfloat16_trunk_keeps_float32_parameters_and_heads(trunk, shape):
+    obs_space = spaces.Box(0, 255, shape, jnp.uint8) if len(shape) > 1 else spaces.Box(-1, 1, shape)
+    obs = jnp.stack([obs_space.sample(jax.random.key(i)) for i in range(3)])
+    full = make_actor_critic(obs_space, spaces.MultiDiscrete([4, 10]), trunk)
+    half = make_actor_critic(obs_space, spaces.MultiDiscrete([4, 10]), trunk, dtype="bfloat16")
+    params = full.init(jax.random.key(1), obs)
+    # Same parameters (float32) for both: a checkpoint moves freely between the two.
+    half_params = half.init(jax.random.key(1), obs)
+    assert jax.tree_util.tree_structure(half_params) == jax.tree_util.tree_structure(params)
+    assert {x.dtype for x in jax.tree_util.tree_leaves(half_params)} == {jnp.dtype("float32")}
+    (move, label), value = half.apply(params, obs)
+    (move32, label32), value32 = full.apply(params, obs)
+    assert move.dtype == label.dtype == value.dtype == jnp.float32
+    np.testing.assert_allclose(value, value32, rtol=0.05, atol=0.02)
+    np.testing.assert_allclose(label, label32, atol=2e-3)  # heads are scaled by 0.01 at init
+    assert "bf16" in str(jax.make_jaxpr(half.apply)(params, obs))
+    assert "bf16" not in str(jax.make_jaxpr(full.apply)(params, obs))
+
+
+def test_unknown_dtype_is_a_clear_error():
+    with pytest.raises(ValueError, match="dtype 'float16'.*bfloat16"):
+        make_actor_critic(spaces.Box(0, 1, (6,)), spaces.Discrete(4), "mlp", dtype="float16")

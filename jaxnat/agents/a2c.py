@@ -22,6 +22,7 @@ class A2CConfig:
     num_envs: int = static(16)
     num_steps: int = static(5)
     trunk: str | None = static(None)
+    dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
     lr: float = 7e-4
     rms_eps: float = 1e-5
     rms_alpha: float = 0.99

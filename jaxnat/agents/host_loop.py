@@ -46,7 +46,7 @@ from flax.training.train_state import TrainState
 from jaxnat.agents import distributions
 from jaxnat.agents.dqn import DQNConfig, DQNState, epsilon, make_dqn_parts
 from jaxnat.agents.networks import init_params, make_actor_critic
-from jaxnat.agents.on_policy import Transition, UpdateRule, count_updates, episode_metrics, gae
+from jaxnat.agents.on_policy import Transition, UpdateRule, count_updates, episode_metrics, gae, network_dtype
 
 __all__ = ["HostState", "HostLearner", "make_host_learner", "make_host_dqn", "evaluate_host"]
 
@@ -136,7 +136,7 @@ def make_host_learner(config, env, rule: UpdateRule, compiler_options: dict | No
     """
     num_updates = _check(config, env)
     observation_space = env.single_observation_space
-    network = make_actor_critic(observation_space, env.single_action_space, config.trunk)
+    network = make_actor_critic(observation_space, env.single_action_space, config.trunk, network_dtype(config))
     scalar_action = not hasattr(env.single_action_space, "nvec")
     jit = _jit(compiler_options)
 

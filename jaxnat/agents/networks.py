@@ -12,7 +12,10 @@ followed by ReLU, then a ReLU dense layer of 512:
 | `resnet18`   | 3x3 stem, BasicBlocks [2,2,2,2], no pool | any of the above           |
 | `mlp`        | dense 64, 64 (tanh)                      | vector observations        |
 
-uint8 pixels are scaled to [0, 1] inside the network. Dict observations (`{"pixels", "goal"}`)
+uint8 pixels are scaled to [0, 1] inside the network. `dtype` is the computation dtype of the
+trunk (flax's convention: parameters stay float32): `"bfloat16"` runs its convolutions and dense
+layer on a GPU's bf16 tensor cores; the heads (logits, value) always compute in float32, so
+log-probabilities and value targets keep full precision. Dict observations (`{"pixels", "goal"}`)
 embed the integer goal and concatenate it to the trunk's features. Heads: one categorical per
 action factor (e.g. move and label) and a scalar value, on the shared trunk, as the authors did.
 The ResNet uses GroupNorm rather than BatchNorm: running batch statistics are mutable state that
@@ -21,6 +24,7 @@ does not fit a pure, vmapped on-policy learner.
 
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import flax.linen as nn
@@ -31,7 +35,7 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.agents.conv import conv2d, im2col_patches
 
-__all__ = ["TRUNKS", "ActorCritic", "make_actor_critic", "default_trunk", "action_dims", "init_params",
+__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "make_actor_critic", "default_trunk", "action_dims", "init_params",
            "im2col_patches"]
 
 # (features, kernel, stride) per conv layer.
@@ -42,10 +46,11 @@ _PAPER_CNNS = {
     "atari": [(32, 8, 4), (64, 4, 2), (32, 3, 1)],
 }
 TRUNKS = (*_PAPER_CNNS, "resnet18", "mlp")
+DTYPES = ("float32", "bfloat16")
 
 
-def _dense(features: int, scale: float = np.sqrt(2)) -> nn.Dense:
-    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(scale))
+def _dense(features: int, scale: float = np.sqrt(2), dtype: str = "float32") -> nn.Dense:
+    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(scale), dtype=dtype)
 
 
 class ValidConv(nn.Module):
@@ -56,62 +61,69 @@ class ValidConv(nn.Module):
     kernel: int
     stride: int
     implementation: str = "auto"
+    dtype: str = "float32"  # computation dtype; the parameters are float32
 
     @nn.compact
     def __call__(self, x):
         kernel = self.param("kernel", nn.initializers.orthogonal(np.sqrt(2)),
                             (self.kernel, self.kernel, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        x, kernel, bias = (a.astype(self.dtype) for a in (x, kernel, bias))
         return conv2d(x, kernel, self.stride, self.implementation) + bias
 
 
 class PaperCNN(nn.Module):
     layers: Sequence[tuple[int, int, int]]
     dense: int = 512
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x):
         for features, kernel, stride in self.layers:
-            x = nn.relu(ValidConv(features, kernel, stride)(x))
+            x = nn.relu(ValidConv(features, kernel, stride, dtype=self.dtype)(x))
         x = x.reshape(*x.shape[:-3], -1)
-        return nn.relu(_dense(self.dense)(x))
+        return nn.relu(_dense(self.dense, dtype=self.dtype)(x))
 
 
 class BasicBlock(nn.Module):
     features: int
     stride: int
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x):
+        conv = functools.partial(nn.Conv, use_bias=False, dtype=self.dtype)
+        norm = functools.partial(nn.GroupNorm, num_groups=8, dtype=self.dtype)
         residual = x
-        y = nn.Conv(self.features, (3, 3), self.stride, padding="SAME", use_bias=False)(x)
-        y = nn.relu(nn.GroupNorm(num_groups=8)(y))
-        y = nn.Conv(self.features, (3, 3), padding="SAME", use_bias=False)(y)
-        y = nn.GroupNorm(num_groups=8)(y)
+        y = nn.relu(norm()(conv(self.features, (3, 3), self.stride, padding="SAME")(x)))
+        y = norm()(conv(self.features, (3, 3), padding="SAME")(y))
         if residual.shape != y.shape:
-            residual = nn.Conv(self.features, (1, 1), self.stride, use_bias=False)(residual)
-            residual = nn.GroupNorm(num_groups=8)(residual)
+            residual = norm()(conv(self.features, (1, 1), self.stride)(residual))
         return nn.relu(y + residual)
 
 
 class ResNet18(nn.Module):
     dense: int = 512
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x):
-        x = nn.relu(nn.GroupNorm(num_groups=8)(nn.Conv(64, (3, 3), padding="SAME", use_bias=False)(x)))
+        stem = nn.Conv(64, (3, 3), padding="SAME", use_bias=False, dtype=self.dtype)
+        x = nn.relu(nn.GroupNorm(num_groups=8, dtype=self.dtype)(stem(x)))
         for i, features in enumerate([64, 128, 256, 512]):
             for j in range(2):
-                x = BasicBlock(features, stride=2 if i > 0 and j == 0 else 1)(x)
+                x = BasicBlock(features, stride=2 if i > 0 and j == 0 else 1, dtype=self.dtype)(x)
         x = jnp.mean(x, axis=(-3, -2))
-        return nn.relu(_dense(self.dense)(x))
+        return nn.relu(_dense(self.dense, dtype=self.dtype)(x))
 
 
 class MLP(nn.Module):
+    dtype: str = "float32"
+
     @nn.compact
     def __call__(self, x):
         for _ in range(2):
-            x = nn.tanh(_dense(64)(x))
+            x = nn.tanh(_dense(64, dtype=self.dtype)(x))
         return x
 
 
@@ -121,6 +133,7 @@ class ActorCritic(nn.Module):
     action_dims: Sequence[int]
     trunk: str = "mnist"
     num_goals: int = 0  # > 0 for dict observations with an integer "goal"
+    dtype: str = "float32"  # the trunk's computation dtype (see the module docstring)
 
     @nn.compact
     def __call__(self, obs):
@@ -128,12 +141,14 @@ class ActorCritic(nn.Module):
         x = pixels.astype(jnp.float32)
         if pixels.dtype == jnp.uint8:
             x = x / 255.0
+        x = x.astype(self.dtype)
         if self.trunk == "mlp":
-            features = MLP()(x)
+            features = MLP(dtype=self.dtype)(x)
         elif self.trunk == "resnet18":
-            features = ResNet18()(x)
+            features = ResNet18(dtype=self.dtype)(x)
         else:
-            features = PaperCNN(_PAPER_CNNS[self.trunk])(x)
+            features = PaperCNN(_PAPER_CNNS[self.trunk], dtype=self.dtype)(x)
+        features = features.astype(jnp.float32)
         if self.num_goals:
             goal = nn.Embed(self.num_goals, 32)(obs["goal"])
             features = nn.relu(_dense(512)(jnp.concatenate([features, goal], axis=-1)))
@@ -167,11 +182,14 @@ def default_trunk(observation_space: spaces.Space) -> str:
     return by_size.get(side, "atari" if side >= 36 else "resnet18")
 
 
-def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None) -> ActorCritic:
+def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None,
+                      dtype: str = "float32") -> ActorCritic:
     """An `ActorCritic` for these spaces; checks that the trunk fits the observation."""
     trunk = trunk or default_trunk(observation_space)
     if trunk not in TRUNKS:
         raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
+    if dtype not in DTYPES:
+        raise ValueError(f"Unknown network dtype {dtype!r}; choose one of {DTYPES}")
     num_goals = 0
     pixels = observation_space
     if isinstance(observation_space, spaces.Dict):
@@ -191,7 +209,7 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
             )
     if trunk == "mlp" and len(pixels.shape) != 1:
         raise ValueError(f"trunk='mlp' needs vector observations; these are {pixels.shape}")
-    return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals)
+    return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype)
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):

@@ -126,7 +126,7 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
     total_updates = count_updates(config)
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)
-    network = make_actor_critic(observation_space, action_space, config.trunk)
+    network = make_actor_critic(observation_space, action_space, config.trunk, network_dtype(config))
     scalar_action = not hasattr(action_space, "nvec")  # Discrete (jaxnat's or gymnax's)
 
     reset, step = vector_env(env)
@@ -226,6 +226,12 @@ def episode_metrics(info: dict) -> dict:
         "terminated_fraction": mean(info["terminated"].astype(jnp.float32)),
         "episodes": count,
     }
+
+
+def network_dtype(config) -> str:
+    """The trunk's computation dtype: the config's `dtype` field (PPO, A2C), else float32
+    (ACKTR's K-FAC statistics want float32 layer inputs)."""
+    return getattr(config, "dtype", "float32")
 
 
 def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):

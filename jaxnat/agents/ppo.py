@@ -33,6 +33,7 @@ class PPOConfig:
     num_minibatches: int = static(4)
     anneal_lr: bool = static(True)
     trunk: str | None = static(None)  # None: the paper's trunk for the observation size
+    dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
     # Traced: may be vmapped.
     lr: float = 2.5e-4
     gamma: float = 0.99
@@ -41,6 +42,7 @@ class PPOConfig:
     vf_coef: float = 1.0
     ent_coef: float = 0.01
     max_grad_norm: float = 0.5
+    weight_decay: float = 0.0  # decoupled (AdamW), scaled by the learning rate; 0: the authors' Adam
 
 
 def _optimizer(config: PPOConfig, num_updates: int):
@@ -50,7 +52,8 @@ def _optimizer(config: PPOConfig, num_updates: int):
         done = (count // steps_per_update) / num_updates
         return config.lr * (1.0 - done if config.anneal_lr else 1.0)
 
-    return clipped_optimizer(config.max_grad_norm, optax.adam(schedule, eps=1e-5))
+    return clipped_optimizer(config.max_grad_norm,
+                             optax.adamw(schedule, eps=1e-5, weight_decay=config.weight_decay))
 
 
 def _update(config: PPOConfig, network, train_state, transitions, advantages, targets, key):
