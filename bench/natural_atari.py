@@ -85,18 +85,19 @@ def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_po
         envs["ale-py 210x160 screen only"] = ale_py_env(game, num_envs, threads, screen=True,
                                                         seed=seed)
     variants = [(bg, "gray", 0) for bg in backgrounds]
-    if extras:
+    if "video" in backgrounds and extras and rgb_pool:
+        variants.append(("video", "rgb", 0))
+    if extras:  # after the defaults: a count equal to the default's chunks would time it twice
         variants += [(bg, "gray", h) for bg in ("video", "noise") if bg in backgrounds
-                     for h in host_threads if h != threads]
-    if "video" in backgrounds and extras:
-        if rgb_pool:
-            variants.append(("video", "rgb", 0))
+                     for h in host_threads]
     for bg, pool, host in variants:
+        name = f"jaxnat {bg}" + (" (pool=rgb)" if pool == "rgb" else "")
+        if host and host == envs[name]._runner.threads:
+            continue
         env = NaturalAtariVecEnv(game, num_envs, background=bg, num_threads=threads, seed=seed,
                                  video_sources=video_sources, pool=pool, host_threads=host,
                                  **SETTINGS)
         env.reset()
-        name = f"jaxnat {bg}" + (" (pool=rgb)" if pool == "rgb" else "")
         envs[name + (f" (host_threads={host})" if host else "")] = env
     return envs
 

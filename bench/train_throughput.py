@@ -48,8 +48,12 @@ def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: i
     evaluate = evaluate.lower(runner.train_state.params, keys).compile()
     compile_s = time.perf_counter() - t0
 
+    if chunk > learner.num_updates:
+        raise SystemExit(f"--chunk {chunk} is more updates than the run has ({learner.num_updates}: "
+                         "raise total_timesteps)")
     rows, train_s = [], 0.0
-    while train_s < seconds and (not rows or rows[-1]["updates"] + chunk <= learner.num_updates):
+    # Never past the learner's own update count: an annealed learning rate would turn negative.
+    while train_s < seconds and (rows[-1]["updates"] if rows else 0) + chunk <= learner.num_updates:
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run(runner))
         train_s += time.perf_counter() - t0

@@ -231,3 +231,11 @@ def test_algorithm_without_host_loop_is_a_clear_error(capsys):
 
     assert main(["--env-id", "NaturalAtari/Breakout-v0", "--algo", "acktr"]) == 2
     assert "acktr has no host loop" in capsys.readouterr().err
+
+
+def test_host_runs_check_counts_as_the_jitted_path(capsys, tmp_path):
+    from jaxnat.train import main
+
+    assert main(["--env-id", "NaturalAtari/Breakout-v0", "--eval-every", "0",
+                 "--run-dir", str(tmp_path / "run")]) == 2
+    assert "--eval-every must be at least 1" in capsys.readouterr().err

@@ -213,6 +213,8 @@ def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) 
     scalar_action = not hasattr(env.single_action_space, "nvec")
     jit = _jit(compiler_options)
     act = jit(parts.act)
+    # On the device, without a host sync: the rate goes straight into `act`.
+    exploration = jit(lambda env_steps: epsilon(config, env_steps))
     store = jit(parts.store, donate_argnums=0)  # the buffer is updated in place
 
     @functools.partial(jit, donate_argnums=0)
@@ -231,7 +233,7 @@ def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) 
         infos = []
         for t in range(config.num_steps):
             steps_taken = index * config.num_steps + t  # per env, before this step
-            rate = float(epsilon(config, steps_taken * config.num_envs))
+            rate = exploration(steps_taken * config.num_envs)
             key, key_act = jax.random.split(key)
             obs_device = jax.device_put(obs)
             action = np.asarray(act(state.train_state.params, obs_device, key_act, rate))

@@ -176,9 +176,10 @@ class GymnasiumVectorEnv(VectorEnv):
             return jax.tree.map(lambda a, b: jnp.where(reset, a, b), new, old)
 
         state = pick(fresh, stepped)
-        # Observations that are a function of the state are rendered once, from the result.
+        # Observations that are a function of the state are rendered once, from the result
+        # (`observe`, as AutoResetWrapper: it may also write the frame into the state).
         if self.jax_env.has_state_observation:
-            obs = self.jax_env.get_obs(state, params)
+            obs, state = self.jax_env.observe(state, params)
         else:
             obs = pick(fresh_obs, obs)
         reward = jnp.where(reset, 0.0, reward)

@@ -203,8 +203,7 @@ def _dot(u, v):
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
-def _sphere(o, d, radius, z_offset=0.0, unit=False):
-    o = (o[0], o[1], o[2] - z_offset)
+def _sphere(o, d, radius, unit=False):
     return _nearest_root(1.0 if unit else _dot(d, d), _dot(o, d), _dot(o, o) - radius * radius)
 
 
@@ -289,7 +288,7 @@ def _plane(o, d, size, unit=False):
 
 
 # Each takes (o, d, size, unit): `unit=True` promises |d| = 1 (the renderer's rays).
-_INTERSECT = {PLANE: _plane, SPHERE: lambda o, d, s, unit=False: _sphere(o, d, s[0], 0.0, unit),
+_INTERSECT = {PLANE: _plane, SPHERE: lambda o, d, s, unit=False: _sphere(o, d, s[0], unit),
               CAPSULE: _capsule,
               ELLIPSOID: _ellipsoid, CYLINDER: _cylinder, BOX: _box}
 

@@ -8,7 +8,6 @@ checkpoints every `--eval-every` updates and `--resume` (which restarts the game
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -16,7 +15,7 @@ import jaxnat
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
-from jaxnat.training.spec import RunSpec, auto_eval_every, check_algo, resolve_config
+from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
 
@@ -41,14 +40,13 @@ def is_host_run(args: TrainArgs) -> bool:
 
 def _new_spec(args: TrainArgs, console) -> RunSpec:
     from jaxnat.agents.host_run import HOST_ALGORITHMS, observation_space
+    from jaxnat.training.loop import _check_counts, _with_eval_every
 
     check_algo(args.algo)
     if args.algo not in HOST_ALGORITHMS:
         raise TrainError(f"{args.algo} has no host loop: {args.env_id} (host-emulated) trains "
                          f"with {', '.join(HOST_ALGORITHMS)}")
-    for name in ("seeds", "eval_episodes"):
-        if getattr(args, name) < 1:
-            raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
+    _check_counts(args)
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     if "split" in env_kwargs:
         raise TrainError("env kwarg 'split' is set by jaxnat train: split=train for training and "
@@ -60,34 +58,19 @@ def _new_spec(args: TrainArgs, console) -> RunSpec:
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
     spec = RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes)
-    if spec.num_updates < 1:
-        raise TrainError(f"total_timesteps={config.total_timesteps} is less than one rollout "
-                         f"(num_envs * num_steps = {spec.steps_per_update})")
-    eval_every = args.eval_every or auto_eval_every(spec.num_updates)
-    return dataclasses.replace(spec, eval_every=min(eval_every, spec.num_updates))
+    return _with_eval_every(spec, args)
 
 
 def train_on_host(args: TrainArgs, console, compiler_options: dict | None,
                   stop_after_chunks: int | None = None):
     from jaxnat.agents.host_run import run_host_training
-    from jaxnat.training.loop import TrainResult, _check_resume_args, _default_run_dir, _versions
+    from jaxnat.training.loop import TrainResult, _new_run_dir, _resume, _versions
 
     try:
         if args.resume is not None:
-            run_dir = Path(args.resume)
-            if not (run_dir / "config.json").is_file():
-                raise TrainError(f"cannot resume {run_dir}: no config.json there")
-            saved = json.loads((run_dir / "config.json").read_text())
-            if "spec" not in saved:
-                raise TrainError(f"cannot resume {run_dir}: it was written without checkpoints "
-                                 "(an older jaxnat)")
-            _check_resume_args(args, saved["spec"])
-            spec = RunSpec.from_json(saved["spec"])
+            spec, run_dir, _ = _resume(args)
         else:
-            run_dir = args.run_dir or _default_run_dir(args.env_id, args.algo)
-            if (run_dir / "config.json").exists():
-                raise TrainError(f"{run_dir} already holds a run; continue it with --resume "
-                                 f"{run_dir} or choose another --run-dir")
+            run_dir = _new_run_dir(args)
             spec = _new_spec(args, console)
         summary, complete = run_host_training(
             spec, run_dir, resume=args.resume is not None, console=console,

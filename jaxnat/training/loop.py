@@ -75,23 +75,50 @@ def _check_resume_args(args: TrainArgs, saved: dict) -> None:
                          f"({Path(args.resume) / 'config.json'}); leave them out")
 
 
-def _setup(args: TrainArgs):
-    """(spec, run_dir, the saved config.json when resuming else None)."""
-    if args.resume is not None:
-        run_dir = Path(args.resume)
-        config_path = run_dir / "config.json"
-        if not config_path.is_file():
-            raise TrainError(f"cannot resume {run_dir}: no config.json there")
-        saved = json.loads(config_path.read_text())
-        _check_resume_args(args, saved["spec"])
-        return RunSpec.from_json(saved["spec"]), run_dir, saved
+def _resume(args: TrainArgs):
+    """The run `--resume` names: (spec, run_dir, its saved config.json)."""
+    run_dir = Path(args.resume)
+    config_path = run_dir / "config.json"
+    if not config_path.is_file():
+        raise TrainError(f"cannot resume {run_dir}: no config.json there")
+    saved = json.loads(config_path.read_text())
+    if "spec" not in saved:
+        raise TrainError(f"cannot resume {run_dir}: it was written without checkpoints (an older jaxnat)")
+    _check_resume_args(args, saved["spec"])
+    return RunSpec.from_json(saved["spec"]), run_dir, saved
 
-    check_algo(args.algo)
+
+def _check_counts(args: TrainArgs) -> None:
     for name in ("seeds", "eval_episodes"):
         if getattr(args, name) < 1:
             raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
     if args.eval_every is not None and args.eval_every < 1:
         raise TrainError("--eval-every must be at least 1")
+
+
+def _with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
+    """`spec` with its chunk length (`--eval-every`, else about 20 evaluations over the run)."""
+    if spec.num_updates < 1:
+        raise TrainError(f"total_timesteps={spec.config.total_timesteps} is less than one rollout "
+                         f"(num_envs * num_steps = {spec.steps_per_update})")
+    eval_every = args.eval_every or auto_eval_every(spec.num_updates)
+    return dataclasses.replace(spec, eval_every=min(eval_every, spec.num_updates))
+
+
+def _new_run_dir(args: TrainArgs) -> Path:
+    run_dir = Path(args.run_dir) if args.run_dir is not None else _default_run_dir(args.env_id, args.algo)
+    if (run_dir / "config.json").exists():
+        raise TrainError(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
+                         "or choose another --run-dir")
+    return run_dir
+
+
+def _setup(args: TrainArgs):
+    """(spec, run_dir, the saved config.json when resuming else None)."""
+    if args.resume is not None:
+        return _resume(args)
+    check_algo(args.algo)
+    _check_counts(args)
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
     probe = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
@@ -100,17 +127,8 @@ def _setup(args: TrainArgs):
         config = resolve_config(args, env.observation_space(params))
     except TypeError as err:
         raise TrainError(str(err)) from None
-    spec = dataclasses.replace(probe, config=config)
-    if spec.num_updates < 1:
-        raise TrainError(f"total_timesteps={config.total_timesteps} is less than one rollout "
-                         f"(num_envs * num_steps = {spec.steps_per_update})")
-    eval_every = args.eval_every or auto_eval_every(spec.num_updates)
-    spec = dataclasses.replace(spec, eval_every=min(eval_every, spec.num_updates))
-    run_dir = Path(args.run_dir) if args.run_dir is not None else _default_run_dir(args.env_id, args.algo)
-    if (run_dir / "config.json").exists():
-        raise TrainError(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
-                         "or choose another --run-dir")
-    return spec, run_dir, None
+    spec = _with_eval_every(dataclasses.replace(probe, config=config), args)
+    return spec, _new_run_dir(args), None
 
 
 def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
