@@ -4,8 +4,8 @@ env with the same preprocessing and threads, side by side in one run, and thread
 For each thread count, every contender steps `--num-envs` envs of `--game` with the same random
 actions (sticky actions 0.25, up to 30 no-ops at reset, frame skip 4 with max-pool, 84x84 gray,
 stack 4, no FIRE at reset, unclipped rewards); ale-py does all preprocessing in its C++ threads,
-with a background we ask it for the max-pooled 210x160 gray screen and composite, resize and
-stack on the host (background none: ALE resizes, we stack). Also timed at the largest thread
+with a background we ask it for the max-pooled 210x160 gray screen and composite, resize (one
+fused pass, jaxnat.atari.area) and stack on the host (background none: ALE resizes, we stack). Also timed at the largest thread
 count: ale-py returning that screen alone (the emulation share of our step), our env with
 `pool="rgb"` (RGB screens, the spec's literal pooling order) with the video background, and the
 video and noise backgrounds with fewer host threads (the compositing and resizing after ALE, and
@@ -147,10 +147,13 @@ def _rgb_background(env, bg):
 
 def host_pieces(num_envs: int, repeats: int = 20) -> str:
     """Microseconds per env of each piece of the host work, one whole-batch call each, on one
-    core (OpenCV limited to 1 thread here): what the host threads have to share out."""
+    core (OpenCV limited to 1 thread here): what the host threads have to share out. The env
+    composites and resizes in one pass of jaxnat.atari.area's kernel; OpenCV's way of doing
+    the same (a masked copy, then cv2.resize: bit-identical output) is timed beside it."""
     from jaxnat.atari.compositor import (
         FrameStack,
         GrayNoiseSampler,
+        composite_and_resize,
         composite_pooled_gray,
         resize_area,
     )
@@ -168,9 +171,11 @@ def host_pieces(num_envs: int, repeats: int = 20) -> str:
     work = screens.copy()
     pieces = {
         "video gather": lambda: np.take(bank, index, axis=0, out=backgrounds, mode="clip"),
-        "screen copy+mask+composite": lambda: composite_pooled_gray(
+        "composite+resize (fused kernel)": lambda: composite_and_resize(
+            screens, backgrounds, (84, 84), out=stack.rotate()),
+        "OpenCV: screen copy+mask+composite": lambda: composite_pooled_gray(
             np.copyto(work, screens) or work, backgrounds),
-        "resize": lambda: resize_area(work, (84, 84), out=stack.rotate()),
+        "OpenCV: resize": lambda: resize_area(work, (84, 84), out=stack.rotate()),
         "stack merge": stack.observation,
         "noise draws": lambda: [sampler.sample((210, 160), r, out=b) for r, b in zip(rngs, backgrounds)],
     }

@@ -14,12 +14,7 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
 from jaxnat.atari.chunks import ChunkRunner, default_threads
-from jaxnat.atari.compositor import (
-    FrameStack,
-    composite_gray,
-    composite_pooled_gray,
-    resize_area,
-)
+from jaxnat.atari.compositor import FrameStack, composite_and_resize, composite_gray
 from jaxnat.atari.games import rom_id, rom_path
 
 __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
@@ -303,18 +298,16 @@ class NaturalAtariVecEnv:
         return obs, final
 
     def _frames(self, screens: np.ndarray, backgrounds, out: np.ndarray | None = None) -> np.ndarray:
-        """Pooled screens `[n, 210, 160]` gray (modified in place) or `[n, 210, 160, 3]` RGB, and
-        gray backgrounds `[n, 210, 160]` (or None) -> composited, gray, resized `[n, h, w]`.
-        Screens ALE resized (background "none") are the frames already."""
+        """Pooled screens `[n, 210, 160]` gray or `[n, 210, 160, 3]` RGB, and gray backgrounds
+        `[n, 210, 160]` (or None) -> composited, gray, resized `[n, h, w]` (into `out` when
+        given). Screens ALE resized (background "none") are the frames already."""
         if self._ale_resizes:
             if out is not None:
                 np.copyto(out, screens)
             return screens if out is None else out
-        if self.pool == "gray":
-            gray = composite_pooled_gray(screens, backgrounds)
-        else:
-            gray = composite_gray(screens, backgrounds)
-        return resize_area(gray, self.obs_size, out=out)
+        if self.pool == "rgb":  # the RGB mask: composite before grayscale
+            screens, backgrounds = composite_gray(screens, backgrounds), None
+        return composite_and_resize(screens, backgrounds, self.obs_size, out=out)
 
     def _record_episodes(self, reward, done, restarted, info) -> None:
         """Whole-game returns and lengths (rewards unclipped), PureJaxRL's info keys."""
