@@ -7,6 +7,7 @@ gray level says which video and frame they are), so the tests do not need opencv
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import cv2
@@ -481,8 +482,11 @@ class PerEnvReference(NaturalAtariVecEnv):
         self.history = [None] * self.num_envs
 
     def _observe(self, screens, new_episode, final_backgrounds=None, ended=None,
-                 final_screens=None):
+                 final_screens=None, alongside=None):
         from collections import deque
+
+        if alongside is not None:
+            alongside()
 
         def frame(screen, background):
             composited = np.where(screen == 0, background, screen)
@@ -560,6 +564,13 @@ def test_chunk_runner_covers_every_row_once_and_reraises():
 
     with pytest.raises(KeyError, match="chunk error"):
         runner.run(fail_late)
+    calls = []  # `alongside` runs once on the calling thread, the chunks still all run
+    runner.run(mark, alongside=lambda: calls.append(threading.get_ident()))
+    assert calls == [threading.get_ident()]
+    np.testing.assert_array_equal(seen, 2)
+    with pytest.raises(KeyError, match="bookkeeping"):  # its error, once the pool is done
+        runner.run(mark, alongside=lambda: {}["bookkeeping"])
+    np.testing.assert_array_equal(seen[runner.chunks[1][0]:], 3)
     runner.close()
     with pytest.raises(ValueError, match="threads must be an integer >= 1"):
         ChunkRunner(4, 0)

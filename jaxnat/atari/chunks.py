@@ -1,11 +1,11 @@
 """Split a batch's host work into row chunks and run them on a pool of threads.
 
-What runs in a chunk is a few whole-chunk numpy/OpenCV calls that release the GIL (compositing,
-resizing and stacking a chunk of envs' screens; drawing their noise), so chunks run in parallel; the
-Python between those calls is a few microseconds a chunk. (Many small per-env calls in each
-chunk would serialise on the GIL instead: more threads, more host time.) A chunk of a few envs
-is small enough that OpenCV keeps its own call single-threaded (it splits a resize only above
-~65k output pixels, ~9 envs at 84x84), so the pool does not stack on OpenCV's threads.
+What runs in a chunk is a few whole-chunk numba/numpy/OpenCV calls that release the GIL
+(compositing and resizing a chunk of envs' screens in one numba pass, stacking them; drawing
+their noise), so chunks run in parallel; the Python between those calls is a few microseconds a
+chunk. (Many small per-env calls in each chunk would serialise on the GIL instead: more threads,
+more host time.) A chunk of a few envs is small enough that OpenCV keeps its own calls
+single-threaded, so the pool does not stack on OpenCV's threads.
 """
 
 from __future__ import annotations
@@ -46,9 +46,14 @@ class ChunkRunner:
     def threads(self) -> int:
         return len(self.chunks)
 
-    def run(self, work: Callable[[int, int], None]) -> None:
+    def run(self, work: Callable[[int, int], None],
+            alongside: Callable[[], None] | None = None) -> None:
+        """`work` over every chunk; `alongside()`, if given, first on the calling thread while
+        the pool starts on the other chunks."""
         futures = [self._pool.submit(work, lo, hi) for lo, hi in self.chunks[1:]] if self._pool else []
         try:
+            if alongside is not None:
+                alongside()
             work(*self.chunks[0])
         finally:
             for future in futures:

@@ -41,7 +41,8 @@ class NaturalAtariVecEnv:
     `[0, noop_max)` at each reset, no FIRE at reset, whole games as episodes (no life loss
     signal), truncation after `max_episode_steps` agent steps.
 
-    Then on the host, whole-batch numpy/OpenCV calls (jaxnat.atari.compositor): pixels whose
+    Then on the host, whole-batch calls (jaxnat.atari.compositor; compositing and resizing are
+    one fused pass of jaxnat.atari.area's kernel, bit-identical to OpenCV's): pixels whose
     three channels are all 0 take this step's background frame (`background`: "none" black,
     "noise" i.i.d. `clip(N(0,1)*50, 0)` per pixel and channel each step, "video" consecutive
     frames of a random natural video, one per agent step, a new video at a random offset at every
@@ -70,10 +71,10 @@ class NaturalAtariVecEnv:
 
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
-    host work after it (compositing, resizing, stacking: OpenCV calls, which release the GIL) is
-    split into `host_threads` chunks of envs run in parallel, as are the noise draws (0: as many
-    as ALE's threads but at most 4, at least 4 envs a chunk; 1: one whole-batch call on the calling thread,
-    which OpenCV itself splits over its threads). Observations do not depend on either count:
+    host work after it (compositing, resizing, stacking: numba and OpenCV calls, which release
+    the GIL) is split into `host_threads` chunks of envs run in parallel, as are the noise draws
+    (0: as many as ALE's threads but at most 4, at least 4 envs a chunk; 1: one whole-batch call
+    on the calling thread). Observations do not depend on either count:
     each env draws its noise from its own generator. `step_timings` adds up, over steps, the
     seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
     the emulation), on the background while ALE emulates (`ahead_s`), and in the rest of
@@ -229,12 +230,13 @@ class NaturalAtariVecEnv:
         final_backgrounds = self._background.reset(new_episode) if new_episode.any() else None
         ended = np.flatnonzero(done) if same_step else None
         final_screens = ale_info["final_obs"][ended, 0] if same_step and ended.size else None
-        obs, final = self._observe(raw[:, 0], new_episode, final_backgrounds, ended,
-                                   final_screens)
         info = {"lives": np.asarray(ale_info["lives"])}
+        restarted = self._ended
+        obs, final = self._observe(  # episode bookkeeping runs beside the pool's chunks
+            raw[:, 0], new_episode, final_backgrounds, ended, final_screens,
+            alongside=lambda: self._record_episodes(reward, done, restarted, info))
         if same_step:
             info["final_observation"] = final
-        self._record_episodes(reward, done, self._ended, info)
         if not same_step:
             self._ended = done
         timings = self.step_timings
@@ -263,13 +265,14 @@ class NaturalAtariVecEnv:
 
     # -- internals ------------------------------------------------------------------------
     def _observe(self, screens: np.ndarray, new_episode: np.ndarray, final_backgrounds=None,
-                 ended=None, final_screens=None) -> tuple[np.ndarray, np.ndarray]:
+                 ended=None, final_screens=None, alongside=None) -> tuple[np.ndarray, np.ndarray]:
         """This step's observations from ALE's screens `[B, ...]` (composited in place; the envs
         `new_episode` start an episode: zeros before their frame), and the final observations:
         the envs `ended` (sorted indices, same-step autoreset) ended on `final_screens`, shown
         against `final_backgrounds` (the backgrounds they had before this step's background
         reset, None where it changed none: this step's). Returns `(obs, final)`; `final` is
-        `obs` where no episode ended."""
+        `obs` where no episode ended. `alongside()` (independent work) runs on the calling
+        thread while the pool works on its chunks."""
         backgrounds = self._background.frames()
         newest = self._stack.rotate()
         if ended is not None and ended.size:  # before clear_older: their older frames
@@ -289,8 +292,10 @@ class NaturalAtariVecEnv:
         if self._ale_resizes:  # nothing to composite or resize: one copy, one merge
             np.copyto(newest, screens)
             self._stack.observation(out=obs)
+            if alongside is not None:
+                alongside()
         else:
-            self._runner.run(rows)
+            self._runner.run(rows, alongside=alongside)
         if ended is None or not ended.size:
             return obs, obs
         final = obs.copy()
