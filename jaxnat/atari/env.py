@@ -170,6 +170,7 @@ class NaturalAtariVecEnv:
         n_actions = int(self._ale.single_action_space.n)
         self.single_action_space = spaces.Discrete(n_actions)
         self.single_observation_space = spaces.Box(0, 255, (*self.obs_size, int(stack)), np.uint8)
+        self._env_ids = np.arange(self.num_envs)
         self._returns = np.zeros(self.num_envs, np.float64)
         self._lengths = np.zeros(self.num_envs, np.int32)
         self._last_returns = np.zeros(self.num_envs, np.float32)
@@ -219,7 +220,8 @@ class NaturalAtariVecEnv:
         advanced = time.perf_counter()
         raw, reward, terminated, truncated, ale_info = self._ale.recv()
         received = time.perf_counter()
-        if not np.array_equal(ale_info["env_id"], np.arange(self.num_envs)):  # never seen; cheap
+        # ale-py's ordered mode (batch = all envs) puts env i in row i; checked, as it is cheap
+        if (ale_info["env_id"] != self._env_ids).any():
             raise RuntimeError(f"ale-py returned envs out of order: {ale_info['env_id']}")
         reward = reward.astype(np.float32)
         done = terminated | truncated
