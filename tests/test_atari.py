@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 ale_py = pytest.importorskip("ale_py")
+pytest.importorskip("numba")  # the atari extra's compositing kernel
 
 import jaxnat  # noqa: E402
 from jaxnat.atari import AUTHORS_GAMES, GAMES, RomNotFoundError  # noqa: E402

@@ -1,5 +1,7 @@
 """jaxnat.atari.area: the fused compositing + INTER_AREA kernel is OpenCV's resize bit for bit."""
 
+import itertools
+
 import cv2
 import numpy as np
 import pytest
@@ -28,7 +30,7 @@ def _batches(shape, rng, n=6):
 
 
 @pytest.mark.parametrize("src, dst", [((210, 160), (84, 84)), ((210, 160), (64, 48)),
-                                      ((210, 160), (105, 84)), ((100, 77), (33, 20))])
+                                      ((210, 160), (105, 84)), ((100, 77), (40, 35))])
 def test_equals_opencv_inter_area_bit_for_bit(src, dst):
     rng = np.random.default_rng(0)
     plan = area_plan(src, dst)
@@ -62,6 +64,52 @@ def test_ties_follow_opencvs_float_rounding():
     assert (half_up != reference)[ties].any() and (half_up == reference)[~ties].all()
     out = composite_resize(screens, backgrounds, np.empty_like(reference), plan)
     np.testing.assert_array_equal(out, reference)
+
+
+def test_every_plan_of_small_images_equals_opencv():
+    """Every source up to 10x10, every smaller size with a plan: random and two-level images
+    (ties), composited over a background. Small denominators such as 49 (7 -> 2 on both axes)
+    are where a rounded 1/D would floor k*D to k - 1."""
+    rng = np.random.default_rng(4)
+    planned = 0
+    for src in itertools.product(range(1, 11), repeat=2):
+        screens = rng.integers(0, 256, (4, *src), dtype=np.uint8)
+        screens[2:] = screens[2:] // 128 * 255  # two levels: many exact ties
+        screens[3, ::2] = 0  # background rows
+        backgrounds = rng.integers(0, 256, (4, *src), dtype=np.uint8)
+        for dst in itertools.product(range(1, src[0] + 1), range(1, src[1] + 1)):
+            plan = area_plan(src, dst)
+            if plan is None:
+                continue
+            planned += 1
+            out = composite_resize(screens, backgrounds, np.empty((4, *dst), np.uint8), plan)
+            np.testing.assert_array_equal(out, _reference(screens, backgrounds, dst),
+                                          err_msg=f"{src} -> {dst}")
+    assert planned > 2000
+
+
+def test_one_pixel_over_49_rounds_like_opencv():
+    image = np.zeros((1, 7, 7), np.uint8)
+    image[0, 3, 3] = 25  # each output's mean is 25/49 (0.51): rounds to 1
+    out = composite_resize(image, image, np.empty((1, 2, 2), np.uint8), area_plan((7, 7), (2, 2)))
+    np.testing.assert_array_equal(out[0], cv2.resize(image[0], (2, 2), interpolation=cv2.INTER_AREA))
+    assert out.min() == 1
+
+
+def test_no_plan_where_opencvs_float_error_could_cross_a_rounding_boundary():
+    """At 210x160 -> 83x79 (D = 33,600) a mean of 159.49997 is 3e-5 from a half, within
+    OpenCV's float32 error: it gives 160 where exact rounding gives 159. No plan there; the
+    fallback is OpenCV itself."""
+    assert area_plan((210, 160), (83, 79)) is None
+    image = np.zeros((1, 210, 160), np.uint8)
+    image[0, 88:92, 101:104] = [[238, 47, 198], [25, 253, 2], [187, 200, 170], [233, 167, 226]]
+    reference = cv2.resize(image[0], (79, 83), interpolation=cv2.INTER_AREA)
+    assert reference[35, 50] == 160
+    np.testing.assert_array_equal(composite_and_resize(image, None, (83, 79))[0], reference)
+    assert area_plan((2000, 10), (1999, 5)) is None  # output side >= 1,000
+    plan = area_plan([210, 160], np.array([84, 84]))  # any sequence of ints
+    assert plan is area_plan((210, 160), (84, 84))
+    assert not plan.x_weights.flags.writeable  # a cached plan is shared: read-only
 
 
 @pytest.mark.parametrize("dst", [(105, 80), (210, 160), (300, 200), (100, 170)])

@@ -101,6 +101,9 @@ class DQNState(NamedTuple):
 
 
 class DQNRunner(NamedTuple):
+    """The jitted loop's carry: `DQNState`'s fields (flat, so `runner.train_state` reads as for
+    PPO's runner) and the envs'."""
+
     train_state: TrainState
     target_params: Any
     buffer: ReplayBuffer
@@ -109,6 +112,14 @@ class DQNRunner(NamedTuple):
     obs: Any
     key: jax.Array
     update: jax.Array  # updates done so far (int32)
+
+    @property
+    def learner(self) -> DQNState:
+        return DQNState(**{name: getattr(self, name) for name in DQNState._fields})
+
+    def with_learner(self, learner: DQNState, **changes) -> DQNRunner:
+        """This runner with `learner`'s fields, and `changes` to the others, by name."""
+        return self._replace(**learner._asdict(), **changes)
 
 
 class DQNParts(NamedTuple):
@@ -266,7 +277,8 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         key, key_net, key_env = jax.random.split(key, 3)
         obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
         state = parts.init(key_net, obs, config)
-        return DQNRunner(*state, env_state, obs, key, jnp.zeros((), jnp.int32))
+        return DQNRunner(**state._asdict(), env_state=env_state, obs=obs, key=key,
+                         update=jnp.zeros((), jnp.int32))
 
     def env_step(carry, t, config):
         runner, first_step = carry
@@ -277,11 +289,11 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         next_obs, env_state, reward, terminated, done, final_obs, info = step(
             jax.random.split(key_env, config.num_envs), runner.env_state, env_action, env_params
         )
-        state = parts.store(DQNState(*runner[:4]), {
+        state = parts.store(runner.learner, {
             "obs": runner.obs, "action": action, "reward": reward, "next_obs": final_obs,
             "terminated": terminated, "done": done,
         }, first_step + t, config)
-        runner = DQNRunner(*state, env_state, next_obs, key, runner.update)
+        runner = runner.with_learner(state, env_state=env_state, obs=next_obs, key=key)
         return (runner, first_step), (step_info(info, terminated), rate)
 
     def update(runner: DQNRunner, config):
@@ -291,9 +303,9 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         )
         env_steps = (first_step + config.num_steps) * config.num_envs
         key, key_learn = jax.random.split(runner.key)
-        state, losses = parts.learn(DQNState(*runner[:4]), key_learn,
+        state, losses = parts.learn(runner.learner, key_learn,
                                     env_steps >= config.learning_starts, config)
-        runner = DQNRunner(*state, *runner[4:6], key, runner.update + 1)
+        runner = runner.with_learner(state, key=key, update=runner.update + 1)
         metrics = {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
         return runner, metrics
 

@@ -1,7 +1,8 @@
 """Natural Atari: ALE games whose black background shows natural video, noise or photos.
 
-Emulated on the host by ale-py's C++ vector env, composited with numpy/OpenCV, then the standard
-Atari preprocessing (docs/environments.md section 3). Needs the `atari` extra (ale-py).
+Emulated on the host by ale-py's C++ vector env, composited and resized in one numba pass
+(bit-identical to OpenCV's INTER_AREA), then the standard Atari preprocessing
+(docs/environments.md section 3). Needs the `atari` extra (ale-py, numba).
 """
 
 from jaxnat.atari.games import AUTHORS_GAMES, GAMES, RomNotFoundError

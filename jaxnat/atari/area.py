@@ -11,16 +11,20 @@ so (after dividing out their common factor) an output pixel is `N / D` for an in
 `N = sum(wy * wx * pixel)`: `D = 5 * 40 = 200` at 210x160 -> 84x84, and `N <= 255 * 200` fits in
 uint16. The kernel computes `N` exactly, rows first (weighted sums of whole source rows, which
 vectorise), then columns (on the transposed rows, which vectorise too), and rounds `N / D` to the
-nearest integer. That is OpenCV's result except at ties (`N mod D = D/2`, ~1% of pixels of
-random images, fewer on game screens), where OpenCV's float32 arithmetic decides: there the kernel
-redoes OpenCV's float32 sums for that pixel in OpenCV's order (its `computeResizeAreaTab` weights,
-row by row, rounded half to even), which reproduces OpenCV bit for bit (tests/test_atari.py
-compares with `cv2.resize` on random, quantised and real frames).
+nearest integer. OpenCV computes the same mean in float32, off by at most `E`, a bound of its
+rounding errors (`_opencv_error_bound`). Where `N / D` is not a tie it is at least `1 / (2D)` from
+the nearest half-integer, so when `E < 1 / (2D)` both round alike. At ties (`N mod D = D/2`, ~1%
+of pixels of random images, ~2% on video frames) OpenCV's float error decides: there the kernel
+redoes OpenCV's float32 sums for that pixel in OpenCV's order (its `computeResizeAreaTab`
+weights, row by row, rounded half to even), which reproduces OpenCV bit for bit
+(tests/test_atari_area.py compares with `cv2.resize` for every plan of images up to 12x12 and on
+random, quantised and tie-heavy 210x160 images; tests/test_atari.py on real game frames).
 
-The plan applies where OpenCV takes that generic path: downscaling on both axes, not by integer
-factors on both (OpenCV's fast integer path rounds differently), `N` within uint32 and output
-sides under 1,000 (OpenCV drops overlaps under 1e-3 pixel). `area_plan` returns None otherwise and
-callers use `cv2.resize`.
+The plan applies where OpenCV takes that generic path and the argument above holds: downscaling
+on both axes, not by integer factors on both (OpenCV's fast integer path rounds differently),
+output sides under 1,000 (OpenCV drops overlaps under 1e-3 pixel), `255 D < 2^31` and
+`E < 1 / (2D)` (so `D` up to a few thousand; 84x84 from 210x160 has `2 D E` ~ 0.06). `area_plan`
+returns None otherwise and callers use `cv2.resize`.
 
 Compositing rides along: a source pixel at gray level 0 takes the background's pixel
 (jaxnat.atari.compositor explains why gray 0 is exactly the all-channels-black RGB mask). Passing
@@ -111,26 +115,41 @@ def _opencv_tab(n: int, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return source, alpha, np.array([len(row) for row in entries], np.int64)
 
 
+def _opencv_error_bound(x_taps: int, y_taps: int) -> float:
+    """A bound on |OpenCV's float32 area mean - the exact mean| for pixels <= 255 and at most
+    `x_taps` x `y_taps` source pixels an output. Recursive float32 sums of `n` rounded products
+    are within `n u` (relative, `u = 2^-24`) of the exact dot product (Higham, Accuracy and
+    Stability of Numerical Algorithms, 3.1); the float32 weights add `u`, once per axis, and the
+    rows' errors carry into the columns' sum: `255 u (x_taps + y_taps + 2)`, plus `2 u` margin
+    for second-order terms and OpenCV's double-precision weights."""
+    return 255 * 2.0**-24 * (x_taps + y_taps + 4)
+
+
+def area_plan(src_shape, dst_shape) -> AreaPlan | None:
+    """The plan for `src_shape -> dst_shape` (rows, columns), or None where the kernel would not
+    be OpenCV's result bit for bit (see the module docstring) and `cv2.resize` should run."""
+    return _area_plan(tuple(map(int, src_shape)), tuple(map(int, dst_shape)))
+
+
 @functools.lru_cache(maxsize=16)
-def area_plan(src_shape: tuple[int, int], dst_shape: tuple[int, int]) -> AreaPlan | None:
-    """The plan for `src_shape -> dst_shape` (rows, columns), or None where OpenCV does not
-    take its generic INTER_AREA path (see the module docstring) and `cv2.resize` should."""
-    (h_in, w_in), (h, w) = map(tuple, (src_shape, dst_shape))
+def _area_plan(src_shape: tuple[int, int], dst_shape: tuple[int, int]) -> AreaPlan | None:
+    (h_in, w_in), (h, w) = src_shape, dst_shape
     if not (0 < h <= h_in and 0 < w <= w_in) or max(h, w) >= _MAX_SIDE:
         return None
     if h_in % h == 0 and w_in % w == 0:
         return None  # OpenCV's integer-factor path
     y_first, y_weights, dy = _integer_taps(h_in, h)
     x_first, x_weights, dx = _integer_taps(w_in, w)
-    bound = 255 * dy * dx
-    if bound >= 2**31:
+    tabs = (*_opencv_tab(h_in, h), *_opencv_tab(w_in, w))
+    denominator = dy * dx
+    error = _opencv_error_bound(int(tabs[5].max()), int(tabs[2].max()))
+    if 255 * denominator >= 2**31 or 2 * denominator * error >= 1:
         return None
-    sum_dtype = np.uint16 if bound < 2**16 else np.uint32
-    return AreaPlan(
-        (h_in, w_in), (h, w), dy * dx, sum_dtype,
-        y_first, y_weights.astype(sum_dtype), x_first, x_weights.astype(sum_dtype),
-        *_opencv_tab(h_in, h), *_opencv_tab(w_in, w),
-    )
+    sum_dtype = np.uint16 if 255 * denominator < 2**16 else np.uint32
+    arrays = (y_first, y_weights.astype(sum_dtype), x_first, x_weights.astype(sum_dtype), *tabs)
+    for array in arrays:  # shared by every caller of the cached plan
+        array.setflags(write=False)
+    return AreaPlan((h_in, w_in), (h, w), denominator, sum_dtype, *arrays)
 
 
 def composite_resize(screens: np.ndarray, backgrounds: np.ndarray, out: np.ndarray,
@@ -147,7 +166,12 @@ def composite_resize(screens: np.ndarray, backgrounds: np.ndarray, out: np.ndarr
     if out.shape != (b, *plan.dst_shape) or out.dtype != np.uint8 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous uint8 array of shape {(b, *plan.dst_shape)}, "
                          f"got {out.dtype} {out.shape}")
-    _kernel(screens, backgrounds, out, plan.denominator, np.zeros(1, plan.sum_dtype),
+    # floor(total / denominator) as total * reciprocal, not an int division (tens of cycles, 7k
+    # times an image). Exact with the reciprocal rounded up: for total = k D + j (0 <= j < D),
+    # total * reciprocal lies in [k, k + 1) with ~2^-44 to spare (1/D rounded to nearest would
+    # put k D just below k: 49 * (1/49) < 1).
+    reciprocal = float(np.nextafter(1.0 / plan.denominator, np.inf))
+    _kernel(screens, backgrounds, out, plan.denominator, reciprocal, np.zeros(1, plan.sum_dtype),
             plan.y_first, plan.y_weights, plan.x_first, plan.x_weights,
             plan.y_tab_source, plan.y_tab_alpha, plan.y_tab_count,
             plan.x_tab_source, plan.x_tab_alpha, plan.x_tab_count)
@@ -155,8 +179,9 @@ def composite_resize(screens: np.ndarray, backgrounds: np.ndarray, out: np.ndarr
 
 
 @numba.njit(nogil=True, boundscheck=False, cache=True)
-def _kernel(screens, backgrounds, out, denominator, dtype_of_sums, y_first, y_weights, x_first,
-            x_weights, y_src, y_alpha, y_count, x_src, x_alpha, x_count):  # pragma: no cover
+def _kernel(screens, backgrounds, out, denominator, reciprocal, dtype_of_sums, y_first,
+            y_weights, x_first, x_weights, y_src, y_alpha, y_count, x_src, x_alpha,
+            x_count):  # pragma: no cover
     # Per image: composite; weighted sums of source rows (one per output row), stored
     # transposed; weighted sums of those columns; round; fix ties. Loops are written so that
     # LLVM vectorises them: inner loops run over contiguous rows with few pointers, and the
@@ -172,10 +197,6 @@ def _kernel(screens, backgrounds, out, denominator, dtype_of_sums, y_first, y_we
     half = np.int32(denominator // 2)
     denominator = np.int32(denominator)
     ties_possible = denominator % 2 == 0
-    # floor((total + half) / denominator) through a float64 reciprocal, not an int division
-    # (tens of cycles, 7k times an image): exact, as the quotient is at most 255 and at least
-    # 1/denominator > 2^-32 away from the next integer, far above float64's 2^-44 error there.
-    reciprocal = 1.0 / denominator
     composited = np.empty((n_rows, n_cols), np.uint8)
     for b in range(screens.shape[0]):
         screen = screens[b]

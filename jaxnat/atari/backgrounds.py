@@ -64,7 +64,7 @@ class NoiseBackground(NoBackground):
     def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0,
                  runner=None):
         self.buffer = np.empty((num_envs, *shape), np.uint8)
-        self._sampler = GrayNoiseSampler(np.random.default_rng(seed), scale)
+        self._sampler = GrayNoiseSampler(scale=scale)  # each env draws from its own generator
         self._runner = runner
         self._drawing = []  # futures of the draws started by advance()
         self.seed(seed)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import itertools
 import os
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 
 import numpy as np
 
@@ -56,6 +56,7 @@ class ChunkRunner:
                 alongside()
             work(*self.chunks[0])
         finally:
+            wait(futures)  # every chunk has finished before any error propagates
             for future in futures:
                 future.result()
 

@@ -1,4 +1,4 @@
-"""The background compositor and the frame preprocessing, vectorised over a batch with OpenCV.
+"""The background compositor and the frame preprocessing, vectorised over a batch (numba, OpenCV).
 
 Semantics (docs/environments.md section 3): a pixel of the max-pooled RGB frame is background
 when all three of its channels are 0; background pixels take the background frame's pixels, on
@@ -26,12 +26,12 @@ Two pooling orders (the env's `pool`):
 
 Compositing and resizing run fused in one pass (`composite_and_resize`): jaxnat.atari.area's
 numba kernel, bit-identical to OpenCV's INTER_AREA and about three times cheaper on one core
-(most of the host work per step); `cv2.resize` for sizes OpenCV treats otherwise.
+(most of the host work per step); `cv2.resize` for sizes the kernel has no plan for.
 
-A batch `[B, H, W(, C)]` is handed to OpenCV as one tall image `[B*H, W(, C)]`: every operation
-here is per pixel, and INTER_AREA resizing by the same factor keeps the images' rows apart (210
-rows become 84 exactly, so no output row mixes two images), so one call does the whole batch
-and OpenCV spreads it over its threads.
+The OpenCV calls take a batch `[B, H, W(, C)]` as one tall image `[B*H, W(, C)]`: every
+operation here is per pixel, and INTER_AREA shrinking by the same factor keeps the images' rows
+apart (210 rows become 84 exactly, so no output row mixes two images), so one call does the
+whole batch.
 """
 
 from __future__ import annotations
@@ -233,8 +233,8 @@ class GrayNoiseSampler:
     is the exact law (the tests compare both samplers with it).
     """
 
-    def __init__(self, rng: np.random.Generator, scale: float = 50.0):
-        self.rng = rng
+    def __init__(self, rng: np.random.Generator | None = None, scale: float = 50.0):
+        self.rng = rng  # the default generator of `sample`; None: every call passes its own
         cdf = np.cumsum(self.law_probabilities(float(scale)))
         u = (np.arange(65536) + 0.5) / 65536
         self._table = np.minimum(np.searchsorted(cdf, u), 255).astype(np.uint8)
@@ -265,7 +265,10 @@ class GrayNoiseSampler:
         The 16-bit uniforms are the four quarters of the bit generator's raw 64-bit words (each
         uniform and independent), twice as fast as `rng.integers`; both numpy steps release
         the GIL, so threads drawing from their own generators run in parallel."""
+        rng = self.rng if rng is None else rng
+        if rng is None:
+            raise ValueError("GrayNoiseSampler.sample needs an rng: pass one, or give the sampler one")
         size = math.prod(shape)
-        words = (self.rng if rng is None else rng).bit_generator.random_raw((size + 3) // 4)
+        words = rng.bit_generator.random_raw((size + 3) // 4)
         u = words.view(np.uint16)[:size].reshape(shape)
         return np.take(self._table, u, out=out, mode="clip")  # "clip" writes `out` directly

@@ -268,7 +268,7 @@ class NaturalAtariVecEnv:
     # -- internals ------------------------------------------------------------------------
     def _observe(self, screens: np.ndarray, new_episode: np.ndarray, final_backgrounds=None,
                  ended=None, final_screens=None, alongside=None) -> tuple[np.ndarray, np.ndarray]:
-        """This step's observations from ALE's screens `[B, ...]` (composited in place; the envs
+        """This step's observations from ALE's screens `[B, ...]` (left as they are; the envs
         `new_episode` start an episode: zeros before their frame), and the final observations:
         the envs `ended` (sorted indices, same-step autoreset) ended on `final_screens`, shown
         against `final_backgrounds` (the backgrounds they had before this step's background

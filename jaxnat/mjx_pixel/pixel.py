@@ -201,9 +201,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         cam_pos, cam_mat = self.camera.pose(data)
         frames = frame_index = None
         if self.floor == "video":
+            from jaxnat.natural import cursor_index
+
             video = params.video
             frames = video.frames
-            frame_index = jnp.asarray(video.starts)[cursor.video] + cursor.offset
+            frame_index = cursor_index(video, cursor)
 
         def floor(xy):
             return floor_rgb(self.floor, self.table, xy, frame=frames, frame_index=frame_index,

@@ -43,6 +43,7 @@ from jaxnat.natural.sampler import (
     HostVideoSampler,
     VideoCursor,
     cursor_frame,
+    cursor_index,
     cursor_reset,
     cursor_step,
 )
@@ -61,6 +62,7 @@ __all__ = [
     "cursor_reset",
     "cursor_step",
     "cursor_frame",
+    "cursor_index",
     "HostVideoSampler",
     "NOISE_SCALE",
     "gaussian_noise",

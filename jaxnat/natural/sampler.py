@@ -22,7 +22,8 @@ from flax import struct
 
 from jaxnat.natural.bank import FrameBank
 
-__all__ = ["VideoCursor", "cursor_reset", "cursor_step", "cursor_frame", "HostVideoSampler"]
+__all__ = ["VideoCursor", "cursor_reset", "cursor_step", "cursor_frame", "cursor_index",
+           "HostVideoSampler"]
 
 
 @struct.dataclass
@@ -54,9 +55,15 @@ def cursor_step(key: jax.Array, cursor: VideoCursor, bank: FrameBank) -> VideoCu
     return VideoCursor(video=video, offset=jnp.where(ended, 0, offset).astype(jnp.int32))
 
 
+def cursor_index(bank: FrameBank, cursor: VideoCursor) -> jax.Array:
+    """The bank row of the frame under the cursor (for readers that index `bank.frames`
+    themselves, as PixelMuJoCo's floor does texel by texel)."""
+    return jnp.asarray(bank.starts)[cursor.video] + cursor.offset
+
+
 def cursor_frame(bank: FrameBank, cursor: VideoCursor) -> jax.Array:
     """The frame under the cursor, uint8 [H, W, C]."""
-    return jnp.asarray(bank.frames)[jnp.asarray(bank.starts)[cursor.video] + cursor.offset]
+    return jnp.asarray(bank.frames)[cursor_index(bank, cursor)]
 
 
 class HostVideoSampler:
