@@ -269,11 +269,12 @@ def test_noise_replaces_exactly_the_black_pixels(pool):
     noisy = NaturalAtariVecEnv("Breakout", 2, background="noise", **kwargs)
     a, _ = plain.reset(seed=0)
     b, _ = noisy.reset(seed=0)
+    previous = None
     for t in range(12):
         black = a[..., 0] == 0
         np.testing.assert_array_equal(b[~black], a[~black])  # the game's pixels are kept
         assert 0.8 < (b[black] > 0).mean() < 0.9  # P(gray noise level 0) = 0.14
-        if t:
+        if previous is not None:
             assert not np.array_equal(b, previous)  # fresh noise every step
         previous = b
         actions = np.full(2, t % 4)
