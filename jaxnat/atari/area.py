@@ -17,7 +17,7 @@ the nearest half-integer, so when `E < 1 / (2D)` both round alike. At ties (`N m
 of pixels of random images, ~2% on video frames) OpenCV's float error decides: there the kernel
 redoes OpenCV's float32 sums for that pixel in OpenCV's order (its `computeResizeAreaTab`
 weights, row by row, rounded half to even), which reproduces OpenCV bit for bit
-(tests/test_atari_area.py compares with `cv2.resize` for every plan of images up to 12x12 and on
+(tests/test_atari_area.py compares with `cv2.resize` for every plan of images up to 10x10 and on
 random, quantised and tie-heavy 210x160 images; tests/test_atari.py on real game frames).
 
 The plan applies where OpenCV takes that generic path and the argument above holds: downscaling
