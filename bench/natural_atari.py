@@ -5,12 +5,12 @@ For each thread count, every contender steps `--num-envs` envs of `--game` with 
 actions (sticky actions 0.25, up to 30 no-ops at reset, frame skip 4 with max-pool, 84x84 gray,
 stack 4, no FIRE at reset, unclipped rewards); ale-py does all preprocessing in its C++ threads,
 with a background we ask it for the max-pooled 210x160 gray screen and composite, resize (one
-fused pass, jaxnat.atari.area) and stack on the host (background none: ALE resizes, we stack). Also timed at the largest thread
-count: ale-py returning that screen alone (the emulation share of our step), our env with
-`pool="rgb"` (RGB screens, the spec's literal pooling order) with the video background, and the
-video and noise backgrounds with fewer host threads (the compositing and resizing after ALE, and
-the noise draws, are split over `host_threads` chunks of envs; 1 = one whole-batch call on the
-calling thread, which OpenCV splits over its own threads).
+fused pass, jaxnat.atari.area) and stack on the host (background none: ALE resizes, we stack).
+Also timed at the largest thread count: ale-py returning that screen alone (the emulation share
+of our step), our env with `pool="rgb"` (RGB screens, the spec's literal pooling order) with the
+video background, and the video and noise backgrounds with other host-thread counts (the
+compositing and resizing after ALE, and the noise draws, are split over `host_threads` chunks of
+envs; 1 = one whole-batch call on the calling thread).
 Contenders are timed in interleaved rounds (median), so load from other processes hits them
 alike. For our env the table also splits a batched step into the wait for ALE's emulation and
 the background work done while ALE emulates (next video frames, noise draws) and the host work

@@ -48,13 +48,14 @@ class ChunkRunner:
 
     def run(self, work: Callable[[int, int], None],
             alongside: Callable[[], None] | None = None) -> None:
-        """`work` over every chunk; `alongside()`, if given, first on the calling thread while
-        the pool starts on the other chunks."""
+        """`work` over every chunk; then `alongside()`, if given, on the calling thread while the
+        pool finishes. Not before the calling thread's own chunk: `alongside` is Python that holds
+        the GIL, which the pool threads need to start their chunks; `work` releases it at once."""
         futures = [self._pool.submit(work, lo, hi) for lo, hi in self.chunks[1:]] if self._pool else []
         try:
+            work(*self.chunks[0])
             if alongside is not None:
                 alongside()
-            work(*self.chunks[0])
         finally:
             wait(futures)  # every chunk has finished before any error propagates
             for future in futures:

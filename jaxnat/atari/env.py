@@ -22,9 +22,9 @@ __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
-# Default host_threads: more chunks were slower on a 16-core host (64 envs, H100 host, video:
-# 16 chunks 0.72x ale-py, 4 chunks 0.81x, 1 chunk 0.81x; noise: 16 0.60x, 4 0.68x, 1 0.62x;
-# bench/results/natural_atari.md).
+# Default host_threads, at most: on 16-core H100 hosts (64 envs, 16 ALE threads, video, the fused
+# kernel) 1 chunk gave 0.66x ale-py, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16 0.78x
+# (bench/results/natural_atari.md).
 _DEFAULT_HOST_THREADS = 4
 
 
@@ -234,7 +234,7 @@ class NaturalAtariVecEnv:
         final_screens = ale_info["final_obs"][ended, 0] if same_step and ended.size else None
         info = {"lives": np.asarray(ale_info["lives"])}
         restarted = self._ended
-        obs, final = self._observe(  # episode bookkeeping runs beside the pool's chunks
+        obs, final = self._observe(  # episode bookkeeping overlaps the pool's chunks
             raw[:, 0], new_episode, final_backgrounds, ended, final_screens,
             alongside=lambda: self._record_episodes(reward, done, restarted, info))
         if same_step:
@@ -274,7 +274,7 @@ class NaturalAtariVecEnv:
         against `final_backgrounds` (the backgrounds they had before this step's background
         reset, None where it changed none: this step's). Returns `(obs, final)`; `final` is
         `obs` where no episode ended. `alongside()` (independent work) runs on the calling
-        thread while the pool works on its chunks."""
+        thread while the pool finishes its chunks."""
         backgrounds = self._background.frames()
         newest = self._stack.rotate()
         if ended is not None and ended.size:  # before clear_older: their older frames
@@ -291,9 +291,8 @@ class NaturalAtariVecEnv:
             self._frames(screens[lo:hi], bg, out=newest[lo:hi])
             self._stack.observation(slice(lo, hi), out=obs)
 
-        if self._ale_resizes:  # nothing to composite or resize: one copy, one merge
-            np.copyto(newest, screens)
-            self._stack.observation(out=obs)
+        if self._ale_resizes:  # nothing to composite or resize: one copy, one merge, no pool
+            rows(0, self.num_envs)
             if alongside is not None:
                 alongside()
         else:
