@@ -99,6 +99,12 @@ def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_po
                                  **SETTINGS)
         env.reset()
         envs[name + (f" (host_threads={host})" if host else "")] = env
+    if extras and "video" in backgrounds:  # the host pass before jaxnat.atari.hostpass, for the record
+        env = NaturalAtariVecEnv(game, num_envs, background="video", num_threads=threads,
+                                 seed=seed, video_sources=video_sources, **SETTINGS)
+        env._fused_plan = None  # private switch: chunks on a Python thread pool instead
+        env.reset()
+        envs["jaxnat video (Python thread-pool chunks)"] = env
     return envs
 
 

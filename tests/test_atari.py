@@ -515,11 +515,14 @@ class PerEnvReference(NaturalAtariVecEnv):
 
 @pytest.mark.parametrize("background", ["noise", "video"])
 @pytest.mark.parametrize("autoreset_mode", ["same_step", "next_step"])
-def test_whole_batch_host_work_equals_the_per_env_definition(clips, background, autoreset_mode):
+@pytest.mark.parametrize("obs_size", [84, (105, 80)])  # numba's parallel pass; the Python pool
+def test_whole_batch_host_work_equals_the_per_env_definition(clips, background, autoreset_mode,
+                                                             obs_size):
     def run(cls, host_threads):
         env = cls("Breakout", 5, background=background, split="all", video_sources=str(clips),
                   max_episode_steps=6, autoreset_mode=autoreset_mode, num_threads=2,
-                  host_threads=host_threads, seed=9)
+                  host_threads=host_threads, seed=9, obs_size=obs_size)
+        assert (env._fused_plan is not None) == (obs_size == 84)
         return _trajectory(env, 14)
 
     reference = run(PerEnvReference, 1)

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["AreaPlan", "area_plan", "composite_resize"]
+__all__ = ["AreaPlan", "area_plan", "composite_resize", "kernel_arguments"]
 
 _MAX_SIDE = 1000  # OpenCV drops overlaps under 1e-3 source pixel; 1/m stays above that
 
@@ -166,16 +166,21 @@ def composite_resize(screens: np.ndarray, backgrounds: np.ndarray, out: np.ndarr
     if out.shape != (b, *plan.dst_shape) or out.dtype != np.uint8 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous uint8 array of shape {(b, *plan.dst_shape)}, "
                          f"got {out.dtype} {out.shape}")
+    _kernel(screens, backgrounds, out, *kernel_arguments(plan))
+    return out
+
+
+def kernel_arguments(plan: AreaPlan) -> tuple:
+    """The arguments of `_kernel` after `(screens, backgrounds, out)`, from `plan`."""
     # floor(total / denominator) as total * reciprocal, not an int division (tens of cycles, 7k
     # times an image). Exact with the reciprocal rounded up: for total = k D + j (0 <= j < D),
     # total * reciprocal lies in [k, k + 1) with ~2^-44 to spare (1/D rounded to nearest would
     # put k D just below k: 49 * (1/49) < 1).
     reciprocal = float(np.nextafter(1.0 / plan.denominator, np.inf))
-    _kernel(screens, backgrounds, out, plan.denominator, reciprocal, np.zeros(1, plan.sum_dtype),
+    return (plan.denominator, reciprocal, np.zeros(1, plan.sum_dtype),
             plan.y_first, plan.y_weights, plan.x_first, plan.x_weights,
             plan.y_tab_source, plan.y_tab_alpha, plan.y_tab_count,
             plan.x_tab_source, plan.x_tab_alpha, plan.x_tab_count)
-    return out
 
 
 @numba.njit(nogil=True, boundscheck=False, cache=True)

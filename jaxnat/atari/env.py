@@ -12,19 +12,22 @@ import time
 import numpy as np
 
 from jaxnat import spaces
+from jaxnat.atari.area import area_plan
 from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
 from jaxnat.atari.chunks import ChunkRunner, default_threads
 from jaxnat.atari.compositor import FrameStack, composite_and_resize, composite_gray
 from jaxnat.atari.games import rom_id, rom_path
+from jaxnat.atari.hostpass import composite_resize_stack
 
 __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
-# Default host_threads, at most: on 16-core H100 hosts (64 envs, 16 ALE threads, video, the fused
-# kernel) 1 chunk gave 0.66x ale-py, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16 0.78x
-# (bench/results/natural_atari.md).
+# Default host_threads, at most: on 16-core H100 hosts (64 envs, 16 ALE threads, video) the
+# Python thread pool gave 0.66x ale-py with 1 chunk, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16
+# 0.78x; numba's threads (jaxnat.atari.hostpass) 0.95-0.97x with 4, 0.93-0.95x with 8, 0.86x
+# with 16 (bench/results/natural_atari.md).
 _DEFAULT_HOST_THREADS = 4
 
 
@@ -71,11 +74,14 @@ class NaturalAtariVecEnv:
 
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
-    host work after it (compositing, resizing, stacking: numba and OpenCV calls, which release
-    the GIL) is split into `host_threads` chunks of envs run in parallel, as are the noise draws
-    (0: as many as ALE's threads but at most 4, at least 4 envs a chunk; 1: one whole-batch call
-    on the calling thread). Observations do not depend on either count:
-    each env draws its noise from its own generator. `step_timings` adds up, over steps, the
+    host work after it (compositing, resizing, stacking) is split into `host_threads` chunks of
+    envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 4, at
+    least 4 envs a chunk; 1: the calling thread alone): with gray pooling at a size the exact
+    resize kernel covers (84x84 does) the whole pass is one parallel numba call on numba's own
+    threads (jaxnat.atari.hostpass, which explains their OpenMP wait policy); otherwise, and for
+    the noise draws, a pool of Python threads runs whole-chunk numba/OpenCV calls that release
+    the GIL. Observations do not depend on either count: each env draws its noise from its own
+    generator. `step_timings` adds up, over steps, the
     seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
     the emulation), on the background while ALE emulates (`ahead_s`), and in the rest of
     `step` (`host_s`).
@@ -166,6 +172,9 @@ class NaturalAtariVecEnv:
             seed=self._seed, noise_scale=noise_scale, runner=self._runner,
         )
         self._stack = FrameStack(stack)
+        # gray screens and a size the exact kernel handles (84x84 does): jaxnat.atari.hostpass
+        self._fused_plan = (area_plan(SCREEN_SHAPE, self.obs_size)
+                            if pool == "gray" and not self._ale_resizes else None)
         self.step_timings = {"steps": 0, "ale_s": 0.0, "ahead_s": 0.0, "host_s": 0.0}
         n_actions = int(self._ale.single_action_space.n)
         self.single_action_space = spaces.Discrete(n_actions)
@@ -293,10 +302,15 @@ class NaturalAtariVecEnv:
 
         if self._ale_resizes:  # nothing to composite or resize: one copy, one merge, no pool
             rows(0, self.num_envs)
-            if alongside is not None:
-                alongside()
+        elif self._fused_plan is not None:  # the whole pass in one call on numba's threads
+            composite_resize_stack(screens, screens if backgrounds is None else backgrounds,
+                                   self._stack.ring, self._stack.slots(), obs, self._fused_plan,
+                                   self._runner.threads)
         else:
             self._runner.run(rows, alongside=alongside)
+            alongside = None
+        if alongside is not None:
+            alongside()
         if ended is None or not ended.size:
             return obs, obs
         final = obs.copy()
