@@ -1,8 +1,8 @@
 """Split a batch's host work into row chunks and run them on a pool of threads.
 
 What runs in a chunk is a few whole-chunk numba/numpy/OpenCV calls that release the GIL
-(compositing and resizing a chunk of envs' screens in one numba pass, stacking them; drawing
-their noise), so chunks run in parallel; the Python between those calls is a few microseconds a
+(drawing a chunk of envs' noise; compositing, resizing and stacking their screens where
+jaxnat.atari.hostpass's single parallel numba call does not apply), so chunks run in parallel; the Python between those calls is a few microseconds a
 chunk. (Many small per-env calls in each chunk would serialise on the GIL instead: more threads,
 more host time.) A chunk of a few envs is small enough that OpenCV keeps its own calls
 single-threaded, so the pool does not stack on OpenCV's threads.

@@ -26,9 +26,10 @@ _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
 # Default host_threads, at most: on 16-core H100 hosts (64 envs, 16 ALE threads, video) the
 # Python thread pool gave 0.66x ale-py with 1 chunk, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16
-# 0.78x; numba's threads (jaxnat.atari.hostpass) 0.95-0.97x with 4, 0.93-0.95x with 8, 0.86x
-# with 16 (bench/results/natural_atari.md).
-_DEFAULT_HOST_THREADS = 4
+# 0.78x. numba's threads (jaxnat.atari.hostpass), three runs: 4 threads 0.91-0.97x with 1.05-1.46
+# ms of host work a step, 8 threads 0.93-0.95x with 0.76-1.16 ms (less in every run), 16 0.86x
+# (bench/results/natural_atari.md).
+_DEFAULT_HOST_THREADS = 8
 
 
 class NaturalAtariVecEnv:
@@ -75,7 +76,7 @@ class NaturalAtariVecEnv:
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
     host work after it (compositing, resizing, stacking) is split into `host_threads` chunks of
-    envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 4, at
+    envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 8, at
     least 4 envs a chunk; 1: the calling thread alone): with gray pooling at a size the exact
     resize kernel covers (84x84 does) the whole pass is one parallel numba call on numba's own
     threads (jaxnat.atari.hostpass, which explains their OpenMP wait policy); otherwise, and for
