@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("numba")
 
 from jaxnat.atari.area import area_plan, composite_resize
-from jaxnat.atari.hostpass import composite_resize_stack, interleave
+from jaxnat.atari.hostpass import composite_resize_stack
 
 PLAN = area_plan((210, 160), (84, 84))
 
@@ -26,20 +26,56 @@ def _inputs(rng, b, depth):
     return screens, backgrounds, ring, slots
 
 
-@pytest.mark.parametrize("depth", [1, 2, 4])
-def test_pass_equals_the_kernel_then_the_stack_for_any_thread_count(depth):
+@pytest.mark.parametrize("depth", [1, 2, 3, 4])
+def test_pass_equals_the_kernel_then_the_stack(depth):
     rng = np.random.default_rng(depth)
     screens, backgrounds, ring, slots = _inputs(rng, 7, depth)
     expected_ring = ring.copy()
     composite_resize(screens, backgrounds, expected_ring[slots[-1]], PLAN)
     expected = np.stack([expected_ring[s] for s in slots], axis=-1)
-    for threads in (1, 2, 3, 7, 64):  # uneven chunks, one env a chunk, more threads than envs
+    for threads in (1, 2, 64):  # numba's threads are capped at NUMBA_NUM_THREADS (see below)
         out_ring = ring.copy()
         obs = np.full((7, 84, 84, depth), 3, np.uint8)
         assert composite_resize_stack(screens, backgrounds, out_ring, slots, obs, PLAN,
                                       threads) is obs
         np.testing.assert_array_equal(out_ring, expected_ring)  # only the newest slot changed
         np.testing.assert_array_equal(obs, expected)
+
+
+_ANY_THREAD_COUNT = textwrap.dedent("""
+    import numba, numpy as np
+    from jaxnat.atari.area import area_plan, composite_resize
+    from jaxnat.atari.hostpass import composite_resize_stack
+    assert numba.config.NUMBA_NUM_THREADS == 8
+    plan, rng = area_plan((210, 160), (84, 84)), np.random.default_rng(0)
+    screens = rng.integers(0, 256, (7, 210, 160), dtype=np.uint8) // 2
+    backgrounds = rng.integers(0, 256, (7, 210, 160), dtype=np.uint8)
+    ring = rng.integers(0, 256, (4, 7, 84, 84), dtype=np.uint8)
+    expected_ring = ring.copy()
+    composite_resize(screens, backgrounds, expected_ring[1], plan)
+    expected = np.stack([expected_ring[s] for s in (2, 3, 0, 1)], axis=-1)
+    for threads in (1, 3, 6, 7, 8):  # uneven chunks, one env a chunk, more threads than envs
+        out_ring, obs = ring.copy(), np.zeros((7, 84, 84, 4), np.uint8)
+        composite_resize_stack(screens, backgrounds, out_ring, [2, 3, 0, 1], obs, plan, threads)
+        assert (out_ring == expected_ring).all() and (obs == expected).all(), threads
+    print("ok")
+""")
+
+
+def _run_python(code, **env_vars):
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "NUMBA_NUM_THREADS")}
+    env.update(env_vars)
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          check=True).stdout.split()
+
+
+def test_any_thread_count_gives_the_same_output():
+    assert _run_python(_ANY_THREAD_COUNT, NUMBA_NUM_THREADS="8") == ["ok"]
+
+
+def test_the_workqueue_layer_is_not_used():  # it aborts on concurrent calls (module docstring)
+    code = "from jaxnat.atari import hostpass; print(hostpass.usable())"
+    assert _run_python(code, NUMBA_THREADING_LAYER="workqueue") == ["False"]
 
 
 def test_screens_as_their_own_backgrounds_composite_nothing():
@@ -50,15 +86,6 @@ def test_screens_as_their_own_backgrounds_composite_nothing():
     expected = np.empty((3, 84, 84), np.uint8)
     composite_resize(screens, screens, expected, PLAN)
     np.testing.assert_array_equal(obs[..., -1], expected)
-
-
-@pytest.mark.parametrize("depth", [1, 3, 4])
-def test_interleave_is_a_channels_last_stack(depth):
-    ring = np.random.default_rng(1).integers(0, 256, (depth, 2, 5, 6), dtype=np.uint8)
-    slots = list(range(depth))[::-1]
-    obs = np.empty((2, 5, 6, depth), np.uint8)
-    np.testing.assert_array_equal(interleave(ring, slots, obs),
-                                  np.stack([ring[s] for s in slots], axis=-1))
 
 
 def test_bad_shapes_are_clear_errors():
@@ -99,21 +126,19 @@ _IDLE_CPU = textwrap.dedent("""
 """)
 
 
-def _idle_cpu_seconds(policy):
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    env["NUMBA_NUM_THREADS"] = "2"
-    if policy is not None:
-        env["OMP_WAIT_POLICY"] = policy
-    out = subprocess.run([sys.executable, "-c", _IDLE_CPU], env=env, capture_output=True,
-                         text=True, check=True).stdout.split()
+def _idle_cpu_seconds(policy=None):
+    out = _run_python(_IDLE_CPU, NUMBA_NUM_THREADS="2",
+                      **({} if policy is None else {"OMP_WAIT_POLICY": policy}))
     return out[0], float(out[1])
 
 
 def test_idle_threads_sleep_instead_of_spinning():
-    layer, idle = _idle_cpu_seconds(None)
+    layer, idle = _idle_cpu_seconds()
     if layer != "omp":
         pytest.skip(f"numba's threading layer is {layer!r}, not OpenMP")
-    # 6 x 30 ms asleep: spinning threads burn about that much CPU (see the control below)
+    # 6 x 30 ms asleep: a spinning thread burns up to that much CPU (see the control below)
     assert idle < 0.02, f"numba's threads used {idle:.3f} s of CPU while the caller slept"
+    if len(os.sched_getaffinity(0)) < 2:  # libgomp barely spins with more threads than CPUs
+        return
     _, spinning = _idle_cpu_seconds("ACTIVE")  # the user's own setting wins, and it spins
-    assert spinning > 0.1, spinning
+    assert spinning > max(0.03, 5 * idle), (idle, spinning)

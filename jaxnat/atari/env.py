@@ -12,24 +12,24 @@ import time
 import numpy as np
 
 from jaxnat import spaces
+from jaxnat.atari import hostpass
 from jaxnat.atari.area import area_plan
 from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
 from jaxnat.atari.chunks import ChunkRunner, default_threads
 from jaxnat.atari.compositor import FrameStack, composite_and_resize, composite_gray
 from jaxnat.atari.games import rom_id, rom_path
-from jaxnat.atari.hostpass import composite_resize_stack
 
 __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
-# Default host_threads, at most: on 16-core H100 hosts (64 envs, 16 ALE threads, video) the
-# Python thread pool gave 0.66x ale-py with 1 chunk, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16
-# 0.78x. numba's threads (jaxnat.atari.hostpass), three runs: 4 threads 0.91-0.97x with 1.05-1.46
-# ms of host work a step, 8 threads 0.93-0.95x with 0.76-1.16 ms (less in every run), 16 0.86x
-# (bench/results/natural_atari.md).
-_DEFAULT_HOST_THREADS = 8
+# Default host_threads, at most, on 16-core H100 hosts (64 envs, 16 ALE threads, video;
+# bench/results/natural_atari.md). numba's parallel pass (jaxnat.atari.hostpass), three runs:
+# 4 threads 0.91-0.97x ale-py with 1.05-1.46 ms of host work a step, 8 threads 0.93-0.95x with
+# 0.76-1.16 ms (less in every run), 16 threads 0.86x. The Python thread pool (other sizes,
+# pool="rgb"): 1 chunk 0.66x, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16 0.78x.
+_DEFAULT_HOST_THREADS = {"numba": 8, "pool": 4}
 
 
 class NaturalAtariVecEnv:
@@ -76,8 +76,8 @@ class NaturalAtariVecEnv:
     Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
     host work after it (compositing, resizing, stacking) is split into `host_threads` chunks of
-    envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 8, at
-    least 4 envs a chunk; 1: the calling thread alone): with gray pooling at a size the exact
+    envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 8 on
+    numba's threads, 4 on the Python pool, at least 4 envs a chunk; 1: the calling thread alone): with gray pooling at a size the exact
     resize kernel covers (84x84 does) the whole pass is one parallel numba call on numba's own
     threads (jaxnat.atari.hostpass, which explains their OpenMP wait policy); otherwise, and for
     the noise draws, a pool of Python threads runs whole-chunk numba/OpenCV calls that release
@@ -164,18 +164,19 @@ class NaturalAtariVecEnv:
             num_threads=int(num_threads),
             autoreset_mode=_AUTORESET_MODES[autoreset_mode],
         )
+        # gray screens at a size the exact kernel handles (84x84 does): jaxnat.atari.hostpass
+        self._fused_plan = (area_plan(SCREEN_SHAPE, self.obs_size)
+                            if pool == "gray" and not self._ale_resizes and hostpass.usable()
+                            else None)
         ale_threads = int(num_threads) or default_threads(self.num_envs)
-        chunks = int(host_threads) or min(ale_threads, _DEFAULT_HOST_THREADS,
-                                          self.num_envs // _ENVS_PER_HOST_CHUNK)
+        most = _DEFAULT_HOST_THREADS["numba" if self._fused_plan is not None else "pool"]
+        chunks = int(host_threads) or min(ale_threads, most, self.num_envs // _ENVS_PER_HOST_CHUNK)
         self._runner = ChunkRunner(self.num_envs, max(1, chunks))
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
             seed=self._seed, noise_scale=noise_scale, runner=self._runner,
         )
         self._stack = FrameStack(stack)
-        # gray screens and a size the exact kernel handles (84x84 does): jaxnat.atari.hostpass
-        self._fused_plan = (area_plan(SCREEN_SHAPE, self.obs_size)
-                            if pool == "gray" and not self._ale_resizes else None)
         self.step_timings = {"steps": 0, "ale_s": 0.0, "ahead_s": 0.0, "host_s": 0.0}
         n_actions = int(self._ale.single_action_space.n)
         self.single_action_space = spaces.Discrete(n_actions)
@@ -244,7 +245,7 @@ class NaturalAtariVecEnv:
         final_screens = ale_info["final_obs"][ended, 0] if same_step and ended.size else None
         info = {"lives": np.asarray(ale_info["lives"])}
         restarted = self._ended
-        obs, final = self._observe(  # episode bookkeeping overlaps the pool's chunks
+        obs, final = self._observe(  # the bookkeeping overlaps the Python pool's chunks, if used
             raw[:, 0], new_episode, final_backgrounds, ended, final_screens,
             alongside=lambda: self._record_episodes(reward, done, restarted, info))
         if same_step:
@@ -284,7 +285,7 @@ class NaturalAtariVecEnv:
         against `final_backgrounds` (the backgrounds they had before this step's background
         reset, None where it changed none: this step's). Returns `(obs, final)`; `final` is
         `obs` where no episode ended. `alongside()` (independent work) runs on the calling
-        thread while the pool finishes its chunks."""
+        thread while the Python pool finishes its chunks, or after numba's pass."""
         backgrounds = self._background.frames()
         newest = self._stack.rotate()
         if ended is not None and ended.size:  # before clear_older: their older frames
@@ -304,9 +305,9 @@ class NaturalAtariVecEnv:
         if self._ale_resizes:  # nothing to composite or resize: one copy, one merge, no pool
             rows(0, self.num_envs)
         elif self._fused_plan is not None:  # the whole pass in one call on numba's threads
-            composite_resize_stack(screens, screens if backgrounds is None else backgrounds,
-                                   self._stack.ring, self._stack.slots(), obs, self._fused_plan,
-                                   self._runner.threads)
+            hostpass.composite_resize_stack(
+                screens, screens if backgrounds is None else backgrounds, self._stack.ring,
+                self._stack.slots(), obs, self._fused_plan, self._runner.threads)
         else:
             self._runner.run(rows, alongside=alongside)
             alongside = None

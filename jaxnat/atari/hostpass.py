@@ -1,12 +1,13 @@
 """Natural Atari's host work after ALE, as one parallel numba call: composite each env's gray
 screen over its background, shrink it with jaxnat.atari.area's exact INTER_AREA kernel into the
-frame stack's newest slot, and interleave the stack into the channels-last observation.
+frame stack's newest slot, and interleave the stack into the channels-last observation
+(`composite_resize_stack`; the numba code is `jaxnat.atari.area.parallel_pass`).
 
-Why one numba call and not a pool of Python threads: at 16 ALE threads on a 16-core host the
-kernel's ~0.5 ms of work a step took ~1 ms split over four Python pool threads
-(jaxnat.atari.chunks), most of it waking the threads and passing the GIL between them and the
-caller (an empty four-chunk round trip costs ~0.1 ms on an idle 2-core machine). numba's own
-threads (`parallel=True`) need no GIL: the same empty round trip takes ~5 us.
+Why one numba call and not a pool of Python threads: at 16 ALE threads on a 16-core host (64
+envs) the kernel's ~0.5 ms of work a chunk took ~1.3 ms a step split over four Python pool
+threads (jaxnat.atari.chunks), much of it waking the threads and passing the GIL between them
+and the caller (an empty four-chunk round trip costs ~0.1 ms on an idle 2-core machine).
+numba's own threads (`parallel=True`) need no GIL: the same empty round trip takes ~5 us.
 
 `threads` sets how many of numba's threads the call uses (`numba.set_num_threads`, which only
 affects the calling thread, restored afterwards); envs are split into that many contiguous
@@ -20,19 +21,34 @@ host, 8 spinning threads cut the env's throughput from 0.95x to 0.71x of ale-py'
 so the first pass starts numba's threads with `OMP_WAIT_POLICY=PASSIVE` set for that moment only
 (unless you set it yourself; the process's environment is restored at once, so libraries that
 load their own OpenMP later are not affected). If libgomp was already loaded by then, its policy
-stays as it was.
+stays as it was; `GOMP_SPINCOUNT`, if set, overrides the policy.
+
+`usable()` says whether the pass may be used: not on numba's `workqueue` layer (chosen when
+neither OpenMP nor TBB is available), which aborts the process when two threads call parallel
+code at once (two envs stepped from two threads) and measured slower than the Python pool.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 
 import numba
 import numpy as np
 
-from jaxnat.atari.area import AreaPlan, _kernel, kernel_arguments
+from jaxnat.atari.area import AreaPlan, kernel_arguments, parallel_pass
 
-__all__ = ["composite_resize_stack", "interleave"]
+__all__ = ["composite_resize_stack", "usable"]
+
+_start_lock = threading.Lock()
+_threads_started = False
+
+
+def usable() -> bool:
+    """Whether numba's threading layer suits the pass (not `workqueue`, see the module
+    docstring). Starts numba's threads (with OpenMP's passive wait policy) if needed."""
+    _start_threads()
+    return numba.threading_layer() != "workqueue"
 
 
 def composite_resize_stack(screens: np.ndarray, backgrounds: np.ndarray, ring: np.ndarray,
@@ -61,73 +77,25 @@ def composite_resize_stack(screens: np.ndarray, backgrounds: np.ndarray, ring: n
     previous = numba.get_num_threads()
     numba.set_num_threads(chunks)
     try:
-        _pass(screens, backgrounds, ring, np.asarray(slots, np.int64), obs, chunks,
-              *kernel_arguments(plan))
+        parallel_pass(screens, backgrounds, ring, np.asarray(slots, np.int64), obs, chunks,
+                      *kernel_arguments(plan))
     finally:
         numba.set_num_threads(previous)
     return obs
 
 
-_threads_started = False
-
-
 def _start_threads() -> None:
     """Start numba's threads (once) with OpenMP's passive wait policy: see the module docstring."""
     global _threads_started
-    if _threads_started:
-        return
-    ours = "OMP_WAIT_POLICY" not in os.environ
-    if ours:
-        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
-    try:
-        numba.get_num_threads()  # launches the threading layer, which loads libgomp
-    finally:
+    with _start_lock:
+        if _threads_started:
+            return
+        ours = "OMP_WAIT_POLICY" not in os.environ
         if ours:
-            del os.environ["OMP_WAIT_POLICY"]
-    _threads_started = True
-
-
-@numba.njit(parallel=True, nogil=True, boundscheck=False, cache=True)
-def _pass(screens, backgrounds, ring, slots, obs, chunks, denominator, reciprocal, dtype_of_sums,
-          y_first, y_weights, x_first, x_weights, y_src, y_alpha, y_count, x_src, x_alpha,
-          x_count):  # pragma: no cover
-    b = screens.shape[0]
-    newest = ring[slots[slots.shape[0] - 1]]
-    for chunk in numba.prange(chunks):
-        lo, hi = chunk * b // chunks, (chunk + 1) * b // chunks
-        _kernel(screens[lo:hi], backgrounds[lo:hi], newest[lo:hi], denominator, reciprocal,
-                dtype_of_sums, y_first, y_weights, x_first, x_weights, y_src, y_alpha, y_count,
-                x_src, x_alpha, x_count)
-        _interleave(ring, slots, lo, hi, obs)
-
-
-def interleave(ring: np.ndarray, slots: list[int], obs: np.ndarray) -> np.ndarray:
-    """`obs[i, :, :, k] = ring[slots[k], i]` for every env (the frame stack's channels-last
-    observation, oldest first), single-threaded. Returns `obs`."""
-    _interleave(ring, np.asarray(slots, np.int64), 0, ring.shape[1], obs)
-    return obs
-
-
-@numba.njit(nogil=True, boundscheck=False, cache=True)
-def _interleave(ring, slots, lo, hi, obs):  # pragma: no cover
-    # Writes whole output rows; with 4 frames the four sources are named so that LLVM
-    # vectorises the interleave (~1 us an env, as fast as cv2.merge; a loop over frames inside
-    # the pixel loop is eight times slower).
-    depth, h, w = slots.shape[0], ring.shape[2], ring.shape[3]
-    rows = obs.reshape(obs.shape[0], h, w * depth)
-    for i in range(lo, hi):
-        for r in range(h):
-            out = rows[i, r]
-            if depth == 4:
-                a, b, c, d = (ring[slots[0], i, r], ring[slots[1], i, r], ring[slots[2], i, r],
-                              ring[slots[3], i, r])
-                for x in range(w):
-                    out[4 * x] = a[x]
-                    out[4 * x + 1] = b[x]
-                    out[4 * x + 2] = c[x]
-                    out[4 * x + 3] = d[x]
-            else:
-                for k in range(depth):
-                    source = ring[slots[k], i, r]
-                    for x in range(w):
-                        out[depth * x + k] = source[x]
+            os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+        try:
+            numba.get_num_threads()  # launches the threading layer, which loads libgomp
+        finally:
+            if ours:
+                del os.environ["OMP_WAIT_POLICY"]
+        _threads_started = True
