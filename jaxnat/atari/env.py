@@ -25,8 +25,8 @@ SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
 # Default host_threads, at most, on 16-core H100 hosts (64 envs, 16 ALE threads, video;
-# bench/results/natural_atari.md). numba's parallel pass (jaxnat.atari.hostpass), three runs:
-# 4 threads 0.91-0.97x ale-py with 1.05-1.46 ms of host work a step, 8 threads 0.93-0.95x with
+# bench/results/natural_atari.md). numba's parallel pass (jaxnat.atari.hostpass), four runs:
+# 4 threads 0.91-0.97x ale-py with 1.05-1.46 ms of host work a step, 8 threads 0.92-0.95x with
 # 0.76-1.16 ms (less in every run), 16 threads 0.86x. The Python thread pool (other sizes,
 # pool="rgb"): 1 chunk 0.66x, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16 0.78x.
 _DEFAULT_HOST_THREADS = {"numba": 8, "pool": 4}
