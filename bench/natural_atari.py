@@ -8,9 +8,11 @@ with a background we ask it for the max-pooled 210x160 gray screen and composite
 fused pass, jaxnat.atari.area) and stack on the host (background none: ALE resizes, we stack).
 Also timed at the largest thread count: ale-py returning that screen alone (the emulation share
 of our step), our env with `pool="rgb"` (RGB screens, the spec's literal pooling order) with the
-video background, and the video and noise backgrounds with other host-thread counts (the
-compositing and resizing after ALE, and the noise draws, are split over `host_threads` chunks of
-envs; 1 = one whole-batch call on the calling thread).
+video background, the video and noise backgrounds with other host-thread counts (the
+compositing, resizing and stacking after ALE, and the noise draws, are split over `host_threads`
+chunks of envs; 1 = the calling thread alone), and the video background with that host pass on
+the Python thread pool that jaxnat.atari.hostpass's single numba call replaced (with the
+default's chunk count).
 Contenders are timed in interleaved rounds (median), so load from other processes hits them
 alike. For our env the table also splits a batched step into the wait for ALE's emulation and
 the background work done while ALE emulates (next video frames, noise draws) and the host work
@@ -99,7 +101,7 @@ def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_po
                                  **SETTINGS)
         env.reset()
         envs[name + (f" (host_threads={host})" if host else "")] = env
-    if extras and "video" in backgrounds:  # the host pass before jaxnat.atari.hostpass, for the record
+    if extras and "video" in backgrounds:  # the host pass before jaxnat.atari.hostpass, to compare
         env = NaturalAtariVecEnv(game, num_envs, background="video", num_threads=threads,
                                  seed=seed, video_sources=video_sources, **SETTINGS)
         env._fused_plan = None  # private switch: chunks on a Python thread pool instead
