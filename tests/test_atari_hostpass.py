@@ -73,6 +73,26 @@ def test_any_thread_count_gives_the_same_output():
     assert _run_python(_ANY_THREAD_COUNT, NUMBA_NUM_THREADS="8") == ["ok"]
 
 
+_FORK = textwrap.dedent("""
+    import os, numba
+    from jaxnat.atari import hostpass
+    print(hostpass.usable(), numba.threading_layer())
+    pid = os.fork()
+    if pid == 0:  # numba would terminate this child at a parallel call on GNU OpenMP
+        print(hostpass.usable(), flush=True)
+        os._exit(0)
+    os.waitpid(pid, 0)
+    print(hostpass.usable())
+""")
+
+
+def test_a_process_forked_after_openmp_started_does_not_use_the_pass():
+    parent, layer, child, parent_again = _run_python(_FORK)
+    if layer != "omp":
+        pytest.skip(f"numba's threading layer is {layer!r}, not OpenMP")
+    assert (parent, child, parent_again) == ("True", "False", "True")
+
+
 def test_the_workqueue_layer_is_not_used():  # it aborts on concurrent calls (module docstring)
     code = "from jaxnat.atari import hostpass; print(hostpass.usable())"
     assert _run_python(code, NUMBA_THREADING_LAYER="workqueue") == ["False"]

@@ -25,7 +25,11 @@ stays as it was; `GOMP_SPINCOUNT`, if set, overrides the policy.
 
 `usable()` says whether the pass may be used: not on numba's `workqueue` layer (chosen when
 neither OpenMP nor TBB is available), which aborts the process when two threads call parallel
-code at once (two envs stepped from two threads) and measured slower than the Python pool.
+code at once (two envs stepped from two threads) and measured slower than the Python pool; and
+not in a process forked after numba's OpenMP threads started (GNU OpenMP is not fork-safe:
+numba terminates such a child at its first parallel call), where envs made in the child use
+the Python pool instead. An env made before a fork cannot be stepped in the child either way
+(ale-py's emulation threads do not survive a fork).
 """
 
 from __future__ import annotations
@@ -42,11 +46,15 @@ __all__ = ["composite_resize_stack", "usable"]
 
 _start_lock = threading.Lock()
 _threads_started = False
+_started_in_pid: int | None = None
 
 
 def usable() -> bool:
-    """Whether numba's threading layer suits the pass (not `workqueue`, see the module
-    docstring). Starts numba's threads (with OpenMP's passive wait policy) if needed."""
+    """Whether the pass may run in this process (see the module docstring): numba's threading
+    layer is not `workqueue`, and this is not a process forked after GNU OpenMP's threads
+    started. Starts numba's threads (with OpenMP's passive wait policy) if needed."""
+    if _started_in_pid not in (None, os.getpid()) and numba.threading_layer() == "omp":
+        return False
     _start_threads()
     return numba.threading_layer() != "workqueue"
 
@@ -86,7 +94,7 @@ def composite_resize_stack(screens: np.ndarray, backgrounds: np.ndarray, ring: n
 
 def _start_threads() -> None:
     """Start numba's threads (once) with OpenMP's passive wait policy: see the module docstring."""
-    global _threads_started
+    global _threads_started, _started_in_pid
     with _start_lock:
         if _threads_started:
             return
@@ -99,3 +107,4 @@ def _start_threads() -> None:
             if ours:
                 del os.environ["OMP_WAIT_POLICY"]
         _threads_started = True
+        _started_in_pid = os.getpid()
