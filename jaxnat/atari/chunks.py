@@ -2,10 +2,11 @@
 
 What runs in a chunk is a few whole-chunk numba/numpy/OpenCV calls that release the GIL
 (drawing a chunk of envs' noise; compositing, resizing and stacking their screens where
-jaxnat.atari.hostpass's single parallel numba call does not apply), so chunks run in parallel; the Python between those calls is a few microseconds a
-chunk. (Many small per-env calls in each chunk would serialise on the GIL instead: more threads,
-more host time.) A chunk of a few envs is small enough that OpenCV keeps its own calls
-single-threaded, so the pool does not stack on OpenCV's threads.
+jaxnat.atari.hostpass's single parallel numba call does not apply), so chunks run in parallel;
+the Python between those calls is a few microseconds a chunk. (Many small per-env calls in
+each chunk would serialise on the GIL instead: more threads, more host time.) A chunk of a few
+envs is small enough that OpenCV keeps its own calls single-threaded, so the pool does not stack
+on OpenCV's threads.
 """
 
 from __future__ import annotations

@@ -77,15 +77,15 @@ class NaturalAtariVecEnv:
     ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
     host work after it (compositing, resizing, stacking) is split into `host_threads` chunks of
     envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 8 on
-    numba's threads, 4 on the Python pool, at least 4 envs a chunk; 1: the calling thread alone): with gray pooling at a size the exact
-    resize kernel covers (84x84 does) the whole pass is one parallel numba call on numba's own
-    threads (jaxnat.atari.hostpass, which explains their OpenMP wait policy); otherwise, and for
-    the noise draws, a pool of Python threads runs whole-chunk numba/OpenCV calls that release
-    the GIL. Observations do not depend on either count: each env draws its noise from its own
-    generator. `step_timings` adds up, over steps, the
-    seconds spent in ALE's send and recv (`ale_s`: handing over the actions, then waiting for
-    the emulation), on the background while ALE emulates (`ahead_s`), and in the rest of
-    `step` (`host_s`).
+    numba's threads, 4 on the Python pool, at least 4 envs a chunk; 1: the calling thread
+    alone). With gray pooling at a size the exact resize kernel covers (84x84 does) the whole
+    pass is one parallel numba call on numba's own threads (jaxnat.atari.hostpass, which
+    explains their OpenMP wait policy); otherwise, and for the noise draws, a pool of Python
+    threads runs whole-chunk numba/OpenCV calls that release the GIL. Observations do not
+    depend on either count: each env draws its noise from its own generator. `step_timings`
+    adds up, over steps, the seconds spent in ALE's send and recv (`ale_s`: handing over the
+    actions, then waiting for the emulation), on the background while ALE emulates
+    (`ahead_s`), and in the rest of `step` (`host_s`).
     """
 
     def __init__(

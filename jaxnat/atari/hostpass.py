@@ -45,8 +45,7 @@ from jaxnat.atari.area import AreaPlan, kernel_arguments, parallel_pass
 __all__ = ["composite_resize_stack", "usable"]
 
 _start_lock = threading.Lock()
-_threads_started = False
-_started_in_pid: int | None = None
+_started_in_pid: int | None = None  # the process that started numba's threads; None: not yet
 
 
 def usable() -> bool:
@@ -94,9 +93,9 @@ def composite_resize_stack(screens: np.ndarray, backgrounds: np.ndarray, ring: n
 
 def _start_threads() -> None:
     """Start numba's threads (once) with OpenMP's passive wait policy: see the module docstring."""
-    global _threads_started, _started_in_pid
+    global _started_in_pid
     with _start_lock:
-        if _threads_started:
+        if _started_in_pid is not None:  # in this process, or inherited across a fork
             return
         ours = "OMP_WAIT_POLICY" not in os.environ
         if ours:
@@ -106,5 +105,4 @@ def _start_threads() -> None:
         finally:
             if ours:
                 del os.environ["OMP_WAIT_POLICY"]
-        _threads_started = True
         _started_in_pid = os.getpid()
