@@ -6,6 +6,7 @@ compiles about 3x faster on CPU; compiled programs are reused within the process
 interrupted and resumed runs of the resume test do not compile again.
 """
 
+import collections
 import json
 
 import jax
@@ -104,6 +105,22 @@ def test_run_and_exact_resume(tmp_path, capsys):
     strip = lambda rows: [{k: v for k, v in r.items() if k not in timing} for r in rows]  # noqa: E731
     assert strip(_lines(resumed / "eval.jsonl")) == strip(_lines(full / "eval.jsonl"))
 
+    # A checkpoint written before RunnerState had its `memory` field (None for a feed-forward
+    # policy) restores into today's runner.
+    fields = [name for name in expected._fields if name != "memory"]
+    OldRunnerState = collections.namedtuple("RunnerState", fields)
+    old = checkpoints.Checkpoints(tmp_path / "old")
+    old.manager.save(4, args=old.ocp.args.Composite(
+        state=old.ocp.args.StandardSave(checkpoints.to_saveable(OldRunnerState(*(getattr(expected, f) for f in fields)))),
+        meta=old.ocp.args.JsonSave({"update": 4})))
+    old.manager.wait_until_finished()
+    restored, _ = old.restore(expected)
+    old.close()
+    assert restored.memory is None
+    for a, b in zip(jax.tree.leaves(checkpoints.to_saveable(expected)),
+                    jax.tree.leaves(checkpoints.to_saveable(restored)), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
     # Arguments that contradict the run's config are refused.
     capsys.readouterr()
     assert train.main(["--resume", str(full), "--lr", "0.1"], compiler_options=FAST) == 2
@@ -157,3 +174,19 @@ def test_cli_dispatch(capsys):
     assert exit_.value.code == 0
     out = capsys.readouterr().out
     assert "--env-id" in out and "--resume" in out and "--clip-eps" in out
+
+
+@needs_digits
+def test_recurrent_run_resumes_exactly(tmp_path):
+    """A recurrent policy's memory (GRU state, previous action and reward per env) is part of
+    the checkpoint: the resumed run ends bit-for-bit where the uninterrupted one does."""
+    argv = [*TINY, "--memory", "8", "--num-minibatches", "2"]
+    full, resumed = tmp_path / "full", tmp_path / "resumed"
+    assert train.main([*argv, "--run-dir", str(full)], compiler_options=FAST) == 0
+    assert train.main([*argv, "--run-dir", str(resumed)], compiler_options=FAST, stop_after_chunks=1) == 0
+    assert train.main(["--resume", str(resumed)], compiler_options=FAST) == 0
+    (expected, _), (actual, _) = (train.load_checkpoint(d, compiler_options=FAST) for d in (full, resumed))
+    assert len(jax.tree.leaves(expected.memory)) == 4
+    for a, b in zip(jax.tree.leaves(checkpoints.to_saveable(expected)),
+                    jax.tree.leaves(checkpoints.to_saveable(actual)), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

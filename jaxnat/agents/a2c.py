@@ -12,7 +12,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, static
+from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, replay, static
 
 __all__ = ["A2CConfig", "make_train", "make_a2c"]
 
@@ -23,6 +23,7 @@ class A2CConfig:
     num_steps: int = static(5)
     trunk: str | None = static(None)
     dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
+    memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
     lr: float = 7e-4
     rms_eps: float = 1e-5
     rms_alpha: float = 0.99
@@ -41,7 +42,7 @@ def _optimizer(config: A2CConfig, num_updates: int):
 
 def _update(config: A2CConfig, network, train_state, transitions, advantages, targets, key):
     def loss_fn(params):
-        logits, value = network.apply(params, transitions.obs)
+        logits, value = replay(network, params, transitions.obs, transitions.memory)
         log_prob = distributions.log_prob(logits, transitions.action)
         policy_loss = -(jax.lax.stop_gradient(advantages) * log_prob).mean()
         value_loss = 0.5 * ((targets - value) ** 2).mean()

@@ -14,15 +14,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxnat import spaces
 from jaxnat.agents import distributions
+from jaxnat.agents.networks import Memory, initial_memory
+from jaxnat.agents.on_policy import act
 
 
 def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps: int | None = None):
     """`evaluate(network_params, key) -> dict of scalars`; pure and jittable."""
     if max_steps is None:
         max_steps = int(env_params.max_steps_in_episode)
-    scalar_action = isinstance(env.action_space(env_params), spaces.Discrete)
+    scalar_action = not hasattr(env.action_space(env_params), "nvec")  # Discrete (jaxnat's or gymnax's)
     reset = jax.vmap(env.reset, in_axes=(0, None))
     step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
@@ -33,9 +34,9 @@ def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps:
         running = jnp.ones(num_episodes, bool)
 
         def body(carry, key):
-            obs, state, running, total, length, terminated_any = carry
+            obs, state, running, total, length, terminated_any, memory = carry
             key_act, key_env = jax.random.split(key)
-            logits, _ = network.apply(network_params, obs)
+            logits, _, hidden = act(network, network_params, obs, memory)
             action = distributions.mode(logits) if greedy else distributions.sample(key_act, logits)
             action = action[..., 0] if scalar_action else action
             obs, state, reward, terminated, truncated, _ = step(
@@ -45,10 +46,14 @@ def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps:
             length = length + running
             terminated_any = terminated_any | (running & terminated)
             running = running & ~(terminated | truncated)
-            return (obs, state, running, total, length, terminated_any), None
+            if memory is not None:  # the first episode is all that counts: no reset to mark
+                memory = Memory(hidden, action[..., None] if scalar_action else action, reward.astype(jnp.float32),
+                                jnp.zeros_like(running))
+            return (obs, state, running, total, length, terminated_any, memory), None
 
-        carry = (obs, state, running, zeros, zeros, jnp.zeros(num_episodes, bool))
-        (_, _, running, total, length, terminated), _ = jax.lax.scan(
+        memory = initial_memory(network, num_episodes) if getattr(network, "memory", 0) else None
+        carry = (obs, state, running, zeros, zeros, jnp.zeros(num_episodes, bool), memory)
+        (_, _, running, total, length, terminated, _), _ = jax.lax.scan(
             body, carry, jax.random.split(key_steps, max_steps)
         )
         return {"return": total.mean(), "terminated_fraction": terminated.mean(),

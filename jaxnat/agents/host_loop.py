@@ -78,6 +78,9 @@ def _check(config, env) -> int:
     """The run's update count; `config.num_envs` must equal `env.num_envs`."""
     if config.num_envs != env.num_envs:
         raise ValueError(f"config.num_envs={config.num_envs} but the env has {env.num_envs} envs")
+    if getattr(config, "memory", 0):
+        raise ValueError(f"memory={config.memory}: recurrent policies train on jitted envs only; a host-batched env "
+                         "(Natural Atari) takes a feed-forward policy (memory=0) and frame stacking")
     return count_updates(config)
 
 

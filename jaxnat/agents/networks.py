@@ -18,6 +18,8 @@ layer on a GPU's bf16 tensor cores; the heads (logits, value) always compute in 
 log-probabilities and value targets keep full precision. Dict observations (`{"pixels", "goal"}`)
 embed the integer goal and concatenate it to the trunk's features. Heads: one categorical per
 action factor (e.g. move and label) and a scalar value, on the shared trunk, as the authors did.
+With `memory > 0` a GRU over the trunk's features (and the previous action and reward) makes
+the policy recurrent; the heads read features and GRU output side by side (`ActorCritic`).
 The ResNet uses GroupNorm rather than BatchNorm: running batch statistics are mutable state that
 does not fit a pure, vmapped on-policy learner.
 """
@@ -25,7 +27,7 @@ does not fit a pure, vmapped on-policy learner.
 from __future__ import annotations
 
 import functools
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import flax.linen as nn
 import jax
@@ -35,8 +37,8 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.agents.conv import conv2d, im2col_patches
 
-__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "make_actor_critic", "default_trunk", "action_dims", "init_params",
-           "im2col_patches"]
+__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "Memory", "initial_memory", "make_actor_critic", "default_trunk",
+           "action_dims", "init_params", "im2col_patches"]
 
 # (features, kernel, stride) per conv layer.
 _PAPER_CNNS = {
@@ -127,16 +129,81 @@ class MLP(nn.Module):
         return x
 
 
+class Memory(NamedTuple):
+    """What a recurrent policy reads beside the observation, per env (leading axes `[T, B]` in
+    a call on a sequence, except `hidden`, which is the state before its first step, `[B, H]`).
+
+    `prev_action` and `prev_reward` are those of the env's previous step: a policy that cannot
+    see what it did cannot remember it (a classification agent must know which labels it has
+    already been told were wrong). At an episode's first step (`start`) all three are zeroed.
+    """
+
+    hidden: jax.Array  # [B, H] float32: the GRU state
+    prev_action: jax.Array  # int32 [..., F]
+    prev_reward: jax.Array  # float32 [...]
+    start: jax.Array  # bool [...]: the first step of an episode
+
+
+def initial_memory(network: ActorCritic, batch: int) -> Memory:
+    """The memory of `batch` envs before their first step (`network.memory > 0`)."""
+    return Memory(hidden=jnp.zeros((batch, network.memory), jnp.float32),
+                  prev_action=jnp.zeros((batch, len(network.action_dims)), jnp.int32),
+                  prev_reward=jnp.zeros((batch,), jnp.float32),
+                  start=jnp.ones((batch,), bool))
+
+
+class _ResettingGRU(nn.Module):
+    """One GRU step whose state is zeroed first where an episode starts (scanned over time)."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, hidden, inputs):
+        x, start = inputs
+        hidden = jnp.where(start[:, None], 0.0, hidden)
+        return nn.GRUCell(self.features)(hidden, x)
+
+
 class ActorCritic(nn.Module):
-    """`(obs) -> (tuple of logits, one per action factor; value)` on a shared trunk."""
+    """`(obs) -> (tuple of logits, one per action factor; value)` on a shared trunk.
+
+    With `memory > 0` (a GRU of that size) the call is `(obs, Memory) -> (logits, value,
+    hidden)` over a sequence: `obs` `[T, B, ...]`, the memory's per-step fields `[T, B, ...]`
+    and its `hidden` `[B, H]`; outputs are `[T, B, ...]` and the state after the last step.
+    The trunk runs on all `T * B` observations at once; only the GRU steps through time. Its
+    input is the trunk's features with the previous action (one-hot per factor) and reward;
+    the heads read the features and the GRU's output side by side.
+    """
 
     action_dims: Sequence[int]
     trunk: str = "mnist"
     num_goals: int = 0  # > 0 for dict observations with an integer "goal"
     dtype: str = "float32"  # the trunk's computation dtype (see the module docstring)
+    memory: int = 0  # GRU state size; 0: feed-forward (the paper's agents)
 
     @nn.compact
-    def __call__(self, obs):
+    def __call__(self, obs, memory: Memory | None = None):
+        if self.memory:
+            if memory is None:
+                raise ValueError("a recurrent network (memory > 0) is called as (obs, Memory)")
+            time_batch = memory.start.shape
+            obs = jax.tree_util.tree_map(lambda x: x.reshape(-1, *x.shape[len(time_batch):]), obs)
+        features = self._features(obs)
+        if self.memory:
+            features = features.reshape(*time_batch, -1)
+            keep = ~memory.start[..., None]
+            previous = [jax.nn.one_hot(memory.prev_action[..., i], n) * keep for i, n in enumerate(self.action_dims)]
+            x = jnp.concatenate([features, *previous, (memory.prev_reward[..., None] * keep)], axis=-1)
+            gru = nn.scan(_ResettingGRU, variable_broadcast="params", split_rngs={"params": False})
+            hidden, outputs = gru(self.memory, name="memory")(memory.hidden, (x, memory.start))
+            features = jnp.concatenate([features, outputs], axis=-1)
+        logits = tuple(_dense(n, 0.01)(features) for n in self.action_dims)
+        value = _dense(1, 1.0)(features)[..., 0]
+        if self.memory:
+            return logits, value, hidden
+        return logits, value
+
+    def _features(self, obs):
         pixels = obs["pixels"] if isinstance(obs, dict) else obs
         x = pixels.astype(jnp.float32)
         if pixels.dtype == jnp.uint8:
@@ -152,9 +219,7 @@ class ActorCritic(nn.Module):
         if self.num_goals:
             goal = nn.Embed(self.num_goals, 32)(obs["goal"])
             features = nn.relu(_dense(512)(jnp.concatenate([features, goal], axis=-1)))
-        logits = tuple(_dense(n, 0.01)(features) for n in self.action_dims)
-        value = _dense(1, 1.0)(features)[..., 0]
-        return logits, value
+        return features
 
 
 def action_dims(action_space) -> tuple[int, ...]:
@@ -183,7 +248,7 @@ def default_trunk(observation_space: spaces.Space) -> str:
 
 
 def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None,
-                      dtype: str = "float32") -> ActorCritic:
+                      dtype: str = "float32", memory: int = 0) -> ActorCritic:
     """An `ActorCritic` for these spaces; checks that the trunk fits the observation."""
     trunk = trunk or default_trunk(observation_space)
     if trunk not in TRUNKS:
@@ -209,7 +274,10 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
             )
     if trunk == "mlp" and len(pixels.shape) != 1:
         raise ValueError(f"trunk='mlp' needs vector observations; these are {pixels.shape}")
-    return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype)
+    if memory < 0:
+        raise ValueError(f"memory is the GRU state size (0: feed-forward), got {memory}")
+    return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype,
+                       memory=memory)
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):
@@ -223,4 +291,9 @@ def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.
     is the same stacked parameters, and init runs once per training run.
     """
     dummy = jax.tree_util.tree_map(jnp.zeros_like, observation_space.sample(jax.random.key(0)))
-    return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy))(key)
+    if not network.memory:
+        return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy))(key)
+    memory = initial_memory(network, 1)
+    sequence = jax.tree_util.tree_map(lambda x: x[None], memory._replace(hidden=None))._replace(hidden=memory.hidden)
+    dummy = jax.tree_util.tree_map(lambda x: x[None, None], dummy)
+    return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy, sequence))(key)

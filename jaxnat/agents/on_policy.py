@@ -10,6 +10,12 @@ Time limits: the value target bootstraps from the final observation of a truncat
 `next_value_t = (1 - terminated_t) * V(final_obs_t)`; the GAE trace is cut at every episode end.
 Envs with the five-value step API of gymnax 0.x / PureJaxRL (`done` only) are supported; there
 `done` counts as termination, as those libraries do.
+
+Recurrent policies (`config.memory > 0`): each env's `Memory` (GRU state, previous action and
+reward, episode start) rides in the runner and is stored per step in the rollout; the update
+replays whole env rollouts from their first stored state (`replay`), so it sees the outputs the
+rollout saw (to float tolerance: the trunk runs on a bigger batch). The final observation of a
+truncated step is valued with the memory after that step, as if the episode went on.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from flax import struct
 from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions
-from jaxnat.agents.networks import init_params, make_actor_critic
+from jaxnat.agents.networks import Memory, initial_memory, init_params, make_actor_critic
 from jaxnat.wrappers import LogWrapper
 
 
@@ -41,6 +47,7 @@ class Transition(NamedTuple):
     done: jax.Array  # the episode ended (terminated or truncated): cuts the GAE trace
     next_value: jax.Array  # (1 - terminated) * V(final observation)
     info: dict
+    memory: Any = None  # recurrent policies: the `Memory` this step read (its `hidden` per step)
 
 
 class RunnerState(NamedTuple):
@@ -49,6 +56,7 @@ class RunnerState(NamedTuple):
     obs: Any
     key: jax.Array
     update: jax.Array  # updates done so far (int32)
+    memory: Any = None  # recurrent policies: each env's `Memory` before its next step
 
 
 class UpdateRule(NamedTuple):
@@ -91,6 +99,27 @@ def _env_step(env, key, state, action, params):
     return obs, state, reward, terminated, terminated | truncated, final_obs, info
 
 
+def act(network, params, obs, memory: Memory | None):
+    """One step of the policy over a batch of envs: `(logits, value, hidden after the step)`;
+    `memory` is None for a feed-forward network (hidden is then None too)."""
+    if memory is None:
+        return (*network.apply(params, obs), None)
+    one_step = jax.tree_util.tree_map(lambda x: x[None], memory._replace(hidden=None))
+    logits, value, hidden = network.apply(params, jax.tree_util.tree_map(lambda x: x[None], obs),
+                                          one_step._replace(hidden=memory.hidden))
+    return jax.tree_util.tree_map(lambda x: x[0], logits), value[0], hidden
+
+
+def replay(network, params, obs, memory: Memory | None):
+    """`(logits, value)` of a stored rollout: `obs` `[T, B, ...]` and its per-step memory
+    (`Transition.memory`), replayed from the state before its first step so the recurrent
+    policy's outputs are those the rollout saw; a feed-forward network reads any batch shape."""
+    if memory is None:
+        return network.apply(params, obs)
+    logits, value, _ = network.apply(params, obs, memory._replace(hidden=memory.hidden[0]))
+    return logits, value
+
+
 def count_updates(config) -> int:
     """Updates in a run: `total_timesteps // (num_envs * num_steps)`, at least one."""
     total_updates = config.total_timesteps // (config.num_envs * config.num_steps)
@@ -126,7 +155,8 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
     total_updates = count_updates(config)
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)
-    network = make_actor_critic(observation_space, action_space, config.trunk, network_dtype(config))
+    network = make_actor_critic(observation_space, action_space, config.trunk, network_dtype(config),
+                                memory=getattr(config, "memory", 0))
     scalar_action = not hasattr(action_space, "nvec")  # Discrete (jaxnat's or gymnax's)
 
     reset, step = vector_env(env)
@@ -139,12 +169,13 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
             tx=make_optimizer(config, total_updates),
         )
         obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
-        return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32))
+        memory = initial_memory(network, config.num_envs) if network.memory else None
+        return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory)
 
     def rollout_step(runner: RunnerState, _):
-        train_state, env_state, obs, key, update = runner
+        train_state, env_state, obs, key, update, memory = runner
         key, key_act, key_env = jax.random.split(key, 3)
-        logits, value = network.apply(train_state.params, obs)
+        logits, value, hidden = act(network, train_state.params, obs, memory)
         action = distributions.sample(key_act, logits)
         log_prob = distributions.log_prob(logits, action)
         env_action = action[..., 0] if scalar_action else action
@@ -152,11 +183,15 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         next_obs, env_state, reward, terminated, done, final_obs, info = step(
             keys, env_state, env_action, env_params
         )
-        _, final_value = network.apply(train_state.params, final_obs)
+        # The value of the final observation, as if the episode went on (it bootstraps a
+        # truncated step): a recurrent policy reads it after this step's memory.
+        following = None if memory is None else Memory(hidden, action, reward.astype(jnp.float32), jnp.zeros_like(done))
+        _, final_value, _ = act(network, train_state.params, final_obs, following)
         next_value = jnp.where(terminated, 0.0, final_value)
         transition = Transition(obs, action, log_prob, value, reward, done.astype(jnp.float32),
-                                next_value, step_info(info, terminated))
-        return RunnerState(train_state, env_state, next_obs, key, update), transition
+                                next_value, step_info(info, terminated), memory)
+        next_memory = None if memory is None else following._replace(start=done)
+        return RunnerState(train_state, env_state, next_obs, key, update, next_memory), transition
 
     def update(runner: RunnerState, config):
         runner, transitions = jax.lax.scan(rollout_step, runner, None, config.num_steps)

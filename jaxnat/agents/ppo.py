@@ -9,6 +9,9 @@
 Defaults are the authors' settings (`shared/spec/environments.md` section 5): Adam lr 2.5e-4
 (linearly annealed), clip 0.1, value coef 1.0, entropy 0.01, gamma 0.99, GAE lambda 0.95,
 128 steps per env, 4 minibatches, 4 epochs, max grad norm 0.5, 8 envs.
+
+`memory=N` makes the policy recurrent (a GRU of size N, `networks.ActorCritic`); its minibatches
+are then groups of whole env rollouts (`num_envs` must divide by `num_minibatches`).
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, static
+from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, replay, static
 
 __all__ = ["PPOConfig", "make_train", "make_ppo"]
 
@@ -34,6 +37,7 @@ class PPOConfig:
     anneal_lr: bool = static(True)
     trunk: str | None = static(None)  # None: the paper's trunk for the observation size
     dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
+    memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
     # Traced: may be vmapped.
     lr: float = 2.5e-4
     gamma: float = 0.99
@@ -58,13 +62,25 @@ def _optimizer(config: PPOConfig, num_updates: int):
 
 def _update(config: PPOConfig, network, train_state, transitions, advantages, targets, key):
     batch = config.num_envs * config.num_steps
-    if batch % config.num_minibatches:
-        raise ValueError(f"num_envs * num_steps = {batch} is not divisible by num_minibatches={config.num_minibatches}")
-    data = (transitions.obs, transitions.action, transitions.log_prob, transitions.value, advantages, targets)
-    data = jax.tree_util.tree_map(lambda x: x.reshape(batch, *x.shape[2:]), data)
+    data = (transitions.obs, transitions.action, transitions.log_prob, transitions.value, advantages, targets,
+            transitions.memory)
+    if transitions.memory is None:  # minibatches of single steps
+        if batch % config.num_minibatches:
+            raise ValueError(f"num_envs * num_steps = {batch} is not divisible by num_minibatches={config.num_minibatches}")
+        data = jax.tree_util.tree_map(lambda x: x.reshape(batch, *x.shape[2:]), data)
+        units = batch
+    else:  # a recurrent policy replays whole env rollouts: minibatches of envs, time-major
+        if config.num_envs % config.num_minibatches:
+            raise ValueError(f"a recurrent policy's minibatches hold whole env rollouts: num_envs={config.num_envs} "
+                             f"is not divisible by num_minibatches={config.num_minibatches}")
+        data = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), data)  # [N, T, ...]
+        units = config.num_envs
 
-    def loss_fn(params, obs, action, old_log_prob, old_value, advantage, target):
-        logits, value = network.apply(params, obs)
+    def loss_fn(params, obs, action, old_log_prob, old_value, advantage, target, memory):
+        if memory is not None:  # back to time-major [T, B, ...]
+            obs, action, old_log_prob, old_value, advantage, target, memory = jax.tree_util.tree_map(
+                lambda x: jnp.swapaxes(x, 0, 1), (obs, action, old_log_prob, old_value, advantage, target, memory))
+        logits, value = replay(network, params, obs, memory)
         log_prob = distributions.log_prob(logits, action)
         value_clipped = old_value + jnp.clip(value - old_value, -config.clip_eps, config.clip_eps)
         value_loss = 0.5 * jnp.maximum((value - target) ** 2, (value_clipped - target) ** 2).mean()
@@ -82,7 +98,7 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         return train_state.apply_gradients(grads=grads), losses
 
     def epoch(train_state, key):
-        order = jax.random.permutation(key, batch)
+        order = jax.random.permutation(key, units)
         shuffled = jax.tree_util.tree_map(
             lambda x: x[order].reshape(config.num_minibatches, -1, *x.shape[1:]), data
         )

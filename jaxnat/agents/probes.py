@@ -11,6 +11,7 @@ observations (use `trunk="mlp"`). If an agent fails a probe, the broken piece is
 | `FactoredProbe`       | 1 step  | both factors of `MultiDiscrete([2, 3])`  | factored heads broken        |
 | `EndlessProbe`        | never   | `V = 1 / (1 - gamma)` despite time limit | truncation treated as a stop |
 | `CostlyStartProbe`    | never   | as above, first step differs             | bootstrap from the reset obs |
+| `RecallProbe`         | 2 steps | step-2 action from the step-1 cue        | memory (needs `memory > 0`)  |
 
 All are jaxnat `Environment`s with `get_obs`; wrap them in `AutoResetWrapper` (or use
 `make_probe`) before giving them to a learner. Optimal returns: 1.0 per episode for the
@@ -36,6 +37,7 @@ __all__ = [
     "FactoredProbe",
     "EndlessProbe",
     "CostlyStartProbe",
+    "RecallProbe",
     "PROBES",
     "make_probe",
 ]
@@ -219,6 +221,19 @@ class CostlyStartProbe(_Probe):
         return obs, state, reward, jnp.bool_(False), {}
 
 
+class RecallProbe(TwoStepProbe):
+    """The observations of `TwoStepProbe` (step 1 shows `[c, 0]`, `c = +-1` at random; step 2
+    shows `[0, 1]`), but the reward is for the step-2 action: 1 if it is `(c > 0)`, else 0.
+    The cue is gone when it is needed: a feed-forward policy scores 0.5 at best, a recurrent one
+    (`memory > 0`) that carries the cue over one step scores 1.0."""
+
+    def step_env(self, key, state, action, params):
+        first = state.time == 0
+        reward = jnp.where(first, 0.0, (action == state.cue[0]).astype(jnp.float32))
+        obs = self.get_obs(state.replace(time=state.time + 1), params)
+        return obs, state, reward, ~first, {}
+
+
 PROBES = {
     "constant_reward": ConstantRewardProbe,
     "sign": SignProbe,
@@ -226,6 +241,7 @@ PROBES = {
     "factored": FactoredProbe,
     "endless": EndlessProbe,
     "costly_start": CostlyStartProbe,
+    "recall": RecallProbe,
 }
 
 

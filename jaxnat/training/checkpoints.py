@@ -21,6 +21,15 @@ def to_saveable(tree):
     return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
 
 
+def _stored_fields(runner):
+    """The runner's fields that hold arrays, by name. Fields that are None (a feed-forward
+    policy's `memory`) are left out, so checkpoints written before such a field existed still
+    match the runner they restore into."""
+    if not hasattr(runner, "_asdict"):
+        return runner
+    return {name: value for name, value in runner._asdict().items() if value is not None}
+
+
 class Checkpoints:
     """Orbax checkpoints of the vmapped RunnerState under run_dir/checkpoints, step = update."""
 
@@ -39,7 +48,7 @@ class Checkpoints:
     def save(self, runner, meta: dict) -> None:
         ocp = self.ocp
         self.manager.save(int(meta["update"]), args=ocp.args.Composite(
-            state=ocp.args.StandardSave(to_saveable(runner)), meta=ocp.args.JsonSave(meta)))
+            state=ocp.args.StandardSave(to_saveable(_stored_fields(runner))), meta=ocp.args.JsonSave(meta)))
         self.manager.wait_until_finished()
 
     def restore(self, target, step: int | None = None):
@@ -47,17 +56,19 @@ class Checkpoints:
         fields, the network's apply_fn and the optimizer, come from this process)."""
         ocp = self.ocp
         step = self.latest_step() if step is None else step
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, to_saveable(target))
+        fields = _stored_fields(target)
+        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, to_saveable(fields))
         restored = self.manager.restore(step, args=ocp.args.Composite(
             state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
-        target_leaves, treedef = jax.tree.flatten(target)
+        target_leaves, treedef = jax.tree.flatten(fields)
         leaves = jax.tree.leaves(restored.state)
         if len(leaves) != len(target_leaves):
             raise TrainError(f"checkpoint {step} does not match this run's state "
                              f"({len(leaves)} arrays, expected {len(target_leaves)})")
         leaves = [jax.random.wrap_key_data(leaf, impl=jax.random.key_impl(ref)) if _is_key(ref)
                   else jnp.asarray(leaf) for ref, leaf in zip(target_leaves, leaves)]
-        return jax.tree.unflatten(treedef, leaves), dict(restored.meta)
+        state = jax.tree.unflatten(treedef, leaves)
+        return (target._replace(**state) if hasattr(target, "_asdict") else state), dict(restored.meta)
 
     def close(self) -> None:
         self.manager.close()
