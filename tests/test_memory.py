@@ -44,7 +44,7 @@ def _sequence(T=7, B=3, seed=1):
     start = np.zeros((T, B), bool)
     start[0] = True
     start[3, 0] = start[5, 2] = start[1, 1] = True
-    memory = Memory(hidden=jnp.asarray(rng.normal(size=(T, B, 8)), jnp.float32),  # only [0] is read
+    memory = Memory(hidden=jnp.asarray(rng.normal(size=(1, B, 8)), jnp.float32),  # as a rollout stores it
                     prev_action=jnp.asarray(rng.integers(0, 2, size=(T, B, 2)), jnp.int32),
                     prev_reward=jnp.asarray(rng.normal(size=(T, B)), jnp.float32),
                     start=jnp.asarray(start))

@@ -37,7 +37,7 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.agents.conv import conv2d, im2col_patches
 
-__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "Memory", "initial_memory", "make_actor_critic", "default_trunk",
+__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "Memory", "initial_memory", "one_step_sequence", "make_actor_critic", "default_trunk",
            "action_dims", "init_params", "im2col_patches"]
 
 # (features, kernel, stride) per conv layer.
@@ -150,6 +150,13 @@ def initial_memory(network: ActorCritic, batch: int) -> Memory:
                   prev_action=jnp.zeros((batch, len(network.action_dims)), jnp.int32),
                   prev_reward=jnp.zeros((batch,), jnp.float32),
                   start=jnp.ones((batch,), bool))
+
+
+def one_step_sequence(memory: Memory) -> Memory:
+    """`memory` of a batch `[B, ...]` as a sequence of one step (per-step fields `[1, B, ...]`),
+    the form a recurrent `ActorCritic` is called with."""
+    per_step = jax.tree_util.tree_map(lambda x: x[None], memory._replace(hidden=None))
+    return per_step._replace(hidden=memory.hidden)
 
 
 class _ResettingGRU(nn.Module):
@@ -293,7 +300,6 @@ def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.
     dummy = jax.tree_util.tree_map(jnp.zeros_like, observation_space.sample(jax.random.key(0)))
     if not network.memory:
         return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy))(key)
-    memory = initial_memory(network, 1)
-    sequence = jax.tree_util.tree_map(lambda x: x[None], memory._replace(hidden=None))._replace(hidden=memory.hidden)
+    sequence = one_step_sequence(initial_memory(network, 1))
     dummy = jax.tree_util.tree_map(lambda x: x[None, None], dummy)
     return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy, sequence))(key)

@@ -29,7 +29,7 @@ from flax import struct
 from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions
-from jaxnat.agents.networks import Memory, initial_memory, init_params, make_actor_critic
+from jaxnat.agents.networks import Memory, init_params, initial_memory, make_actor_critic, one_step_sequence
 from jaxnat.wrappers import LogWrapper
 
 
@@ -47,7 +47,9 @@ class Transition(NamedTuple):
     done: jax.Array  # the episode ended (terminated or truncated): cuts the GAE trace
     next_value: jax.Array  # (1 - terminated) * V(final observation)
     info: dict
-    memory: Any = None  # recurrent policies: the `Memory` this step read (its `hidden` per step)
+    # Recurrent policies: the `Memory` each step read; its `hidden` is only the state before the
+    # rollout's first step, `[1, N, H]` (replay derives the rest).
+    memory: Any = None
 
 
 class RunnerState(NamedTuple):
@@ -104,16 +106,16 @@ def act(network, params, obs, memory: Memory | None):
     `memory` is None for a feed-forward network (hidden is then None too)."""
     if memory is None:
         return (*network.apply(params, obs), None)
-    one_step = jax.tree_util.tree_map(lambda x: x[None], memory._replace(hidden=None))
     logits, value, hidden = network.apply(params, jax.tree_util.tree_map(lambda x: x[None], obs),
-                                          one_step._replace(hidden=memory.hidden))
+                                          one_step_sequence(memory))
     return jax.tree_util.tree_map(lambda x: x[0], logits), value[0], hidden
 
 
 def replay(network, params, obs, memory: Memory | None):
     """`(logits, value)` of a stored rollout: `obs` `[T, B, ...]` and its per-step memory
-    (`Transition.memory`), replayed from the state before its first step so the recurrent
-    policy's outputs are those the rollout saw; a feed-forward network reads any batch shape."""
+    (`Transition.memory`, whose `hidden[0]` is the state before the first step), replayed so
+    the recurrent policy's outputs are those the rollout saw; a feed-forward network reads any
+    batch shape."""
     if memory is None:
         return network.apply(params, obs)
     logits, value, _ = network.apply(params, obs, memory._replace(hidden=memory.hidden[0]))
@@ -189,13 +191,17 @@ def make_learner(config, env, env_params, *, make_optimizer: Callable, update_st
         _, final_value, _ = act(network, train_state.params, final_obs, following)
         next_value = jnp.where(terminated, 0.0, final_value)
         transition = Transition(obs, action, log_prob, value, reward, done.astype(jnp.float32),
-                                next_value, step_info(info, terminated), memory)
+                                next_value, step_info(info, terminated),
+                                None if memory is None else memory._replace(hidden=None))
         next_memory = None if memory is None else following._replace(start=done)
         return RunnerState(train_state, env_state, next_obs, key, update, next_memory), transition
 
     def update(runner: RunnerState, config):
+        first_memory = runner.memory
         runner, transitions = jax.lax.scan(rollout_step, runner, None, config.num_steps)
         advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
+        if first_memory is not None:  # (after gae, which scans every field over time)
+            transitions = transitions._replace(memory=transitions.memory._replace(hidden=first_memory.hidden[None]))
         key, key_update = jax.random.split(runner.key)
         train_state, losses = update_step(
             config, network, runner.train_state, transitions, advantages, targets, key_update
