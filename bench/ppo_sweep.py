@@ -2,11 +2,12 @@
 
 The main job (`make run`) must train 5 seeds on a 2-core CPU in minutes, so what counts is test
 return per CPU second, not per env step. A step costs about two forward passes (the action and
-the value of the final observation) plus one backward per epoch: measured on one core, forward
-0.20 ms and forward+backward 0.22 ms per sample for the MNIST trunk. Each setting gets the env
-steps that budget buys (`--cpu-seconds` for all seeds), and is run for several learning rates
-and seeds at once: `jit(vmap(run))` over (hyperparameters x seeds), on any backend (the learning
-is the same; a GPU just sweeps faster). Prints the greedy test return after each quarter.
+the value of the final observation) plus one backward per epoch, each priced per sample at the
+one-core costs of the MNIST trunk (`FORWARD_MS`, `BACKWARD_MS`; the budget line of
+bench/results/ppo_sweep.md states them). Each setting gets the env steps that budget buys
+(`--cpu-seconds` for all seeds), and is run for several learning rates and seeds at once:
+`jit(vmap(run))` over (hyperparameters x seeds), on any backend (the learning is the same; a
+GPU just sweeps faster). Prints the greedy test return after each quarter.
 
     python bench/ppo_sweep.py [--env-id Classify/Digits-v0] [--cpu-seconds 400] [--env-kwargs w=7]
 """
@@ -26,7 +27,7 @@ import common  # noqa: E402
 
 import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
-from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
+from jaxnat.agents.rollout import make_evaluate  # noqa: E402
 from jaxnat.train import parse_env_kwargs  # noqa: E402
 
 FORWARD_MS, BACKWARD_MS = 0.20, 0.22  # per sample, one core, MNIST trunk (see the docstring)

@@ -52,7 +52,7 @@ except ImportError as err:  # pragma: no cover
 
 import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
-from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
+from jaxnat.agents.rollout import make_evaluate  # noqa: E402
 from jaxnat.compat import GymnasiumVectorEnv, make_gymnasium_vec  # noqa: E402
 
 # The main job's settings (Makefile MAIN_JOB), shared by both sides.

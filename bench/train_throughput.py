@@ -28,7 +28,7 @@ import common  # noqa: E402
 
 import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
-from jaxnat.agents.evaluate import make_evaluate  # noqa: E402
+from jaxnat.agents.rollout import make_evaluate  # noqa: E402
 from jaxnat.training.args import parse_env_kwargs  # noqa: E402
 
 

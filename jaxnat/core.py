@@ -18,11 +18,16 @@ under `vmap` that halves the work of every step.
 
 `step` checks the action's shape and dtype against `action_space(params)` while tracing, so a
 wrong action fails once, at trace time, with a readable message.
+
+Host-batched envs (`NaturalAtari/*`: the emulator runs in C++ on the host) cannot be pure JAX
+functions; they follow `HostBatchedEnv`, the batched numpy API of Gymnasium's vector envs with
+same-step autoreset, and are registered with `batched=True`. `jaxnat.make_vec` returns one env
+object for both kinds: a `VmapWrapper` (this contract, batched) or a `HostBatchedEnv`.
 """
 
 from __future__ import annotations
 
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +35,7 @@ from flax import struct
 
 from jaxnat import spaces
 
-__all__ = ["Environment", "EnvState", "EnvParams"]
+__all__ = ["Environment", "EnvState", "EnvParams", "HostBatchedEnv"]
 
 
 @struct.dataclass
@@ -120,3 +125,29 @@ class Environment(Generic[TState, TParams]):
 
     def __repr__(self) -> str:
         return f"<{self.name}>"
+
+
+@runtime_checkable
+class HostBatchedEnv(Protocol):
+    """The contract of a host-batched env: `num_envs` envs stepped together on the host.
+
+        obs, info = env.reset(seed=0)                       # numpy, leading axis num_envs
+        obs, reward, terminated, truncated, info = env.step(actions)
+
+    Same-step autoreset: the step that ends an env's episode returns the next episode's first
+    observation, with the episode's last one in `info["final_observation"]` (the agents
+    bootstrap a truncated episode from it). `info` also carries PureJaxRL's episode keys
+    (`returned_episode`, `returned_episode_returns`, `returned_episode_lengths`), per env.
+    Spaces are those of one env (`single_observation_space`, `single_action_space`, jaxnat
+    spaces). `close()` frees the host resources (emulators, decoder threads).
+    """
+
+    num_envs: int
+    single_observation_space: spaces.Space
+    single_action_space: spaces.Space
+
+    def reset(self, *, seed: int | None = None) -> tuple[Any, dict]: ...
+
+    def step(self, actions) -> tuple[Any, Any, Any, Any, dict]: ...
+
+    def close(self) -> None: ...

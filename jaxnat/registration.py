@@ -174,12 +174,14 @@ def make(id: str, *, autoreset: bool = True, **kwargs: Any):
 
 
 def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
-    """Build `num_envs` copies of an env behind one batched interface.
+    """Build `num_envs` copies of an env behind one batched interface: one env object.
 
-    Pure-JAX envs come back as `(VmapWrapper(env, num_envs), params)` (one key in, `num_envs`
-    envs out). Envs registered with `batched=True` (host emulators: `NaturalAtari/*`) come back
-    alone, built by their entry point with `num_envs`, with numpy `reset()`/`step(actions)`
-    that autoreset themselves (`autoreset` does not apply to them).
+    Pure-JAX envs come back as a `VmapWrapper` (one key in, `num_envs` envs out) whose
+    `default_params` are the params `make` built with these kwargs, so `vec.reset(key)` and
+    `vec.step(key, state, actions)` need no params (pass others to override them). Envs
+    registered with `batched=True` (host emulators: `NaturalAtari/*`) come back as their entry
+    point built with `num_envs`: a `jaxnat.core.HostBatchedEnv`, with numpy
+    `reset(seed=)`/`step(actions)` that autoreset themselves (`autoreset` does not apply).
     """
     from jaxnat.wrappers import VmapWrapper
 
@@ -190,4 +192,4 @@ def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
         return entry(num_envs=num_envs, **ctor_kwargs)
 
     env, params = make(id, autoreset=autoreset, **kwargs)
-    return VmapWrapper(env, num_envs), params
+    return VmapWrapper(env, num_envs, params)

@@ -18,7 +18,7 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.agents import A2CConfig, PPOConfig, make_a2c, make_ppo
-from jaxnat.agents.on_policy import Transition, gae
+from jaxnat.agents.rollout import Transition, gae
 from jaxnat.agents.probes import make_probe
 from jaxnat.testing import check_env
 

@@ -15,9 +15,8 @@ import pytest
 
 from jaxnat import spaces
 from jaxnat.agents import A2CConfig, PPOConfig, make_a2c, make_ppo
-from jaxnat.agents.evaluate import make_evaluate
 from jaxnat.agents.networks import Memory, init_params, make_actor_critic
-from jaxnat.agents.on_policy import act, replay
+from jaxnat.agents.rollout import act, make_evaluate, replay
 from jaxnat.agents.probes import make_probe
 
 _jit = functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0})
@@ -81,7 +80,7 @@ def test_the_update_replays_what_the_rollout_stored():
     rollouts), replaying the stored memory gives the rollout's own log-probs and values, and
     the stored memory is the previous step's action, reward and episode end."""
     from jaxnat.agents import distributions, ppo
-    from jaxnat.agents.on_policy import make_learner
+    from jaxnat.agents.rollout import on_policy_learner
 
     def checked_update(config, network, train_state, transitions, advantages, targets, key):
         logits, value = replay(network, train_state.params, transitions.obs, transitions.memory)
@@ -97,8 +96,8 @@ def test_the_update_replays_what_the_rollout_stored():
         return train_state, {**losses, **checks}
 
     env, params = make_probe("recall")
-    learner = make_learner(CONFIGS["ppo"].replace(memory=8), env, params,
-                           make_optimizer=ppo.RULE.make_optimizer, update_step=checked_update)
+    learner = on_policy_learner(CONFIGS["ppo"].replace(memory=8), env, params,
+                                ppo.RULE._replace(update_step=checked_update))
     _, metrics = _jit(learner.train)(jax.random.key(0))
     metrics = jax.tree_util.tree_map(np.asarray, metrics)
     assert metrics["log_prob_error"].max() < 1e-5 and metrics["value_error"].max() < 1e-5
@@ -156,7 +155,6 @@ def test_host_batched_envs_refuse_a_recurrent_policy():
     from types import SimpleNamespace
 
     from jaxnat.agents import ppo
-    from jaxnat.agents.host_loop import make_host_learner
 
     with pytest.raises(ValueError, match="recurrent policies train on jitted envs only"):
-        make_host_learner(CONFIGS["ppo"].replace(memory=8), SimpleNamespace(num_envs=4), ppo.RULE)
+        ppo.make_host_ppo(CONFIGS["ppo"].replace(memory=8), SimpleNamespace(num_envs=4))

@@ -1,6 +1,7 @@
 """Registry: make, close-match errors, kwargs routing, lazy optional dependencies."""
 
 import jax
+import numpy as np
 import pytest
 
 import jaxnat
@@ -50,10 +51,15 @@ def test_unknown_kwarg_is_named(toy_registered):
 
 
 def test_make_vec(toy_registered):
-    env, params = jaxnat.make_vec(toy_registered, 6)
+    env = jaxnat.make_vec(toy_registered, 6, window=2)
     assert isinstance(env, VmapWrapper)
-    obs, state = env.reset(jax.random.key(0), params)
+    obs, state = env.reset(jax.random.key(0))
     assert obs.shape == (6, 12, 10, 3)
+    # The params `make` built from the kwargs are the batch's defaults.
+    assert int(env.default_params.window) == 2
+    _, params = jaxnat.make(toy_registered, window=2)
+    np.testing.assert_array_equal(obs, jax.vmap(jaxnat.make(toy_registered, window=2)[0].reset, in_axes=(0, None))(
+        jax.random.split(jax.random.key(0), 6), params)[0])
 
 
 def test_missing_optional_dependency_names_the_fix(tmp_path, monkeypatch):
@@ -75,3 +81,19 @@ def test_import_stays_light():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_make_vec_of_a_host_batched_env_is_a_host_batched_env():
+    pytest.importorskip("ale_py")
+    from jaxnat.core import HostBatchedEnv
+
+    env = jaxnat.make_vec("NaturalAtari/Pong-v0", 2, background="none", num_threads=1)
+    try:
+        assert isinstance(env, HostBatchedEnv) and env.num_envs == 2
+        obs, info = env.reset(seed=0)
+        assert obs.shape == (2, *env.single_observation_space.shape)
+        obs, reward, terminated, truncated, info = env.step(np.zeros(2, np.int64))
+        assert {"final_observation", "returned_episode", "returned_episode_returns"} <= set(info)
+    finally:
+        env.close()
+    assert not isinstance(object(), HostBatchedEnv)

@@ -54,7 +54,7 @@ def _check_run_dir(run_dir):
     config = json.loads((run_dir / "config.json").read_text())
     spec = config["spec"]
     assert spec["env_id"] == "Classify/Digits-v0" and spec["algo"] == "ppo"
-    assert set(spec["config"]) == {f.name for f in dataclasses.fields(ALGORITHMS["ppo"][0])}
+    assert set(spec["config"]) == {f.name for f in dataclasses.fields(ALGORITHMS["ppo"].config)}
     assert spec["config"]["trunk"] == "mnist" and spec["config"]["num_steps"] == 16
     assert "trunk" in spec["static_fields"] and "lr" not in spec["static_fields"]
     assert spec["num_updates"] == 4 and spec["seed_values"] == [0, 1]

@@ -1,20 +1,31 @@
 """Agents in flax + optax, PureJaxRL-shaped (`make_train(config, env, params) -> train(key)`).
 
-PPO, A2C, ACKTR and DQN are jitted end to end and vmap over seeds; `evaluate` scores a policy
-on a held-out env (the test split). `ALGORITHMS` maps names to `(Config, make_learner)`.
+PPO, A2C, ACKTR and DQN are jitted end to end and vmap over seeds; PPO, A2C and DQN also train
+host-batched envs (Natural Atari) from a Python loop. Each algorithm's file holds its config,
+loss and update; `rollout` runs the envs for all of them and evaluates policies.
+`ALGORITHMS` maps names to `Algorithm(config, make, make_host)`.
 """
 
-from jaxnat.agents.a2c import A2CConfig, make_a2c
+from typing import Callable, NamedTuple
+
+from jaxnat.agents.a2c import A2CConfig, make_a2c, make_host_a2c
 from jaxnat.agents.acktr import ACKTRConfig, make_acktr
-from jaxnat.agents.dqn import DQNConfig, make_dqn
-from jaxnat.agents.ppo import PPOConfig, make_ppo
+from jaxnat.agents.dqn import DQNConfig, make_dqn, make_host_dqn
+from jaxnat.agents.ppo import PPOConfig, make_host_ppo, make_ppo
+
+
+class Algorithm(NamedTuple):
+    config: type  # the config dataclass
+    make: Callable  # (config, env, env_params) -> rollout.Learner (jitted, JAX envs)
+    make_host: Callable | None  # (config, env, compiler_options=None) -> rollout.HostLearner
+
 
 ALGORITHMS = {
-    "ppo": (PPOConfig, make_ppo),
-    "a2c": (A2CConfig, make_a2c),
-    "acktr": (ACKTRConfig, make_acktr),
-    "dqn": (DQNConfig, make_dqn),
+    "ppo": Algorithm(PPOConfig, make_ppo, make_host_ppo),
+    "a2c": Algorithm(A2CConfig, make_a2c, make_host_a2c),
+    "acktr": Algorithm(ACKTRConfig, make_acktr, None),
+    "dqn": Algorithm(DQNConfig, make_dqn, make_host_dqn),
 }
 
-__all__ = ["ALGORITHMS", "PPOConfig", "A2CConfig", "ACKTRConfig", "DQNConfig", "make_ppo", "make_a2c",
-           "make_acktr", "make_dqn"]
+__all__ = ["ALGORITHMS", "Algorithm", "PPOConfig", "A2CConfig", "ACKTRConfig", "DQNConfig", "make_ppo", "make_a2c",
+           "make_acktr", "make_dqn", "make_host_ppo", "make_host_a2c", "make_host_dqn"]

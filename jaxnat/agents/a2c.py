@@ -1,6 +1,6 @@
 """A2C (synchronous advantage actor-critic), PureJaxRL-shaped like `ppo.py`.
 
-Defaults are the authors' settings (`shared/spec/environments.md` section 5): RMSprop lr 7e-4,
+Defaults are the authors' settings (`docs/environments.md` section 5): RMSprop lr 7e-4,
 eps 1e-5, alpha 0.99, 5 steps per env, value coef 0.5, entropy 0.01, gamma 0.99, n-step
 returns (GAE lambda 1.0), max grad norm 0.5, 16 envs.
 """
@@ -12,9 +12,10 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, replay, static
+from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clipped_optimizer, on_policy_host_learner,
+                                   on_policy_learner, replay, static)
 
-__all__ = ["A2CConfig", "make_train", "make_a2c"]
+__all__ = ["A2CConfig", "make_train", "make_a2c", "make_host_a2c"]
 
 @struct.dataclass
 class A2CConfig:
@@ -54,11 +55,17 @@ def _update(config: A2CConfig, network, train_state, transitions, advantages, ta
     return train_state.apply_gradients(grads=grads), losses
 
 
-RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update)
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,
+                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory})
 
 
 def make_a2c(config: A2CConfig, env, env_params) -> Learner:
-    return make_learner(config, env, env_params, **RULE._asdict())
+    return on_policy_learner(config, env, env_params, RULE)
+
+
+def make_host_a2c(config: A2CConfig, env, compiler_options: dict | None = None) -> HostLearner:
+    """The A2C learner on a host-batched env (Natural Atari): `rollout.on_policy_host_learner`."""
+    return on_policy_host_learner(config, env, RULE, compiler_options)
 
 
 def make_train(config: A2CConfig, env, env_params):

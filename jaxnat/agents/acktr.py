@@ -1,7 +1,7 @@
 """ACKTR (Wu et al. 2017): actor-critic with K-FAC natural gradients and a KL trust region,
 PureJaxRL-shaped like `a2c.py` (same loss, same rollout; `kfac.py` preconditions the step).
 
-Defaults are the authors' settings (20 steps per update; `shared/spec/environments.md` section
+Defaults are the authors' settings (20 steps per update; `docs/environments.md` section
 5) and OpenAI baselines' `acktr` defaults for the rest: lr 0.25 (linearly annealed), momentum
 0.9 (SGD with lr * (1 - momentum), as baselines), KL clip 0.001, damping 0.01, factor decay 0.99,
 value coef 0.5, Fisher value coef 1.0, entropy 0.01, gamma 0.99, n-step returns, 32 envs
@@ -23,7 +23,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions, kfac
-from jaxnat.agents.on_policy import Learner, make_learner, static
+from jaxnat.agents.rollout import Learner, UpdateRule, on_policy_learner, static
 
 __all__ = ["ACKTRConfig", "make_train", "make_acktr"]
 
@@ -91,9 +91,13 @@ def _update(config: ACKTRConfig, network, train_state, transitions, advantages, 
     return train_state, metrics
 
 
+# The network computes in float32: K-FAC's statistics want float32 layer inputs.
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update)
+
+
 def make_acktr(config: ACKTRConfig, env, env_params) -> Learner:
     """The ACKTR learner (`init`, `run`, `train`, `network`, `num_updates`)."""
-    return make_learner(config, env, env_params, make_optimizer=_optimizer, update_step=_update)
+    return on_policy_learner(config, env, env_params, RULE)
 
 
 def make_train(config: ACKTRConfig, env, env_params):

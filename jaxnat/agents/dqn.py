@@ -26,7 +26,7 @@ square root then floors the denominator at 0.1 and all but stops learning (on
 Classify/Digits-v0 the greedy accuracy stayed at chance, 12.5%, after 5M env steps per seed).
 `optimizer="adam"` uses Adam (eps 1.5e-4, as Dopamine's DQN).
 Time limits: the target bootstraps from the final observation of a truncated episode and not
-from a terminated one, as in `on_policy.py`.
+from a terminated one (`rollout.bootstrap`'s rule).
 
 Factored actions (classification's `(move, label)`): one Q head per factor over the shared
 trunk ("action branching", Tavakoli et al. 2018) rather than one head over the product space
@@ -41,12 +41,14 @@ is the argmax of each head. The network is jaxnat's actor-critic whose "logits" 
 values (its value head is unused), so evaluation's greedy policy is `argmax Q` per factor (its
 "sampled" policy is a Boltzmann one over Q).
 
-The pieces (`DQNParts`: init, act, store, learn) are shared with the host loop for
-host-batched envs (`jaxnat.agents.host_loop`, Atari), where the env steps in Python.
+The pieces (`DQNParts`: init, act, store, learn) serve both drivers of `jaxnat.agents.rollout`:
+`make_dqn` (jitted, JAX envs) and `make_host_dqn` (host-batched envs such as Natural Atari,
+where the env steps in Python).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -57,11 +59,12 @@ from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions
 from jaxnat.agents.networks import init_params, make_actor_critic
-from jaxnat.agents.on_policy import (Learner, count_updates, episode_metrics, scan_updates, static,
-                                     step_info, vector_env)
+from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_batch, count_updates, episode_metrics,
+                                   host_jit, host_steps, host_updates, is_scalar_action, scan_steps, scan_updates,
+                                   static, step_info, vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
-__all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_dqn_parts",
+__all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_host_dqn", "make_dqn_parts",
            "make_train", "nstep_transition", "td_loss"]
 
 OPTIMIZERS = ("rmsprop", "adam")
@@ -270,7 +273,7 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
     total_updates = count_updates(config)
     action_space = env.action_space(env_params)
     parts = make_dqn_parts(config, env.observation_space(env_params), action_space)
-    scalar_action = not hasattr(action_space, "nvec")
+    scalar = is_scalar_action(action_space)
     reset, step = vector_env(env)
 
     def init(key, config=config) -> DQNRunner:
@@ -280,34 +283,27 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         return DQNRunner(**state._asdict(), env_state=env_state, obs=obs, key=key,
                          update=jnp.zeros((), jnp.int32))
 
-    def env_step(carry, t, config):
-        runner, first_step = carry
-        key, key_act, key_env = jax.random.split(runner.key, 3)
-        rate = epsilon(config, (first_step + t) * config.num_envs)
-        action = parts.act(runner.train_state.params, runner.obs, key_act, rate)
-        env_action = action[..., 0] if scalar_action else action
-        next_obs, env_state, reward, terminated, done, final_obs, info = step(
-            jax.random.split(key_env, config.num_envs), runner.env_state, env_action, env_params
-        )
-        state = parts.store(runner.learner, {
-            "obs": runner.obs, "action": action, "reward": reward, "next_obs": final_obs,
-            "terminated": terminated, "done": done,
-        }, first_step + t, config)
-        runner = runner.with_learner(state, env_state=env_state, obs=next_obs, key=key)
-        return (runner, first_step), (step_info(info, terminated), rate)
-
     def update(runner: DQNRunner, config):
-        first_step = runner.update * config.num_steps
-        (runner, _), (infos, rates) = jax.lax.scan(
-            lambda c, t: env_step(c, t, config), (runner, first_step), jnp.arange(config.num_steps)
-        )
+        first_step = runner.update * config.num_steps  # per env, before this update
+
+        def policy(state: DQNState, obs, key, t):
+            rate = epsilon(config, (first_step + t) * config.num_envs)
+            return parts.act(state.train_state.params, obs, key, rate), rate
+
+        def observe(state: DQNState, s: EnvStep, rate, t):
+            state = parts.store(state, {"obs": s.obs, "action": s.action, "reward": s.reward,
+                                        "next_obs": s.final_obs, "terminated": s.terminated, "done": s.done},
+                                first_step + t, config)
+            return state, (step_info(s.info, s.terminated), rate)
+
+        (state, env_state, obs, key), (infos, rates) = scan_steps(
+            step, env_params, scalar, config.num_envs, config.num_steps, policy, observe,
+            runner.learner, runner.env_state, runner.obs, runner.key)
         env_steps = (first_step + config.num_steps) * config.num_envs
-        key, key_learn = jax.random.split(runner.key)
-        state, losses = parts.learn(runner.learner, key_learn,
-                                    env_steps >= config.learning_starts, config)
-        runner = runner.with_learner(state, key=key, update=runner.update + 1)
-        metrics = {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
-        return runner, metrics
+        key, key_learn = jax.random.split(key)
+        state, losses = parts.learn(state, key_learn, env_steps >= config.learning_starts, config)
+        runner = runner.with_learner(state, env_state=env_state, obs=obs, key=key, update=runner.update + 1)
+        return runner, {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
 
     def run(runner: DQNRunner, config=config, num_updates: int = total_updates, callback=None):
         return scan_updates(update, runner, config, num_updates, callback, _optimizer(config))
@@ -316,6 +312,55 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         return run(init(key, config), config)
 
     return Learner(init, run, train, parts.network, total_updates)
+
+
+def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) -> HostLearner:
+    """The host-loop DQN learner on a batched host env (`rollout.host_steps`): per env step one
+    jitted epsilon-greedy call and one jitted `store` into the device buffer (donated: updated
+    in place); per update one jitted `learn`. The replay buffer lives on the device
+    (`buffer_size` x 2 observations: for 84x84x4 Atari frames 56 KB per transition, 5.6 GB at
+    the default 100k)."""
+    num_updates = check_host_batch(config, env)
+    parts = make_dqn_parts(config, env.single_observation_space, env.single_action_space)
+    jit = host_jit(compiler_options)
+    act = jit(parts.act)
+    # On the device, without a host sync: the rate goes straight into `act`.
+    exploration = jit(lambda env_steps: epsilon(config, env_steps))
+    store = jit(parts.store, donate_argnums=0)  # the buffer is updated in place
+
+    @functools.partial(jit, donate_argnums=0)
+    def learn(state: DQNState, key, learning, infos: list):
+        state, losses = parts.learn(state, key, learning)
+        infos = jax.tree.map(lambda *steps: jnp.stack(steps), *infos)
+        return state, {**episode_metrics(infos), **losses}
+
+    space = env.single_observation_space
+
+    @jit
+    def init(key) -> DQNState:
+        return parts.init(key, jnp.zeros((config.num_envs, *space.shape), space.dtype))
+
+    def update(state: DQNState, obs, key, index):
+        first_step = index * config.num_steps  # per env, before this update
+
+        def policy(carry, obs, key, t):
+            rate = exploration((first_step + t) * config.num_envs)
+            return act(carry[0].train_state.params, obs, key, rate), rate
+
+        def observe(carry, s: EnvStep, rate, t):
+            state, infos, _ = carry
+            state = store(state, {"obs": s.obs, "action": s.action, "reward": s.reward, "next_obs": s.final_obs,
+                                  "terminated": s.terminated, "done": s.done}, first_step + t)
+            return state, [*infos, step_info(s.info, s.terminated)], rate
+
+        (state, infos, rate), obs, key = host_steps(env, is_scalar_action(env.single_action_space), config.num_steps,
+                                                    policy, observe, (state, [], None), obs, key)
+        key, key_learn = jax.random.split(key)
+        learning = (index + 1) * config.num_steps * config.num_envs >= config.learning_starts
+        state, metrics = learn(state, key_learn, learning, infos)
+        return state, obs, key, {**metrics, "epsilon": rate}
+
+    return host_updates(env, parts.network, num_updates, init, update, lambda s: s.learner.train_state.params, jit)
 
 
 def make_train(config: DQNConfig, env, env_params):

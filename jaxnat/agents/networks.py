@@ -1,6 +1,6 @@
 """Actor-critic networks: the paper's trunks and a ResNet-18, channels-last, uint8 in.
 
-Trunks (the paper's appendix, `shared/spec/environments.md` section 5); every conv is VALID and
+Trunks (the paper's appendix, `docs/environments.md` section 5); every conv is VALID and
 followed by ReLU, then a ReLU dense layer of 512:
 
 | trunk        | layers                                   | meant for                  |

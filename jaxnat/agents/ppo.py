@@ -6,7 +6,7 @@
     train = ppo.make_train(ppo.PPOConfig(total_timesteps=1_000_000, num_envs=64), env, params)
     runner, metrics = jax.jit(jax.vmap(train))(jax.random.split(jax.random.key(0), 5))
 
-Defaults are the authors' settings (`shared/spec/environments.md` section 5): Adam lr 2.5e-4
+Defaults are the authors' settings (`docs/environments.md` section 5): Adam lr 2.5e-4
 (linearly annealed), clip 0.1, value coef 1.0, entropy 0.01, gamma 0.99, GAE lambda 0.95,
 128 steps per env, 4 minibatches, 4 epochs, max grad norm 0.5, 8 envs.
 
@@ -22,9 +22,10 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.on_policy import Learner, UpdateRule, clipped_optimizer, make_learner, replay, static
+from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clipped_optimizer, on_policy_host_learner,
+                                   on_policy_learner, replay, static)
 
-__all__ = ["PPOConfig", "make_train", "make_ppo"]
+__all__ = ["PPOConfig", "make_train", "make_ppo", "make_host_ppo"]
 
 @struct.dataclass
 class PPOConfig:
@@ -108,12 +109,18 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
     return train_state, jax.tree_util.tree_map(jnp.mean, losses)
 
 
-RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update)
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,
+                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory})
 
 
 def make_ppo(config: PPOConfig, env, env_params) -> Learner:
     """The PPO learner (`init`, `run`, `train`, `network`, `num_updates`)."""
-    return make_learner(config, env, env_params, **RULE._asdict())
+    return on_policy_learner(config, env, env_params, RULE)
+
+
+def make_host_ppo(config: PPOConfig, env, compiler_options: dict | None = None) -> HostLearner:
+    """The PPO learner on a host-batched env (Natural Atari): `rollout.on_policy_host_learner`."""
+    return on_policy_host_learner(config, env, RULE, compiler_options)
 
 
 def make_train(config: PPOConfig, env, env_params):

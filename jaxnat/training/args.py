@@ -26,7 +26,7 @@ class TrainError(Exception):
 def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
     """Every algorithm config field except the core ones: name -> (type, {algo: default})."""
     fields: dict[str, tuple[Any, dict[str, Any]]] = {}
-    for algo, (config_cls, _) in ALGORITHMS.items():
+    for algo, (config_cls, *_) in ALGORITHMS.items():
         hints = typing.get_type_hints(config_cls)
         for field in dataclasses.fields(config_cls):
             if field.name in CORE_CONFIG_FIELDS:
@@ -50,7 +50,7 @@ def _make_overrides_class():
     cls = dataclasses.make_dataclass("ConfigOverrides", fields, frozen=True)
     cls.__module__ = __name__
     cls.__doc__ = ("Algorithm settings; unset ones take the algorithm's default. Every field of "
-                   f"{', '.join(c.__name__ for c, _ in ALGORITHMS.values())} is here or above.")
+                   f"{', '.join(a.config.__name__ for a in ALGORITHMS.values())} is here or above.")
     return cls
 
 

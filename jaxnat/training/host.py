@@ -1,23 +1,59 @@
-"""Runs on host-batched envs (`NaturalAtari/*`): `train` hands them to `jaxnat.agents.host_run`.
+"""The host backend of `jaxnat train`: runs on host-batched envs (`NaturalAtari/*`).
 
 The jitted, vmapped trainer needs a pure-JAX env; ALE runs in C++ on the host, so these runs
-use the host loop (seeds one after another), with the same run spec (`config.json`),
-checkpoints every `--eval-every` updates and `--resume` (which restarts the games: see
-`host_run`).
+use the agents' host learners (`rollout.host_steps`), one seed after another, on rewards
+clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
+(train and test) are whole games with unclipped rewards. When a seed's last update is done,
+its policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
+sampled and greedy. `trainer.run_training` does the rest, as for every run: the run directory,
+checkpoints (`checkpoints/seed_<s>/`, every `--eval-every` updates), `--resume`, the summary.
+
+What a host checkpoint holds: params, optimizer state, DQN's target network and replay buffer,
+the update count and the PRNG key. The emulators' state cannot be saved, so a resumed seed
+starts new games (from a seed drawn from the restored key): unlike a resumed jitted run, the
+result is not the uninterrupted one bit for bit.
 """
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 from pathlib import Path
 
+import jax
+import numpy as np
+
 import jaxnat
+from jaxnat.agents import ALGORITHMS
+from jaxnat.agents.rollout import evaluate_host
+from jaxnat.atari.wrappers import ClipRewardWrapper
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
+__all__ = ["HOST_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "is_host_run", "new_host_spec",
+           "observation_space", "make_learner", "host_errors"]
+
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
+EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_OFFSET + seed)
+
+HOST_ALGORITHMS = tuple(name for name, algorithm in ALGORITHMS.items() if algorithm.make_host is not None)
+
+
+def observation_space(env_id: str, env_kwargs: dict):
+    """The observation space, from one env without background (cheap), for the default trunk."""
+    probe = jaxnat.make_vec(env_id, 1, **{**env_kwargs, "background": "none"})
+    try:
+        return probe.single_observation_space
+    finally:
+        probe.close()
+
+
+def make_learner(algo: str, config, env, compiler_options: dict | None = None):
+    """The host learner of `algo` (one of `HOST_ALGORITHMS`) for `config` on `env`."""
+    return ALGORITHMS[algo].make_host(config, env, compiler_options)
 
 
 def is_host_env(env_id: str) -> bool:
@@ -38,45 +74,82 @@ def is_host_run(args: TrainArgs) -> bool:
     return is_host_env(args.env_id)
 
 
-def _new_spec(args: TrainArgs, console) -> RunSpec:
-    from jaxnat.agents.host_run import HOST_ALGORITHMS, observation_space
-    from jaxnat.training.loop import _check_counts, _with_eval_every
-
+def new_host_spec(args: TrainArgs, console) -> RunSpec:
+    """The spec of a new host run (`eval_every` not yet resolved)."""
     check_algo(args.algo)
     if args.algo not in HOST_ALGORITHMS:
         raise TrainError(f"{args.algo} has no host loop: {args.env_id} (host-emulated) trains "
                          f"with {', '.join(HOST_ALGORITHMS)}")
-    _check_counts(args)
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     if "split" in env_kwargs:
         raise TrainError("env kwarg 'split' is set by jaxnat train: split=train for training and "
                          "split=test for evaluation")
-    config = resolve_config(args, observation_space(args.env_id, env_kwargs))
+    with host_errors(args.env_id):
+        config = resolve_config(args, observation_space(args.env_id, env_kwargs))
     eval_episodes = args.eval_episodes
     if eval_episodes > MAX_EVAL_EPISODES:
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
-    spec = RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes)
-    return _with_eval_every(spec, args)
+    return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes)
 
 
-def train_on_host(args: TrainArgs, console, compiler_options: dict | None,
-                  stop_after_chunks: int | None = None):
-    from jaxnat.agents.host_run import run_host_training
-    from jaxnat.training.loop import TrainResult, _new_run_dir, _resume, _versions
-
+@contextlib.contextmanager
+def host_errors(env_id: str):
+    """Turn the env's and the learner's setup errors into one-line `TrainError`s."""
     try:
-        if args.resume is not None:
-            spec, run_dir, _ = _resume(args)
-        else:
-            run_dir = _new_run_dir(args)
-            spec = _new_spec(args, console)
-        summary, complete = run_host_training(
-            spec, run_dir, resume=args.resume is not None, console=console,
-            compiler_options=compiler_options, stop_after_chunks=stop_after_chunks,
-            versions=_versions())
-    except (MissingDependencyError, DatasetNotFoundError, DatasetFormatError, TypeError,
-            ValueError) as err:
-        raise TrainError(f"{args.env_id}: {err}") from None
-    return TrainResult(run_dir, None, summary, complete)
+        yield
+    except (MissingDependencyError, DatasetNotFoundError, DatasetFormatError, TypeError, ValueError) as err:
+        raise TrainError(f"{env_id}: {err}") from None
+
+
+class HostBackend:
+    """`trainer.Backend` for host-batched envs: one seed after another, each from a fresh
+    learner state; the emulators are built once (train and test split) and reused by every
+    seed. Checkpoints: `checkpoints/seed_<s>/`, the learner's `HostState`."""
+
+    evaluates_each_chunk = False
+
+    def __init__(self, spec: RunSpec, compiler_options: dict | None = None):
+        self.spec = spec
+        self.groups = [[seed] for seed in spec.seed_values]
+        with host_errors(spec.env_id):
+            if "split" in spec.env_kwargs:
+                raise ValueError("env kwarg 'split' is set by jaxnat train: split=train for training and "
+                                 "split=test for evaluation")
+            self.env = ClipRewardWrapper(jaxnat.make_vec(spec.env_id, spec.config.num_envs, split="train",
+                                                         **spec.env_kwargs))
+            self.test_env = jaxnat.make_vec(spec.env_id, spec.config.num_envs, split="test", **spec.env_kwargs)
+            self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options)
+        self._updates = None
+
+    def checkpoint_dir(self, group) -> str:
+        return f"checkpoints/seed_{group[0]}"
+
+    def init(self, group):
+        return self.learner.init(jax.random.key(group[0]))
+
+    def update_of(self, state) -> int:
+        return int(state.update)
+
+    def begin(self, group, state) -> None:
+        self._updates = self.learner.updates(state)  # new games, seeded from the state's key
+
+    def chunk(self, state, num_updates: int, progress):
+        rows = []
+        for state, metrics, _ in itertools.islice(self._updates, num_updates):
+            rows.append(metrics)
+            progress(state.update, metrics)
+        return state, {name: np.asarray([[row[name] for row in rows]]) for name in rows[0]}
+
+    def evaluate(self, group, state) -> dict:
+        scores = {}
+        for mode in ("sampled", "greedy"):
+            returns = evaluate_host(self.learner, self.learner.params(state), self.test_env, self.spec.eval_episodes,
+                                    jax.random.key(EVAL_SEED_OFFSET + group[0]), greedy=mode == "greedy")
+            scores[f"{mode}_return"] = np.asarray([returns.mean()])
+        return scores
+
+    def close(self) -> None:
+        self.env.close()
+        self.test_env.close()

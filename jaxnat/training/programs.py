@@ -10,10 +10,11 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import jaxnat
 from jaxnat.agents import ALGORITHMS
-from jaxnat.agents.evaluate import make_evaluate
+from jaxnat.agents.rollout import make_evaluate
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainError
@@ -86,7 +87,7 @@ class _Program:
         self.compiler_options = compiler_options
         env, params, test_env, test_params, self.test_split = make_envs(spec)
         self.observation_space = env.observation_space(params)
-        _, make_learner = ALGORITHMS[spec.algo]
+        make_learner = ALGORITHMS[spec.algo].make
         try:
             self.learner = make_learner(spec.config, env, params)
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
@@ -133,3 +134,42 @@ def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> _Pr
             _PROGRAMS.popitem(last=False)
     _PROGRAMS.move_to_end(key)
     return _PROGRAMS[key]
+
+
+class DeviceBackend:
+    """`trainer.Backend` for pure-JAX envs: every seed at once in one compiled, vmapped program
+    (`compiled_program`), the test split scored after every chunk; checkpoints in
+    `checkpoints/`, the vmapped runner state."""
+
+    evaluates_each_chunk = True
+
+    def __init__(self, program: _Program):
+        self.program = program
+        self.groups = [program.spec.seed_values]
+        self.eval_keys = program.eval_keys()
+
+    def checkpoint_dir(self, group) -> str:
+        return "checkpoints"
+
+    def init(self, group):
+        return self.program.init(self.program.keys())
+
+    def update_of(self, state) -> int:
+        return int(np.asarray(state.update)[0])
+
+    def begin(self, group, state) -> None:
+        pass
+
+    def chunk(self, state, num_updates: int, progress):
+        set_progress_sink(progress)
+        try:
+            state, metrics = self.program.chunk(num_updates)(state)
+            return state, jax.device_get(metrics)
+        finally:
+            set_progress_sink(None)
+
+    def evaluate(self, group, state) -> dict:
+        return jax.device_get(self.program.evaluate(state.train_state.params, self.eval_keys))
+
+    def close(self) -> None:
+        pass

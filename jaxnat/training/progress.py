@@ -1,4 +1,5 @@
-"""The live progress bar, fed at update granularity from inside the compiled chunks by a host callback."""
+"""The live progress bar, fed once per update and seed (from inside the compiled chunks by a host
+callback, or by the host backend's loop)."""
 
 from __future__ import annotations
 
@@ -12,14 +13,15 @@ from jaxnat.training.spec import RunSpec
 
 
 class Progress:
-    """A rich progress bar advanced from the per-update host callback (once per seed)."""
+    """A rich progress bar over one group of `seeds` seeds trained together, advanced once per
+    update and seed (`progress(update, metrics)`)."""
 
-    def __init__(self, console, spec: RunSpec, start_update: int):
+    def __init__(self, console, spec: RunSpec, seeds: int, start_update: int):
         from rich.progress import (BarColumn, MofNCompleteColumn, Progress, ProgressColumn,
                                    TextColumn, TimeElapsedColumn, TimeRemainingColumn)
         from rich.text import Text
 
-        seeds = spec.seeds
+        self.seeds = seeds
 
         class SpeedColumn(ProgressColumn):
             def render(self, task):
@@ -40,7 +42,7 @@ class Progress:
         self._lock = threading.Lock()
         self._calls = 0
         self._start = start_update
-        self._returns = collections.deque(maxlen=spec.seeds)
+        self._returns = collections.deque(maxlen=seeds)
 
     def __call__(self, update, metrics) -> None:
         value = float(np.asarray(metrics["episode_return"]))
@@ -48,13 +50,13 @@ class Progress:
             self._calls += 1
             if math.isfinite(value):
                 self._returns.append(value)
-            if self._calls % self.spec.seeds == 0:
-                done = self._start + self._calls // self.spec.seeds
+            if self._calls % self.seeds == 0:
+                done = self._start + self._calls // self.seeds
                 train = f"{np.mean(self._returns):+.3f}" if self._returns else "—"
                 self.progress.update(self.task, completed=done * self.spec.steps_per_update, train=train)
 
     def sync(self, update: int, test: str | None = None) -> None:
         with self._lock:
-            self._calls = (update - self._start) * self.spec.seeds
+            self._calls = (update - self._start) * self.seeds
             fields = {} if test is None else {"test": test}
             self.progress.update(self.task, completed=update * self.spec.steps_per_update, **fields)

@@ -125,8 +125,8 @@ def plot(path: Path, spec: RunSpec, history: History) -> None:
 
     band(axes[0], steps, returns, "train (episodes ending in each rollout)", color="C0")
     band(axes[1], steps, accuracy, "train (episodes ending in each rollout)", color="C0")
-    if history.evals:
-        for ax, key in zip(axes, ("greedy_return", "greedy_terminated_fraction")):
+    for ax, key in zip(axes, ("greedy_return", "greedy_terminated_fraction")):
+        if history.evals and all(key in e for e in history.evals):  # (host runs score returns only)
             band(ax, eval_steps, np.stack([e[key] for e in history.evals]), "test split, greedy",
                  color="C1", marker="o", markersize=3)
     titles = ("Episode return", "Accuracy (fraction of episodes terminated)")

@@ -67,7 +67,7 @@ class RunSpec:
     def from_json(cls, data: dict) -> RunSpec:
         if data["algo"] not in ALGORITHMS:
             raise TrainError(f"config.json names algorithm {data['algo']!r}, which this jaxnat lacks")
-        config_cls, _ = ALGORITHMS[data["algo"]]
+        config_cls = ALGORITHMS[data["algo"]].config
         return cls(
             env_id=data["env_id"], env_kwargs=dict(data["env_kwargs"]), algo=data["algo"],
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
@@ -86,7 +86,7 @@ def check_algo(algo: str) -> None:
 
 def resolve_config(args: TrainArgs, observation_space):
     """The algorithm's config with every override applied and the trunk resolved."""
-    config_cls, _ = ALGORITHMS[args.algo]
+    config_cls = ALGORITHMS[args.algo].config
     names = {f.name for f in dataclasses.fields(config_cls)}
     values = {}
     for field in dataclasses.fields(args.config):
@@ -96,7 +96,7 @@ def resolve_config(args: TrainArgs, observation_space):
         if field.name not in names:
             flag = "--" + field.name.replace("_", "-")
             raise TrainError(f"{flag} is not a setting of {args.algo} (it belongs to "
-                             f"{', '.join(a for a, (c, _) in ALGORITHMS.items() if field.name in {f.name for f in dataclasses.fields(c)})})")
+                             f"{', '.join(a for a, algorithm in ALGORITHMS.items() if field.name in {f.name for f in dataclasses.fields(algorithm.config)})})")
         values[field.name] = value
     for name in CORE_CONFIG_FIELDS:
         if getattr(args, name) is not None:

@@ -12,14 +12,20 @@ class VmapWrapper(Wrapper):
     actions (leading axis `num_envs`) and one key. Params are shared by all envs (not batched).
 
     Spaces stay those of one env (as Gymnasium's `single_observation_space`); every output has a
-    leading `num_envs` axis.
+    leading `num_envs` axis. `params`: the params used when a call passes none (default: the
+    env's `default_params`).
     """
 
-    def __init__(self, env, num_envs: int):
+    def __init__(self, env, num_envs: int, params=None):
         super().__init__(env)
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.num_envs = int(num_envs)
+        self._params = params
+
+    @property
+    def default_params(self):
+        return self._env.default_params if self._params is None else self._params
 
     def reset(self, key, params=None):
         if params is None:

@@ -1,0 +1,635 @@
+"""How rollouts run, for every algorithm: the transition record, GAE with correct time limits,
+episode metrics, two drivers (a `lax.scan` one for JAX envs, a Python one for host-batched
+envs such as Natural Atari), the on-policy learners built on them, and evaluation.
+
+An algorithm file (`ppo.py`, `a2c.py`, `acktr.py`, `dqn.py`) holds its config, loss and update;
+everything about collecting experience is here, written once:
+
+- **Drivers.** `scan_steps` steps a vector of JAX envs inside `lax.scan`; `host_steps` steps a
+  host-batched env (numpy `reset(seed=)` / `step(actions)`, same-step autoreset, PureJaxRL's
+  episode keys and `final_observation` in `info`) from a Python loop around jitted calls.
+  Both take the same two callbacks: `policy(carry, obs, key, t) -> (action [B, F], aux)` and
+  `observe(carry, EnvStep, aux, t) -> (carry, record)`; the algorithm decides what a step
+  stores (PPO a `Transition`, DQN a replay-buffer write). `scan_updates` and `host_updates`
+  repeat an algorithm's update, on the device or from Python.
+- **Time limits.** A value target bootstraps from the final observation of a truncated episode
+  and not from a terminated one: `next_value_t = (1 - terminated_t) * V(final_obs_t)`
+  (`bootstrap`), where the final observation is `info["final_observation"]` (from
+  `AutoResetWrapper`, or the host env's) and the next observation when the episode goes on;
+  the GAE trace is cut at every episode end. Envs with the five-value step API of gymnax 0.x /
+  PureJaxRL (`done` only) work too; there `done` counts as termination, as in those libraries.
+- **On-policy learners.** `on_policy_learner` (jitted, vmappable over seeds: `init(key, config)
+  -> RunnerState`, `run(runner, config)` runs `num_updates` updates in one `lax.scan`) and
+  `on_policy_host_learner` (the host loop) take an `UpdateRule`: the algorithm's optimizer,
+  update and network options. Config fields that change shapes are static; the rest are traced
+  and may be vmapped too.
+- **Recurrent policies** (`memory > 0`): each env's `Memory` (GRU state, previous action and
+  reward, episode start) rides in the runner and is stored per step; the update replays whole
+  env rollouts from their first stored state (`replay`), so it sees the outputs the rollout
+  saw (to float tolerance: the trunk runs on a bigger batch). The final observation of a
+  truncated step is valued with the memory after that step, as if the episode went on.
+  Host-batched envs take feed-forward policies only.
+- **Evaluation.** `make_evaluate` (jitted: each of `num_episodes` envs plays its first episode)
+  and `evaluate_host` (whole games of a host env), greedy or sampled.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import time
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+from flax.training.train_state import TrainState
+
+from jaxnat.agents import distributions
+from jaxnat.agents.networks import Memory, init_params, initial_memory, make_actor_critic, one_step_sequence
+from jaxnat.wrappers import LogWrapper
+
+__all__ = [
+    "static", "Transition", "EnvStep", "RunnerState", "UpdateRule", "Learner", "HostState", "HostLearner",
+    "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_scalar_action", "env_action",
+    "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_updates",
+    "on_policy_learner", "on_policy_host_learner", "check_host_batch", "make_evaluate", "evaluate_host",
+    "clipped_optimizer", "host_jit", "EPISODE_KEYS",
+]
+
+# What a host-batched env's `info` carries about episodes that ended (PureJaxRL's keys).
+EPISODE_KEYS = ("returned_episode", "returned_episode_returns", "returned_episode_lengths")
+
+
+def static(default):
+    """A config field that sets shapes or loop lengths: static under jit, not vmappable."""
+    return struct.field(pytree_node=False, default=default)
+
+
+# ---------------------------------------------------------------------------------------------
+# Records
+
+
+class Transition(NamedTuple):
+    obs: Any
+    action: jax.Array  # [F] int32, one entry per action factor
+    log_prob: jax.Array
+    value: jax.Array
+    reward: jax.Array
+    done: jax.Array  # the episode ended (terminated or truncated): cuts the GAE trace
+    next_value: jax.Array  # (1 - terminated) * V(final observation)
+    info: dict
+    # Recurrent policies: the `Memory` each step read; its `hidden` is only the state before the
+    # rollout's first step, `[1, N, H]` (replay derives the rest).
+    memory: Any = None
+
+
+class EnvStep(NamedTuple):
+    """One step of a batch of envs, as both drivers hand it to `observe`."""
+
+    obs: Any  # the observation the action was chosen on
+    action: Any  # the agent's action [B, F]
+    next_obs: Any  # the next observation (the reset one where an episode ended)
+    reward: Any
+    terminated: Any
+    done: Any  # terminated or truncated
+    final_obs: Any  # the episode's last observation where it ended, else next_obs
+    info: dict
+
+
+class RunnerState(NamedTuple):
+    train_state: TrainState
+    env_state: Any
+    obs: Any
+    key: jax.Array
+    update: jax.Array  # updates done so far (int32)
+    memory: Any = None  # recurrent policies: each env's `Memory` before its next step
+
+
+class UpdateRule(NamedTuple):
+    """An on-policy algorithm's parts that do not depend on how rollouts are collected."""
+
+    make_optimizer: Callable  # (config, num_updates) -> optax.GradientTransformation
+    update_step: Callable  # (config, network, train_state, transitions, advantages, targets, key)
+    # config -> keyword arguments of `networks.make_actor_critic` (dtype, memory) beyond the trunk
+    network_options: Callable = lambda config: {}
+
+
+class Learner(NamedTuple):
+    """`train(key, config=config) -> (runner, metrics)`; `init`/`run` split it for chunked runs."""
+
+    init: Callable
+    run: Callable
+    train: Callable
+    network: Any
+    num_updates: int
+
+
+def gae(transitions: Transition, gamma, gae_lambda) -> tuple[jax.Array, jax.Array]:
+    """Advantages and value targets over a `[T, ...]` rollout (time-major)."""
+
+    def backward(carry, t: Transition):
+        delta = t.reward + gamma * t.next_value - t.value
+        advantage = delta + gamma * gae_lambda * (1.0 - t.done) * carry
+        return advantage, advantage
+
+    _, advantages = jax.lax.scan(
+        backward, jnp.zeros_like(transitions.value[0]), transitions, reverse=True
+    )
+    return advantages, advantages + transitions.value
+
+
+def bootstrap(final_value, terminated):
+    """The value a step's target bootstraps from: `V(final observation)`, 0 if it terminated."""
+    return jnp.where(terminated, 0.0, final_value)
+
+
+def step_info(info: dict, terminated) -> dict:
+    """What `episode_metrics` needs from one vector step."""
+    return {**{name: info[name] for name in EPISODE_KEYS}, "terminated": terminated}
+
+
+def episode_metrics(info: dict) -> dict:
+    """Means over the episodes that ended in this rollout (NaN when none did)."""
+    ended = info["returned_episode"]
+    count = jnp.sum(ended)
+
+    def mean(x):
+        return jnp.where(count > 0, jnp.sum(jnp.where(ended, x, 0.0)) / jnp.maximum(count, 1), jnp.nan)
+
+    # A terminated episode ended by the env's own rule (classification: the right label).
+    return {
+        "episode_return": mean(info["returned_episode_returns"]),
+        "episode_length": mean(info["returned_episode_lengths"].astype(jnp.float32)),
+        "terminated_fraction": mean(info["terminated"].astype(jnp.float32)),
+        "episodes": count,
+    }
+
+
+def count_updates(config) -> int:
+    """Updates in a run: `total_timesteps // (num_envs * num_steps)`, at least one."""
+    total_updates = config.total_timesteps // (config.num_envs * config.num_steps)
+    if total_updates < 1:
+        raise ValueError(
+            f"total_timesteps={config.total_timesteps} is less than one rollout "
+            f"(num_envs * num_steps = {config.num_envs * config.num_steps})"
+        )
+    return total_updates
+
+
+def is_scalar_action(action_space) -> bool:
+    """Whether the env takes one integer per step (Discrete, jaxnat's or gymnax's) rather than a
+    vector (MultiDiscrete); the agents always hold actions as `[..., F]`."""
+    return not hasattr(action_space, "nvec")
+
+
+def env_action(action, scalar: bool):
+    """The agent's `[..., F]` action in the env's form."""
+    return action[..., 0] if scalar else action
+
+
+def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):
+    return optax.chain(optax.clip_by_global_norm(max_grad_norm), optimizer)
+
+
+# ---------------------------------------------------------------------------------------------
+# Policy calls
+
+
+def act(network, params, obs, memory: Memory | None):
+    """One step of the policy over a batch of envs: `(logits, value, hidden after the step)`;
+    `memory` is None for a feed-forward network (hidden is then None too)."""
+    if memory is None:
+        return (*network.apply(params, obs), None)
+    logits, value, hidden = network.apply(params, jax.tree_util.tree_map(lambda x: x[None], obs),
+                                          one_step_sequence(memory))
+    return jax.tree_util.tree_map(lambda x: x[0], logits), value[0], hidden
+
+
+def replay(network, params, obs, memory: Memory | None):
+    """`(logits, value)` of a stored rollout: `obs` `[T, B, ...]` and its per-step memory
+    (`Transition.memory`, whose `hidden[0]` is the state before the first step), replayed so
+    the recurrent policy's outputs are those the rollout saw; a feed-forward network reads any
+    batch shape."""
+    if memory is None:
+        return network.apply(params, obs)
+    logits, value, _ = network.apply(params, obs, memory._replace(hidden=memory.hidden[0]))
+    return logits, value
+
+
+def choose(logits, key, greedy: bool):
+    """The action of an evaluated policy: the most likely (greedy) or a sampled one."""
+    return distributions.mode(logits) if greedy else distributions.sample(key, logits)
+
+
+# ---------------------------------------------------------------------------------------------
+# The scan driver: JAX envs
+
+
+def vector_env(env) -> tuple[Callable, Callable]:
+    """`(reset(keys, params), step(keys, states, actions, params))` over a batch of envs, with
+    episode statistics (`LogWrapper`, which also turns the five-value API into six values);
+    `step` returns `(next_obs, states, reward, terminated, done, final_obs, info)`."""
+    env = LogWrapper(env)
+
+    def one_step(key, state, action, params):
+        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+        final_obs = info.get("final_observation", obs)
+        return obs, state, reward, terminated, terminated | truncated, final_obs, info
+
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    return reset, jax.vmap(one_step, in_axes=(0, 0, 0, None))
+
+
+def scan_steps(step: Callable, env_params, scalar: bool, num_envs: int, num_steps: int,
+               policy: Callable, observe: Callable, carry, env_state, obs, key):
+    """`num_steps` steps of `num_envs` JAX envs in one `lax.scan` (`step` from `vector_env`).
+    Returns `((carry, env_state, obs, key), records stacked over time)`."""
+
+    def body(state, t):
+        carry, env_state, obs, key = state
+        key, key_act, key_env = jax.random.split(key, 3)
+        action, aux = policy(carry, obs, key_act, t)
+        next_obs, env_state, reward, terminated, done, final_obs, info = step(
+            jax.random.split(key_env, num_envs), env_state, env_action(action, scalar), env_params)
+        carry, record = observe(carry, EnvStep(obs, action, next_obs, reward, terminated, done, final_obs, info),
+                                aux, t)
+        return (carry, env_state, next_obs, key), record
+
+    return jax.lax.scan(body, (carry, env_state, obs, key), jnp.arange(num_steps))
+
+
+def scan_updates(update: Callable, runner, config, num_updates: int, callback, tx):
+    """`num_updates` times `update(runner, config) -> (runner, metrics)` in one `lax.scan`,
+    calling `callback(update count, metrics)` on the host after each; `runner` is a NamedTuple
+    with `train_state` and `update`.
+
+    The optimizer `tx` closes over traced hyperparameters, so it is rebuilt from each call's
+    config: chunked runs (init and run jitted separately) use their own, live values. The
+    runner handed back keeps the caller's optimizer object (a static pytree field), so its
+    structure matches the input and a compiled `run` can be fed its own output.
+    """
+    caller_tx = runner.train_state.tx
+    runner = runner._replace(train_state=runner.train_state.replace(tx=tx))
+
+    def body(runner, _):
+        runner, metrics = update(runner, config)
+        if callback is not None:
+            jax.debug.callback(callback, runner.update, metrics)
+        return runner, metrics
+
+    runner, metrics = jax.lax.scan(body, runner, None, num_updates)
+    return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
+
+
+def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
+    """The jitted on-policy learner: a `lax.scan` of updates, each a `lax.scan` rollout of
+    `config.num_steps` steps of `config.num_envs` envs, GAE, then `rule.update_step`.
+
+    Args:
+        config: the algorithm's config (static fields: num_envs, num_steps, total_timesteps,
+            trunk, ...; traced: learning rate, gamma, ...).
+        env, env_params: any env with the jaxnat/gymnax API; it should reset itself when an
+            episode ends (`jaxnat.make` envs do).
+        rule: the algorithm's optimizer, update and network options.
+    """
+    total_updates = count_updates(config)
+    observation_space = env.observation_space(env_params)
+    action_space = env.action_space(env_params)
+    network = make_actor_critic(observation_space, action_space, config.trunk, **rule.network_options(config))
+    scalar = is_scalar_action(action_space)
+    reset, step = vector_env(env)
+
+    def init(key, config=config) -> RunnerState:
+        key, key_net, key_env = jax.random.split(key, 3)
+        train_state = TrainState.create(
+            apply_fn=network.apply,
+            params=init_params(network, observation_space, key_net),
+            tx=rule.make_optimizer(config, total_updates),
+        )
+        obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
+        memory = initial_memory(network, config.num_envs) if network.memory else None
+        return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory)
+
+    def policy(carry, obs, key, t):
+        params, memory = carry
+        logits, value, hidden = act(network, params, obs, memory)
+        action = distributions.sample(key, logits)
+        return action, (distributions.log_prob(logits, action), value, hidden)
+
+    def observe(carry, s: EnvStep, aux, t):
+        params, memory = carry
+        log_prob, value, hidden = aux
+        # The value of the final observation, as if the episode went on (it bootstraps a
+        # truncated step): a recurrent policy reads it after this step's memory.
+        following = None if memory is None else Memory(hidden, s.action, s.reward.astype(jnp.float32),
+                                                       jnp.zeros_like(s.done))
+        _, final_value, _ = act(network, params, s.final_obs, following)
+        transition = Transition(s.obs, s.action, log_prob, value, s.reward, s.done.astype(jnp.float32),
+                                bootstrap(final_value, s.terminated), step_info(s.info, s.terminated),
+                                None if memory is None else memory._replace(hidden=None))
+        next_memory = None if memory is None else following._replace(start=s.done)
+        return (params, next_memory), transition
+
+    def update(runner: RunnerState, config):
+        first_memory = runner.memory
+        ((_, memory), env_state, obs, key), transitions = scan_steps(
+            step, env_params, scalar, config.num_envs, config.num_steps, policy, observe,
+            (runner.train_state.params, runner.memory), runner.env_state, runner.obs, runner.key)
+        advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
+        if first_memory is not None:  # (after gae, which scans every field over time)
+            transitions = transitions._replace(memory=transitions.memory._replace(hidden=first_memory.hidden[None]))
+        key, key_update = jax.random.split(key)
+        train_state, losses = rule.update_step(
+            config, network, runner.train_state, transitions, advantages, targets, key_update
+        )
+        runner = RunnerState(train_state, env_state, obs, key, runner.update + 1, memory)
+        return runner, {**episode_metrics(transitions.info), **losses}
+
+    def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
+        return scan_updates(update, runner, config, num_updates, callback,
+                            rule.make_optimizer(config, total_updates))
+
+    def train(key, config=config):
+        return run(init(key, config), config)
+
+    return Learner(init, run, train, network, total_updates)
+
+
+# ---------------------------------------------------------------------------------------------
+# The host driver: host-batched envs (the emulator steps in C++ on the host)
+
+
+class HostState(NamedTuple):
+    """A host run's state apart from the env: a pytree (what a checkpoint holds). An emulator's
+    state cannot be saved, so `run(state)` starts new games, seeded from `key`."""
+
+    learner: Any  # TrainState (PPO, A2C) or dqn.DQNState
+    key: jax.Array
+    update: jax.Array  # updates done (int32)
+
+
+class HostLearner(NamedTuple):
+    """`train(key) -> (state, history)`, `run(state) -> (state, history)` and their parts."""
+
+    init: Callable  # key -> HostState at update 0
+    run: Callable  # (state, num_updates=None, callback=None) -> (state, history)
+    train: Callable  # (key, num_updates=None, callback=None) -> (state, history)
+    updates: Callable  # state -> iterator of (state, metrics, seconds), one per update, from fresh games
+    params: Callable  # state -> the network's params
+    greedy: Callable  # jitted (params, obs, key) -> the most likely action [B, F]
+    sample: Callable  # jitted (params, obs, key) -> an action sampled from the policy [B, F]
+    network: Any
+    num_updates: int
+
+
+def check_host_batch(config, env, memory: int = 0) -> int:
+    """The run's update count; `config.num_envs` must equal `env.num_envs` (a host-batched env
+    is built with its batch size), and the policy must be feed-forward (`memory` 0)."""
+    if config.num_envs != env.num_envs:
+        raise ValueError(f"config.num_envs={config.num_envs} but the env has {env.num_envs} envs")
+    if memory:
+        raise ValueError(f"memory={memory}: recurrent policies train on jitted envs only; a host-batched env "
+                         "(Natural Atari) takes a feed-forward policy (memory=0) and frame stacking")
+    return count_updates(config)
+
+
+def host_steps(env, scalar: bool, num_steps: int, policy: Callable, observe: Callable, carry, obs, key):
+    """`num_steps` steps of a host-batched env from Python: per step one jitted `policy` call
+    (observations to the device, actions back to the host) and `observe` with the outcome.
+    Returns `(carry, obs, key)` (records are the carry's business)."""
+    for t in range(num_steps):
+        key, key_act = jax.random.split(key)
+        obs_device = jax.device_put(obs)
+        action, aux = policy(carry, obs_device, key_act, t)
+        action = np.asarray(action)
+        next_obs, reward, terminated, truncated, info = env.step(env_action(action, scalar))
+        done = terminated | truncated
+        final_obs = info.get("final_observation", next_obs)
+        carry = observe(carry, EnvStep(obs_device, action, next_obs, reward, terminated, done, final_obs, info),
+                        aux, t)
+        obs = next_obs
+    return carry, obs, key
+
+
+def host_updates(env, network, num_updates: int, init_learner: Callable, update: Callable,
+                 params: Callable, jit: Callable) -> HostLearner:
+    """The Python loop of updates on a host-batched env. `update(learner, obs, key, update_index)
+    -> (learner, obs, key, metrics)` does one update's env steps and learning."""
+
+    @jit
+    def greedy(params, obs, key):
+        return choose(network.apply(params, obs)[0], key, greedy=True)
+
+    @jit
+    def sample(params, obs, key):
+        return choose(network.apply(params, obs)[0], key, greedy=False)
+
+    def init(key) -> HostState:
+        key, key_init = jax.random.split(key)
+        return HostState(init_learner(key_init), key, jnp.zeros((), jnp.int32))
+
+    def updates(state: HostState):
+        """Updates `state.update + 1, ...` (up to `num_updates`) on freshly reset envs, one
+        `(state, metrics, seconds)` per update; a consumer may stop anywhere (a chunk)."""
+        key, key_env = jax.random.split(state.key)
+        obs, _ = env.reset(seed=int(jax.random.randint(key_env, (), 0, 2**31 - 1)))
+        learner = state.learner
+        for index in range(int(state.update), num_updates):
+            start = time.perf_counter()
+            learner, obs, key, metrics = update(learner, obs, key, index)
+            metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
+            yield HostState(learner, key, jnp.asarray(index + 1, jnp.int32)), metrics, time.perf_counter() - start
+
+    def run(state: HostState, num_updates: int = num_updates, callback=None):
+        """Updates `state.update + 1 .. num_updates` on freshly reset envs;
+        `callback(state, metrics, seconds)` after every update."""
+        history = []
+        for state, metrics, seconds in itertools.islice(updates(state), max(0, num_updates - int(state.update))):
+            history.append(metrics)
+            if callback is not None:
+                callback(state, metrics, seconds)
+        return state, history
+
+    def train(key, num_updates: int = num_updates, callback=None):
+        """Train from scratch."""
+        return run(init(key), num_updates, callback)
+
+    return HostLearner(init, run, train, updates, params, greedy, sample, network, num_updates)
+
+
+def host_jit(compiler_options: dict | None) -> Callable:
+    """`jax.jit` with XLA options for every jitted function of a host learner, e.g.
+    `{"xla_backend_optimization_level": 0}` (compiles much faster on CPU)."""
+    return functools.partial(jax.jit, compiler_options=compiler_options)
+
+
+def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict | None = None) -> HostLearner:
+    """The host-loop on-policy learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched
+    host env: per env step one jitted policy call, and one value call on final observations
+    when an episode ended; per update the rollout goes to the device once and one jitted
+    update runs (`rule.update_step`, as the jitted learner's)."""
+    options = rule.network_options(config)
+    num_updates = check_host_batch(config, env, options.get("memory", 0))
+    observation_space = env.single_observation_space
+    network = make_actor_critic(observation_space, env.single_action_space, config.trunk, **options)
+    scalar = is_scalar_action(env.single_action_space)
+    jit = host_jit(compiler_options)
+
+    @jit
+    def policy(params, obs, key):
+        logits, value = network.apply(params, obs)
+        action = distributions.sample(key, logits)
+        return action, (distributions.log_prob(logits, action), value)
+
+    @jit
+    def value_of(params, obs):
+        return network.apply(params, obs)[1]
+
+    @jit
+    def learn(train_state, transitions: Transition, key):
+        advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
+        train_state, losses = rule.update_step(
+            config, network, train_state, transitions, advantages, targets, key
+        )
+        return train_state, {**episode_metrics(transitions.info), **losses}
+
+    @jit  # one compiled program, not hundreds of small eager ones
+    def init(key) -> TrainState:
+        return TrainState.create(
+            apply_fn=network.apply,
+            params=init_params(network, observation_space, key),
+            tx=rule.make_optimizer(config, num_updates),
+        )
+
+    def update(train_state, obs, key, index):
+        del index  # on-policy updates do not depend on the update count (schedules are in the optimizer)
+        params = train_state.params
+
+        def observe(rollout, s: EnvStep, aux, t):
+            log_prob, value = aux
+            # V(final observation) where an episode ended; elsewhere the next step's value serves.
+            final_value = (value_of(params, jax.device_put(s.final_obs)) if s.done.any()
+                           else np.zeros(config.num_envs, np.float32))
+            for name, x in (("obs", s.obs), ("action", s.action), ("log_prob", log_prob), ("value", value),
+                            ("reward", s.reward), ("done", s.done), ("terminated", s.terminated),
+                            ("final_value", final_value), *((k, s.info[k]) for k in EPISODE_KEYS)):
+                rollout[name].append(x)
+            return rollout
+
+        rollout = {name: [] for name in ("obs", "action", "log_prob", "value", "reward", "done",
+                                         "terminated", "final_value", *EPISODE_KEYS)}
+        rollout, obs, key = host_steps(env, scalar, config.num_steps,
+                                       lambda carry, o, k, t: policy(params, o, k), observe, rollout, obs, key)
+        transitions = _host_transitions(rollout, value_of(params, jax.device_put(obs)))
+        key, key_update = jax.random.split(key)
+        train_state, metrics = learn(train_state, transitions, key_update)
+        return train_state, obs, key, metrics
+
+    return host_updates(env, network, num_updates, init, update, lambda s: s.learner.params, jit)
+
+
+@jax.jit
+def _host_transitions(rollout: dict, last_value) -> Transition:
+    """Stack the per-step lists (host and device arrays) into a time-major `Transition` on the
+    device; the value after a step is the next step's (the last one's: `last_value`), or
+    V(final observation) where the episode ended."""
+    stacked = {name: jnp.stack(steps) for name, steps in rollout.items()}
+    value, done, terminated = stacked["value"], stacked["done"], stacked["terminated"]
+    following = jnp.concatenate([value[1:], last_value[None]])
+    info = {name: stacked[name] for name in EPISODE_KEYS}
+    return Transition(
+        obs=stacked["obs"],
+        action=stacked["action"],
+        log_prob=stacked["log_prob"],
+        value=value,
+        reward=stacked["reward"].astype(jnp.float32),
+        done=done.astype(jnp.float32),
+        next_value=bootstrap(jnp.where(done, stacked["final_value"], following), terminated),
+        info=step_info(info, terminated),
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Evaluation
+
+
+def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps: int | None = None):
+    """`evaluate(network_params, key) -> dict of scalars`; pure and jittable.
+
+        evaluate = make_evaluate(learner.network, test_env, test_params, num_episodes=1000)
+        scores = jax.jit(jax.vmap(evaluate))(runner.train_state.params, keys)   # per seed
+
+    Each of `num_episodes` envs (built with `autoreset=False`) plays its first episode to the
+    end (at most `max_steps` steps, default the env's time limit); the result holds the mean
+    return, the fraction of episodes that terminated (for classification: were classified
+    correctly), the mean length and the fraction unfinished, for the greedy policy (most likely
+    action per factor) and for actions sampled from the policy.
+    """
+    if max_steps is None:
+        max_steps = int(env_params.max_steps_in_episode)
+    scalar = is_scalar_action(env.action_space(env_params))
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def play(network_params, key, greedy: bool):
+        key_reset, key_steps = jax.random.split(key)
+        obs, state = reset(jax.random.split(key_reset, num_episodes), env_params)
+        zeros = jnp.zeros(num_episodes)
+        running = jnp.ones(num_episodes, bool)
+
+        def body(carry, key):
+            obs, state, running, total, length, terminated_any, memory = carry
+            key_act, key_env = jax.random.split(key)
+            logits, _, hidden = act(network, network_params, obs, memory)
+            action = env_action(choose(logits, key_act, greedy), scalar)
+            obs, state, reward, terminated, truncated, _ = step(
+                jax.random.split(key_env, num_episodes), state, action, env_params
+            )
+            total = total + jnp.where(running, reward, 0.0)
+            length = length + running
+            terminated_any = terminated_any | (running & terminated)
+            running = running & ~(terminated | truncated)
+            if memory is not None:  # the first episode is all that counts: no reset to mark
+                memory = Memory(hidden, action[..., None] if scalar else action, reward.astype(jnp.float32),
+                                jnp.zeros_like(running))
+            return (obs, state, running, total, length, terminated_any, memory), None
+
+        memory = initial_memory(network, num_episodes) if network.memory else None
+        carry = (obs, state, running, zeros, zeros, jnp.zeros(num_episodes, bool), memory)
+        (_, _, running, total, length, terminated, _), _ = jax.lax.scan(
+            body, carry, jax.random.split(key_steps, max_steps)
+        )
+        return {"return": total.mean(), "terminated_fraction": terminated.mean(),
+                "length": length.mean(), "unfinished": running.mean()}
+
+    def evaluate(network_params, key):
+        key_greedy, key_sampled = jax.random.split(key)
+        greedy = play(network_params, key_greedy, greedy=True)
+        sampled = play(network_params, key_sampled, greedy=False)
+        return {**{f"greedy_{k}": v for k, v in greedy.items()},
+                **{f"sampled_{k}": v for k, v in sampled.items()}}
+
+    return evaluate
+
+
+def evaluate_host(learner: HostLearner, params, env, num_episodes: int, key,
+                  greedy: bool = False) -> np.ndarray:
+    """Whole-game returns (unclipped) of the first `num_episodes` games that end, with the
+    learner's policy sampled (or greedy); every env of `env` plays until enough have ended. The
+    learner's jitted functions are reused (nothing new to compile)."""
+    policy = learner.greedy if greedy else learner.sample
+    returns: list[float] = []
+
+    def observe(returns, s: EnvStep, aux, t):
+        returns.extend(s.info["returned_episode_returns"][s.info["returned_episode"]].tolist())
+        return returns
+
+    obs, _ = env.reset()
+    while len(returns) < num_episodes:
+        returns, obs, key = host_steps(env, is_scalar_action(env.single_action_space), 1,
+                                       lambda carry, o, k, t: (policy(params, o, k), None), observe,
+                                       returns, obs, key)
+    return np.asarray(returns[:num_episodes], np.float32)

@@ -1,0 +1,111 @@
+"""The run directory's bookkeeping that both backends of `jaxnat train` share: a new or resumed
+run's spec and folder, the checks on its counts, the versions recorded in `config.json`.
+
+Only `jaxnat.training` touches run directories; the agents know nothing of them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import importlib
+import json
+import platform
+from pathlib import Path
+from typing import Any
+
+import jax
+
+import jaxnat
+from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
+from jaxnat.training.spec import RunSpec, auto_eval_every
+
+@dataclasses.dataclass
+class TrainResult:
+    run_dir: Path
+    runner: Any  # the vmapped RunnerState
+    summary: dict
+    complete: bool
+
+
+def versions() -> dict:
+    versions = {"jaxnat": jaxnat.__version__, "jax": jax.__version__, "python": platform.python_version()}
+    for name in ("jaxlib", "flax", "optax", "orbax.checkpoint"):
+        try:
+            versions[name] = importlib.import_module(name).__version__
+        except Exception:  # noqa: BLE001 (versions are informative only)
+            pass
+    versions["device"] = str(jax.devices()[0].device_kind)
+    return versions
+
+
+def default_run_dir(env_id: str, algo: str) -> Path:
+    stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{env_id.replace('/', '_')}-{algo}-{stamp}"
+
+
+def check_resume_args(args: TrainArgs, saved: dict) -> None:
+    """Arguments given with --resume must match the run's; defaults count as left out."""
+    defaults = TrainArgs()
+    conflicts = []
+    for field in dataclasses.fields(TrainArgs):
+        if field.name in ("resume", "run_dir", "config"):
+            continue
+        value, default = getattr(args, field.name), getattr(defaults, field.name)
+        if field.name == "env_kwargs":
+            value, default = parse_env_kwargs(value), parse_env_kwargs(default)
+        if value != default and value != saved.get(field.name, saved["config"].get(field.name)):
+            conflicts.append(f"--{field.name.replace('_', '-')}")
+    for field in dataclasses.fields(args.config):
+        value = getattr(args.config, field.name)
+        if value is not None and value != saved["config"].get(field.name):
+            conflicts.append(f"--{field.name.replace('_', '-')}")
+    if args.run_dir is not None and Path(args.run_dir).absolute() != Path(args.resume).absolute():
+        conflicts.append("--run-dir")
+    if conflicts:
+        verb = "conflicts" if len(conflicts) == 1 else "conflict"
+        raise TrainError(f"{', '.join(conflicts)} {verb} with the config of the run being resumed "
+                         f"({Path(args.resume) / 'config.json'}); leave them out")
+
+
+def open_resumed(args: TrainArgs):
+    """The run `--resume` names: (spec, run_dir, its saved config.json)."""
+    run_dir = Path(args.resume)
+    config_path = run_dir / "config.json"
+    if not config_path.is_file():
+        raise TrainError(f"cannot resume {run_dir}: no config.json there")
+    saved = json.loads(config_path.read_text())
+    if "spec" not in saved:
+        raise TrainError(f"cannot resume {run_dir}: it was written without checkpoints (an older jaxnat)")
+    check_resume_args(args, saved["spec"])
+    return RunSpec.from_json(saved["spec"]), run_dir, saved
+
+
+def check_counts(args: TrainArgs) -> None:
+    for name in ("seeds", "eval_episodes"):
+        if getattr(args, name) < 1:
+            raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
+    if args.eval_every is not None and args.eval_every < 1:
+        raise TrainError("--eval-every must be at least 1")
+
+
+def with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
+    """`spec` with its chunk length (`--eval-every`, else about 20 evaluations over the run)."""
+    if spec.num_updates < 1:
+        raise TrainError(f"total_timesteps={spec.config.total_timesteps} is less than one rollout "
+                         f"(num_envs * num_steps = {spec.steps_per_update})")
+    eval_every = args.eval_every or auto_eval_every(spec.num_updates)
+    return dataclasses.replace(spec, eval_every=min(eval_every, spec.num_updates))
+
+
+def new_run_dir(args: TrainArgs) -> Path:
+    run_dir = Path(args.run_dir) if args.run_dir is not None else default_run_dir(args.env_id, args.algo)
+    if (run_dir / "config.json").exists():
+        raise TrainError(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
+                         "or choose another --run-dir")
+    return run_dir
+
+
+def args_json(args: TrainArgs) -> dict:
+    data = dataclasses.asdict(args)
+    return json.loads(json.dumps(data, default=str))

@@ -1,0 +1,200 @@
+"""The one training loop of `jaxnat train`: the run directory, chunks of updates, evaluation,
+checkpoints, resume, the curve and the summary, over a `Backend` that trains the seeds.
+
+Two backends: `programs.DeviceBackend` (pure-JAX envs: every seed in one compiled, vmapped
+program; the test split is scored after every chunk) and `host.HostBackend` (host-batched
+envs, Natural Atari: one seed after another from a Python loop; the test split is scored once,
+when a seed ends). A backend trains *groups* of seeds (the device backend one group of all
+seeds, the host backend one group per seed); the loop here is the same for both:
+
+    for each group: restore its latest checkpoint (if any), drop the records written after it,
+        then chunk by chunk: train `eval_every` updates, append `metrics.jsonl` rows, evaluate
+        (every chunk or at the group's end) into `eval.jsonl`, checkpoint, redraw `curve.png`
+    write `summary.json` (also for a run stopped early, marked incomplete)
+
+Checkpoints live in `checkpoints/` (device) or `checkpoints/seed_<s>/` (host); each holds the
+backend's state pytree and `{"chunk", "update", "env_steps", "wall_time_s"}`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from jaxnat.training.checkpoints import Checkpoints
+from jaxnat.training.progress import Progress
+from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
+                                     run_summary, write_jsonl)
+from jaxnat.training.spec import RunSpec
+
+__all__ = ["Backend", "run_training"]
+
+
+class Backend(Protocol):
+    """What trains the seeds of a run; `run_training` does everything else."""
+
+    groups: list[list[int]]  # seed values trained together, in order
+    evaluates_each_chunk: bool  # score the test split after every chunk (else at a group's end)
+
+    def checkpoint_dir(self, group: list[int]) -> str:
+        """The group's checkpoint folder, relative to the run directory."""
+
+    def init(self, group: list[int]) -> Any:
+        """The group's state at update 0 (the structure a checkpoint restores into)."""
+
+    def update_of(self, state) -> int:
+        """Updates the state has done."""
+
+    def begin(self, group: list[int], state) -> None:
+        """Get ready to train `state` from its update on (the host backend starts new games)."""
+
+    def chunk(self, state, num_updates: int, progress: Progress) -> tuple[Any, dict]:
+        """`(state, metrics)`: `num_updates` more updates; metrics `{name: [len(group), n]}`."""
+
+    def evaluate(self, group: list[int], state) -> dict:
+        """Test-split scores `{name: [len(group)]}` (`greedy_return`, `sampled_return`, ...)."""
+
+
+def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new_run: dict | None,
+                 stop_after_chunks: int | None = None) -> tuple[Any, dict, bool]:
+    """Train (or resume) `spec` in `run_dir`; `new_run`: the `config.json` to write for a new
+    run (None when resuming). Returns `(state of the last group, summary, complete)`; raises
+    `KeyboardInterrupt` after saving the summary when interrupted."""
+    session_start = time.perf_counter()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    metrics_path, eval_path = run_dir / "metrics.jsonl", run_dir / "eval.jsonl"
+    if new_run is not None:
+        (run_dir / "config.json").write_text(json.dumps(new_run, indent=2, default=str) + "\n")
+        metrics_path.write_text("")
+        eval_path.write_text("")
+    metrics_rows, eval_rows = read_jsonl(metrics_path), read_jsonl(eval_path)
+    prior_wall, chunks_done, interrupted, stopped = 0.0, 0, False, False
+    num_chunks = -(-spec.num_updates // spec.eval_every)
+    state = None
+
+    def evaluate(group, state, update: int, chunk_seconds: float | None) -> dict:
+        scores = backend.evaluate(group, state)
+        sps = None if chunk_seconds is None else last_chunk_steps * len(group) / chunk_seconds
+        rows = [{"chunk": -(-update // spec.eval_every), "update": update,
+                 "env_steps": update * spec.steps_per_update, "seed": seed,
+                 **{k: json_value(v[i]) for k, v in scores.items()},
+                 "chunk_seconds": chunk_seconds, "steps_per_second": sps}
+                for i, seed in enumerate(group)]
+        write_jsonl(eval_path, rows)
+        eval_rows.extend(rows)
+        return scores
+
+    try:
+        for group in backend.groups:
+            label = "" if len(group) == len(spec.seed_values) else f"seed {', '.join(map(str, group))} · "
+            checkpoints = Checkpoints(run_dir / backend.checkpoint_dir(group))
+            try:
+                state = backend.init(group)
+                if checkpoints.latest_step() is not None:
+                    state, meta = checkpoints.restore(state)
+                    prior_wall = max(prior_wall, float(meta.get("wall_time_s", 0.0)))
+                    console.print(f"{label}resumed from checkpoint at update {meta['update']}")
+                update = backend.update_of(state)
+                # Drop the group's records written after its checkpoint (a run stopped between
+                # writing and saving); other groups' rows stay.
+                keep = lambda r: r["seed"] not in group or r["update"] <= update  # noqa: E731
+                metrics_rows[:] = [r for r in metrics_rows if keep(r)]
+                eval_rows[:] = [r for r in eval_rows if keep(r)]
+                write_jsonl(metrics_path, metrics_rows, "w")
+                write_jsonl(eval_path, eval_rows, "w")
+                evaluated = {r["update"] for r in eval_rows if r["seed"] in group}
+                if update >= spec.num_updates and update in evaluated:
+                    console.print(f"{label}finished before")
+                    continue
+                last_chunk_steps = 0
+                if backend.evaluates_each_chunk and update not in evaluated:  # the untrained policy
+                    evaluate(group, state, update, None)
+                backend.begin(group, state)
+                progress = Progress(console, spec, len(group), update)
+                with progress.progress:
+                    progress.sync(update, _test_field(eval_rows, group))
+                    while update < spec.num_updates:
+                        if stop_after_chunks is not None and chunks_done >= stop_after_chunks:
+                            stopped = True
+                            break
+                        n = min(spec.eval_every, spec.num_updates - update)
+                        start = time.perf_counter()
+                        state, metrics = backend.chunk(state, n, progress)
+                        seconds = time.perf_counter() - start
+                        first, update = update, update + n
+                        last_chunk_steps = n * spec.steps_per_update
+                        rows = [{"update": first + j + 1, "env_steps": (first + j + 1) * spec.steps_per_update,
+                                 "seed": seed, **{k: json_value(v[i, j]) for k, v in metrics.items()}}
+                                for j in range(n) for i, seed in enumerate(group)]
+                        write_jsonl(metrics_path, rows)
+                        metrics_rows.extend(rows)
+                        scores = None
+                        if backend.evaluates_each_chunk or update == spec.num_updates:
+                            scores = evaluate(group, state, update, seconds)
+                        chunk_index = -(-update // spec.eval_every)
+                        checkpoints.save(state, {"chunk": chunk_index, "update": update,
+                                                 "env_steps": update * spec.steps_per_update,
+                                                 "wall_time_s": prior_wall + time.perf_counter() - session_start})
+                        plot(run_dir / "curve.png", spec, History.load(spec, metrics_rows, eval_rows))
+                        chunks_done += 1
+                        progress.sync(update, _test_field(eval_rows, group))
+                        console.print(f"{label}chunk {chunk_index}/{num_chunks} · update {update}/{spec.num_updates}"
+                                      f" · {update * spec.steps_per_update:,} env steps/seed · "
+                                      f"{_train_field(metrics)}{_scores_field(scores)} · "
+                                      f"{n * spec.steps_per_update * len(group) / seconds:,.0f} steps/s")
+                if stopped:
+                    break
+                if update >= spec.num_updates and update not in {r["update"] for r in eval_rows if r["seed"] in group}:
+                    evaluate(group, state, update, None)  # resumed from the group's last checkpoint
+            finally:
+                checkpoints.close()
+    except KeyboardInterrupt:
+        interrupted = True
+
+    finished = {r["seed"] for r in eval_rows if r["update"] == spec.num_updates}
+    complete = finished >= set(spec.seed_values)
+    history = History.load(spec, metrics_rows, eval_rows)
+    if not (run_dir / "curve.png").exists() or not complete:
+        plot(run_dir / "curve.png", spec, history)
+    summary = run_summary(spec, history, prior_wall + time.perf_counter() - session_start, complete)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print_summary(console, summary)
+    if not complete:
+        why = "interrupted" if interrupted else "stopped"
+        console.print(f"{why}; continue with: jaxnat train --resume {run_dir}")
+    else:
+        console.print(f"run directory: {run_dir}\nlearning curve: {run_dir / 'curve.png'}")
+    if interrupted:
+        raise KeyboardInterrupt
+    return state, summary, complete
+
+
+def _train_field(metrics: dict) -> str:
+    mean, std = mean_std(nanmean(metrics["episode_return"], 1))
+    return "no episode ended yet" if np.isnan(mean) else f"train return {mean:+.3f} ± {std:.3f}"
+
+
+def _scores_field(scores: dict | None) -> str:
+    if scores is None:
+        return ""
+    greedy, greedy_std = mean_std(scores["greedy_return"])
+    sampled, _ = mean_std(scores["sampled_return"])
+    accuracy = ""
+    if "greedy_terminated_fraction" in scores:
+        accuracy = f" (accuracy {mean_std(scores['greedy_terminated_fraction'])[0]:.1%})"
+    return f" · test greedy {greedy:+.3f} ± {greedy_std:.3f}{accuracy} · sampled {sampled:+.3f}"
+
+
+def _test_field(eval_rows: list[dict], group: list[int]) -> str | None:
+    rows = [r for r in eval_rows if r["seed"] in group]
+    if not rows:
+        return None
+    last = max(r["update"] for r in rows)
+    greedy, _ = mean_std([r["greedy_return"] for r in rows if r["update"] == last and r["greedy_return"] is not None])
+    accuracy = [r.get("greedy_terminated_fraction") for r in rows if r["update"] == last]
+    accuracy = [a for a in accuracy if a is not None]
+    return f"{greedy:+.3f}" + (f" ({np.mean(accuracy):.0%})" if accuracy else "")
