@@ -1,36 +1,23 @@
 """How rollouts run, for every algorithm: the transition record, GAE with correct time limits,
-episode metrics, two drivers (a `lax.scan` one for JAX envs, a Python one for host-batched
-envs such as Natural Atari), the on-policy learners built on them, and evaluation.
-
-An algorithm file (`ppo.py`, `a2c.py`, `acktr.py`, `dqn.py`) holds its config, loss and update;
-everything about collecting experience is here, written once:
+episode metrics, two drivers, the on-policy learners built on them, and evaluation. An
+algorithm file (`ppo.py`, `a2c.py`, `acktr.py`, `dqn.py`) holds its config, loss and update.
 
 - **Drivers.** `scan_steps` steps a vector of JAX envs inside `lax.scan`; `host_steps` steps a
-  host-batched env (numpy `reset(seed=)` / `step(actions)`, same-step autoreset, PureJaxRL's
-  episode keys and `final_observation` in `info`) from a Python loop around jitted calls.
-  Both take the same two callbacks: `policy(carry, obs, key, t) -> (action [B, F], aux)` and
-  `observe(carry, EnvStep, aux, t) -> (carry, record)`; the algorithm decides what a step
-  stores (PPO a `Transition`, DQN a replay-buffer write). `scan_updates` and `host_updates`
-  repeat an algorithm's update, on the device or from Python.
-- **Time limits.** A value target bootstraps from the final observation of a truncated episode
-  and not from a terminated one: `next_value_t = (1 - terminated_t) * V(final_obs_t)`
-  (`bootstrap`), where the final observation is `info["final_observation"]` (from
-  `AutoResetWrapper`, or the host env's) and the next observation when the episode goes on;
-  the GAE trace is cut at every episode end. Envs with the five-value step API of gymnax 0.x /
-  PureJaxRL (`done` only) work too; there `done` counts as termination, as in those libraries.
-- **On-policy learners.** `on_policy_learner` (jitted, vmappable over seeds: `init(key, config)
-  -> RunnerState`, `run(runner, config)` runs `num_updates` updates in one `lax.scan`) and
-  `on_policy_host_learner` (the host loop) take an `UpdateRule`: the algorithm's optimizer,
-  update and network options. Config fields that change shapes are static; the rest are traced
-  and may be vmapped too.
-- **Recurrent policies** (`memory > 0`): each env's `Memory` (GRU state, previous action and
-  reward, episode start) rides in the runner and is stored per step; the update replays whole
-  env rollouts from their first stored state (`replay`), so it sees the outputs the rollout
-  saw (to float tolerance: the trunk runs on a bigger batch). The final observation of a
-  truncated step is valued with the memory after that step, as if the episode went on.
-  Host-batched envs take feed-forward policies only.
-- **Evaluation.** `make_evaluate` (jitted: each of `num_episodes` envs plays its first episode)
-  and `evaluate_host` (whole games of a host env), greedy or sampled.
+  host-batched env (`jaxnat.core.HostBatchedEnv`: Natural Atari) from a Python loop around
+  jitted calls. Both take the same callbacks, `policy(carry, obs, key, t) -> (action [B, F],
+  aux)` and `observe(carry, EnvStep, aux, t) -> (carry, record)`: the algorithm decides what a
+  step stores (PPO a `Transition`, DQN a replay-buffer write). `scan_updates` and
+  `host_updates` repeat an algorithm's update on the device or from Python.
+- **Time limits.** A target bootstraps from the final observation of a truncated episode and
+  not from a terminated one: `next_value_t = (1 - terminated_t) * V(final_obs_t)`
+  (`bootstrap`); the GAE trace is cut at every episode end. Envs with the five-value step API
+  of gymnax 0.x / PureJaxRL (`done` only) work too; `done` then counts as termination.
+- **Recurrent policies** (`memory > 0`, jitted envs only): each env's `Memory` rides in the
+  runner; the update replays whole env rollouts from their first stored state (`replay`), so
+  it sees the outputs the rollout saw (to float tolerance: the trunk runs on a bigger batch).
+  The final observation of a truncated step is valued with the memory after that step.
+- **Evaluation.** `make_evaluate` (jitted: each env plays its first episode) and
+  `evaluate_host` (whole games of a host env), greedy or sampled.
 """
 
 from __future__ import annotations
@@ -115,6 +102,11 @@ class UpdateRule(NamedTuple):
     update_step: Callable  # (config, network, train_state, transitions, advantages, targets, key)
     # config -> keyword arguments of `networks.make_actor_critic` (dtype, memory) beyond the trunk
     network_options: Callable = lambda config: {}
+
+    def train_state(self, config, network, observation_space, num_updates: int, key) -> TrainState:
+        """Fresh parameters and optimizer state for a run of `num_updates` updates."""
+        return TrainState.create(apply_fn=network.apply, params=init_params(network, observation_space, key),
+                                 tx=self.make_optimizer(config, num_updates))
 
 
 class Learner(NamedTuple):
@@ -304,11 +296,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
 
     def init(key, config=config) -> RunnerState:
         key, key_net, key_env = jax.random.split(key, 3)
-        train_state = TrainState.create(
-            apply_fn=network.apply,
-            params=init_params(network, observation_space, key_net),
-            tx=rule.make_optimizer(config, total_updates),
-        )
+        train_state = rule.train_state(config, network, observation_space, total_updates, key_net)
         obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
         memory = initial_memory(network, config.num_envs) if network.memory else None
         return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory)
@@ -375,8 +363,8 @@ class HostLearner(NamedTuple):
     """`train(key) -> (state, history)`, `run(state) -> (state, history)` and their parts."""
 
     init: Callable  # key -> HostState at update 0
-    run: Callable  # (state, num_updates=None, callback=None) -> (state, history)
-    train: Callable  # (key, num_updates=None, callback=None) -> (state, history)
+    run: Callable  # (state, num_updates=None) -> (state, history)
+    train: Callable  # (key, num_updates=None) -> (state, history)
     updates: Callable  # state -> iterator of (state, metrics, seconds), one per update, from fresh games
     params: Callable  # state -> the network's params
     greedy: Callable  # jitted (params, obs, key) -> the most likely action [B, F]
@@ -443,19 +431,16 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
             metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
             yield HostState(learner, key, jnp.asarray(index + 1, jnp.int32)), metrics, time.perf_counter() - start
 
-    def run(state: HostState, num_updates: int = num_updates, callback=None):
-        """Updates `state.update + 1 .. num_updates` on freshly reset envs;
-        `callback(state, metrics, seconds)` after every update."""
+    def run(state: HostState, num_updates: int = num_updates):
+        """Updates `state.update + 1 .. num_updates` on freshly reset envs: `(state, history)`."""
         history = []
-        for state, metrics, seconds in itertools.islice(updates(state), max(0, num_updates - int(state.update))):
+        for state, metrics, _ in itertools.islice(updates(state), max(0, num_updates - int(state.update))):
             history.append(metrics)
-            if callback is not None:
-                callback(state, metrics, seconds)
         return state, history
 
-    def train(key, num_updates: int = num_updates, callback=None):
+    def train(key, num_updates: int = num_updates):
         """Train from scratch."""
-        return run(init(key), num_updates, callback)
+        return run(init(key), num_updates)
 
     return HostLearner(init, run, train, updates, params, greedy, sample, network, num_updates)
 
@@ -496,13 +481,8 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
         )
         return train_state, {**episode_metrics(transitions.info), **losses}
 
-    @jit  # one compiled program, not hundreds of small eager ones
-    def init(key) -> TrainState:
-        return TrainState.create(
-            apply_fn=network.apply,
-            params=init_params(network, observation_space, key),
-            tx=rule.make_optimizer(config, num_updates),
-        )
+    # One compiled program, not hundreds of small eager ones.
+    init = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
 
     def update(train_state, obs, key, index):
         del index  # on-policy updates do not depend on the update count (schedules are in the optimizer)

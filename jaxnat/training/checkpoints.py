@@ -84,6 +84,6 @@ def load_checkpoint(run_dir, step: int | None = None, *, compiler_options: dict 
     try:
         if checkpoints.latest_step() is None:
             raise TrainError(f"{run_dir} has no checkpoint yet")
-        return checkpoints.restore(program.init(program.keys()), step)
+        return checkpoints.restore(program.init(), step)
     finally:
         checkpoints.close()

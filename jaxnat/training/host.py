@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import json
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -33,7 +31,7 @@ from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
-__all__ = ["HOST_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "is_host_run", "new_host_spec",
+__all__ = ["HOST_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "new_host_spec",
            "observation_space", "make_learner", "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
@@ -61,17 +59,6 @@ def is_host_env(env_id: str) -> bool:
         return jaxnat.spec(env_id).batched
     except UnknownEnvError:
         return False  # the main path reports it
-
-
-def is_host_run(args: TrainArgs) -> bool:
-    """Whether `args` trains (or resumes) a run on a host-batched env."""
-    if args.resume is not None:
-        try:
-            env_id = json.loads((Path(args.resume) / "config.json").read_text())["spec"]["env_id"]
-        except (OSError, ValueError, KeyError):
-            return False  # the main path reports what is wrong with the run directory
-        return is_host_env(env_id)
-    return is_host_env(args.env_id)
 
 
 def new_host_spec(args: TrainArgs, console) -> RunSpec:

@@ -11,21 +11,21 @@ import time
 from pathlib import Path
 
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
-from jaxnat.training.host import HostBackend, is_host_run, new_host_spec
-from jaxnat.training.programs import DeviceBackend, accepts, compiled_program, make_envs
+from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
+from jaxnat.training.programs import accepts, compiled_program, make_envs
 from jaxnat.training.rundir import (TrainResult, args_json, check_counts, new_run_dir, open_resumed, versions,
                                     with_eval_every)
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 from jaxnat.training.trainer import run_training
 
 
-def _setup(args: TrainArgs, console, host: bool):
+def _setup(args: TrainArgs, console):
     """(spec, run_dir, the saved config.json when resuming else None)."""
     if args.resume is not None:
         return open_resumed(args)
     check_algo(args.algo)
     check_counts(args)
-    if host:
+    if is_host_env(args.env_id):
         run_dir = new_run_dir(args)
         return with_eval_every(new_host_spec(args, console), args), run_dir, None
     env_kwargs = parse_env_kwargs(args.env_kwargs)
@@ -73,8 +73,8 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     from rich.console import Console
 
     console = console or Console()
-    host = is_host_run(args)  # NaturalAtari/*: emulated on the host, trained from a Python loop
-    spec, run_dir, saved = _setup(args, console, host)
+    spec, run_dir, saved = _setup(args, console)
+    host = is_host_env(spec.env_id)  # NaturalAtari/*: emulated on the host, trained from a Python loop
     _print_config(console, spec, run_dir)
     if host:
         backend = HostBackend(spec, compiler_options)
@@ -83,9 +83,9 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
             compile_start = time.perf_counter()
             program = compiled_program(spec, compiler_options)
             for length in {spec.eval_every, spec.num_updates % spec.eval_every} - {0}:
-                program.chunk(length)
+                program.compiled_chunk(length)
         console.print(f"[dim]programs ready in {time.perf_counter() - compile_start:.1f} s[/dim]")
-        backend = DeviceBackend(program)
+        backend = program
     new_run = None if saved is not None else {
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
         "versions": versions(), "created": datetime.datetime.now().isoformat(timespec="seconds"),

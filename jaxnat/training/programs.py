@@ -79,8 +79,12 @@ def set_progress_sink(sink) -> None:
     _SINK = sink
 
 
-class _Program:
-    """The compiled functions of one run spec: init, a chunk of updates, evaluation."""
+class DeviceBackend:
+    """`trainer.Backend` for pure-JAX envs: the compiled functions of one run spec (init, a chunk
+    of updates, evaluation), every seed at once in one vmapped program; the test split is
+    scored after every chunk; checkpoints in `checkpoints/` hold the vmapped runner state."""
+
+    evaluates_each_chunk = True
 
     def __init__(self, spec: RunSpec, compiler_options: dict | None):
         self.spec = spec
@@ -96,10 +100,11 @@ class _Program:
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
         init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
         self.runner_shape = jax.eval_shape(init, keys)
-        self.init = self._compile(init, keys)
-        self.evaluate = self._compile(jax.jit(jax.vmap(evaluate)),
-                                      self.runner_shape.train_state.params, keys)
+        self.compiled_init = self._compile(init, keys)
+        self.compiled_evaluate = self._compile(jax.jit(jax.vmap(evaluate)),
+                                               self.runner_shape.train_state.params, keys)
         self._chunks: dict[int, Any] = {}
+        self.groups = [spec.seed_values]
 
     def _compile(self, jitted, *args):
         try:
@@ -107,7 +112,7 @@ class _Program:
         except ValueError as err:  # e.g. a batch that the minibatches do not divide
             raise TrainError(str(err)) from None
 
-    def chunk(self, num_updates: int):
+    def compiled_chunk(self, num_updates: int):
         """`runner -> (runner, metrics [seeds, num_updates])`, compiled once per length."""
         if num_updates not in self._chunks:
             run = functools.partial(self.learner.run, config=self.spec.config,
@@ -121,38 +126,13 @@ class _Program:
     def eval_keys(self):
         return jax.vmap(lambda k: jax.random.fold_in(k, EVAL_STREAM))(self.keys())
 
-
-_PROGRAMS: collections.OrderedDict = collections.OrderedDict()
-
-
-def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> _Program:
-    """Build (or reuse, within this process) the compiled programs for `spec`."""
-    key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
-    if key not in _PROGRAMS:
-        _PROGRAMS[key] = _Program(spec, compiler_options)
-        while len(_PROGRAMS) > 2:
-            _PROGRAMS.popitem(last=False)
-    _PROGRAMS.move_to_end(key)
-    return _PROGRAMS[key]
-
-
-class DeviceBackend:
-    """`trainer.Backend` for pure-JAX envs: every seed at once in one compiled, vmapped program
-    (`compiled_program`), the test split scored after every chunk; checkpoints in
-    `checkpoints/`, the vmapped runner state."""
-
-    evaluates_each_chunk = True
-
-    def __init__(self, program: _Program):
-        self.program = program
-        self.groups = [program.spec.seed_values]
-        self.eval_keys = program.eval_keys()
+    # The trainer's interface (`trainer.Backend`): one group of every seed.
 
     def checkpoint_dir(self, group) -> str:
         return "checkpoints"
 
-    def init(self, group):
-        return self.program.init(self.program.keys())
+    def init(self, group=None):
+        return self.compiled_init(self.keys())
 
     def update_of(self, state) -> int:
         return int(np.asarray(state.update)[0])
@@ -163,13 +143,27 @@ class DeviceBackend:
     def chunk(self, state, num_updates: int, progress):
         set_progress_sink(progress)
         try:
-            state, metrics = self.program.chunk(num_updates)(state)
+            state, metrics = self.compiled_chunk(num_updates)(state)
             return state, jax.device_get(metrics)
         finally:
             set_progress_sink(None)
 
     def evaluate(self, group, state) -> dict:
-        return jax.device_get(self.program.evaluate(state.train_state.params, self.eval_keys))
+        return jax.device_get(self.compiled_evaluate(state.train_state.params, self.eval_keys()))
 
     def close(self) -> None:
         pass
+
+
+_PROGRAMS: collections.OrderedDict = collections.OrderedDict()
+
+
+def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> DeviceBackend:
+    """Build (or reuse, within this process) the compiled programs for `spec`."""
+    key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
+    if key not in _PROGRAMS:
+        _PROGRAMS[key] = DeviceBackend(spec, compiler_options)
+        while len(_PROGRAMS) > 2:
+            _PROGRAMS.popitem(last=False)
+    _PROGRAMS.move_to_end(key)
+    return _PROGRAMS[key]

@@ -32,7 +32,7 @@ def write_jsonl(path: Path, rows, mode: str = "a") -> None:
 
 
 class History:
-    """What the curve and the summary need, kept in memory (and re-read on --resume)."""
+    """What the curve and the summary need, read from the run's metric rows."""
 
     def __init__(self, spec: RunSpec):
         self.spec = spec
@@ -40,17 +40,6 @@ class History:
                                                    "terminated_fraction": []}
         self.evals: list[dict] = []  # one per evaluation: update + arrays over seeds
         self.chunk_sps: list[float] = []
-
-    def add_train(self, first_update: int, metrics: dict) -> None:
-        n = np.asarray(metrics["episode_return"]).shape[1]
-        self.train["update"].append(np.arange(first_update + 1, first_update + n + 1))
-        for name in ("episode_return", "terminated_fraction"):
-            self.train[name].append(np.asarray(metrics[name], np.float64).T)  # [n, seeds]
-
-    def add_eval(self, update: int, scores: dict, sps: float | None) -> None:
-        self.evals.append({"update": update, **{k: np.asarray(v, np.float64) for k, v in scores.items()}})
-        if sps is not None:
-            self.chunk_sps.append(sps)
 
     @classmethod
     def load(cls, spec: RunSpec, metrics_rows: list[dict], eval_rows: list[dict]) -> History:

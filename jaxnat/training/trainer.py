@@ -116,7 +116,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                 backend.begin(group, state)
                 progress = Progress(console, spec, len(group), update)
                 with progress.progress:
-                    progress.sync(update, _test_field(eval_rows, group))
+                    progress.sync(update)
                     while update < spec.num_updates:
                         if stop_after_chunks is not None and chunks_done >= stop_after_chunks:
                             stopped = True
@@ -141,7 +141,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                                                  "wall_time_s": prior_wall + time.perf_counter() - session_start})
                         plot(run_dir / "curve.png", spec, History.load(spec, metrics_rows, eval_rows))
                         chunks_done += 1
-                        progress.sync(update, _test_field(eval_rows, group))
+                        progress.sync(update, None if scores is None else f"{mean_std(scores['greedy_return'])[0]:+.3f}")
                         console.print(f"{label}chunk {chunk_index}/{num_chunks} · update {update}/{spec.num_updates}"
                                       f" · {update * spec.steps_per_update:,} env steps/seed · "
                                       f"{_train_field(metrics)}{_scores_field(scores)} · "
@@ -187,14 +187,3 @@ def _scores_field(scores: dict | None) -> str:
     if "greedy_terminated_fraction" in scores:
         accuracy = f" (accuracy {mean_std(scores['greedy_terminated_fraction'])[0]:.1%})"
     return f" · test greedy {greedy:+.3f} ± {greedy_std:.3f}{accuracy} · sampled {sampled:+.3f}"
-
-
-def _test_field(eval_rows: list[dict], group: list[int]) -> str | None:
-    rows = [r for r in eval_rows if r["seed"] in group]
-    if not rows:
-        return None
-    last = max(r["update"] for r in rows)
-    greedy, _ = mean_std([r["greedy_return"] for r in rows if r["update"] == last and r["greedy_return"] is not None])
-    accuracy = [r.get("greedy_terminated_fraction") for r in rows if r["update"] == last]
-    accuracy = [a for a in accuracy if a is not None]
-    return f"{greedy:+.3f}" + (f" ({np.mean(accuracy):.0%})" if accuracy else "")
