@@ -1,18 +1,17 @@
 """VALID, strided 2-D convolutions for the paper's trunks, fast when vmapped over seeds.
 
 `jit(vmap(train))(keys)` gives every seed its own weights, and XLA turns a convolution vmapped
-over its weights into one *grouped* convolution, which trained PPO 7x slower on an H200 than
-the forms below (`bench/results/train_throughput.md`). Two forms avoid it:
+over its weights into one *grouped* convolution, which trains PPO several times slower than the
+forms below (`bench/results/train_throughput.md` holds the measurements). Two forms avoid it:
 
 - `"im2col"`: strided slices and one matmul per layer (a vmapped matmul is a batched matmul).
-  Chosen on CPU, where XLA:CPU also runs the gradient of its own convolution up to 16x slower
+  Chosen on CPU, where XLA:CPU also runs the gradient of its own convolution much slower
   inside training loops (non-canonical layouts in loop bodies, jax-ml/jax#12868). On a GPU it
   writes every input patch to memory (the mnist trunk's first layer: 43 KB per sample).
 - `"native"`: XLA's own convolution, with a batching rule that runs one convolution per weight
   set (one per seed, in a loop) when the weights are vmapped, and folds the batch into the
   convolution's batch when only the inputs are. Chosen on GPU: cuDNN's kernels without the
-  patch copies (PPO on Digits, 5 seeds, 4 epochs x 4 minibatches, H200: 1.26x the im2col form's env
-  steps/s).
+  patch copies are faster there.
 
 Both compute the same function (tests check values and gradients under vmap); `"auto"` picks by
 the backend at trace time.

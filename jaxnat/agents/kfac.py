@@ -123,9 +123,9 @@ def refine_inverse(matrix, inverse, iterations: int, key):
     """Newton-Schulz steps `X <- X (2I - B X)` towards `B^-1` for a symmetric positive definite
     `B`, warm-started from `inverse` (last update's, for slowly moving factors).
 
-    Why not Cholesky or eigh: XLA:CPU's triangular solve with many right-hand sides took 20-300 ms
-    for a 65x65 factor (its eigh 10-20 ms), where these matmuls take well under 1 ms; on GPUs
-    small matmuls are also far faster than cuSOLVER's factorizations. The iteration converges
+    Why not Cholesky or eigh: XLA:CPU's triangular solves with many right-hand sides and its eigh
+    are orders of magnitude slower than these small matmuls (bench/results/offpolicy_throughput.md),
+    and on GPUs small matmuls are also far faster than cuSOLVER's factorizations. The iteration converges
     when the spectral radius of `I - B X` is below 1, estimated here by power iteration; if the
     warm start fails that test it restarts from `X = I / |B|_F` (eigenvalues of `BX` in (0, 1]),
     which converges from below: a partly converged inverse is a more strongly damped one.
