@@ -140,7 +140,7 @@ def _split_kwargs(entry: Callable[..., Any], kwargs: dict, env_id: str) -> tuple
     return ctor, params
 
 
-def make(id: str, *, autoreset: bool = True, **kwargs: Any):
+def make(id: str, *, autoreset: bool = True, observation_noise: bool = False, **kwargs: Any):
     """Build a registered env: `env, params = jaxnat.make("Classify/MNIST-v0", w=5)`.
 
     Args:
@@ -148,6 +148,9 @@ def make(id: str, *, autoreset: bool = True, **kwargs: Any):
         autoreset: wrap in `AutoResetWrapper` (a fresh reset inside `step` when an episode
             ends, the final observation in `info["final_observation"]`), as gymnax users
             expect. `False` returns the raw env.
+        observation_noise: the paper's noise control: every observation (the final one in
+            `info` too) replaced by Gaussian noise of the same shape and dtype
+            (`NoiseObservationWrapper`, composed inside the autoreset so no real frame leaks).
         **kwargs: constructor arguments (static: dataset, split, shapes) or params fields
             (traced: window size, time limit, rewards), by name.
 
@@ -166,6 +169,10 @@ def make(id: str, *, autoreset: bool = True, **kwargs: Any):
     params = env.default_params
     if param_kwargs:
         params = params.replace(**param_kwargs)
+    if observation_noise:
+        from jaxnat.wrappers import NoiseObservationWrapper
+
+        env = NoiseObservationWrapper(env)
     if autoreset:
         from jaxnat.wrappers import AutoResetWrapper
 
@@ -187,9 +194,12 @@ def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
 
     env_spec = spec(id)
     if env_spec.batched:
+        if kwargs.get("observation_noise"):
+            raise TypeError(f"observation_noise is the noise control of pure-JAX envs; {id}'s is "
+                            "background='noise' (the game's pixels over Gaussian noise)")
         entry = _load_entry_point(env_spec)
         ctor_kwargs, _ = _split_kwargs(entry, {**env_spec.kwargs, **kwargs}, id)
         return entry(num_envs=num_envs, **ctor_kwargs)
 
-    env, params = make(id, autoreset=autoreset, **kwargs)
+    env, params = make(id, autoreset=autoreset, **kwargs)  # (observation_noise too)
     return VmapWrapper(env, num_envs, params)

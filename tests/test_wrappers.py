@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from jaxnat.testing import check_env
+from jaxnat.wrappers.base import Wrapper
 from jaxnat.vision_envs.classify import RIGHT, Classify
 from jaxnat.wrappers import (
     AutoResetWrapper,
@@ -124,3 +125,61 @@ def test_legacy_step_api(env):
     assert len(out) == 5
     _, _, reward, done, info = out
     assert bool(done) and bool(info["terminated"]) and not bool(info["truncated"])
+
+
+class _BlankObservation(Wrapper):
+    """The same env with every observation zeroed: a noise control built on it must give
+    outputs identical to one built on the real env, or a real frame leaked."""
+
+    def reset(self, key, params=None):
+        obs, state = self._env.reset(key, params)
+        return jnp.zeros_like(obs), state
+
+    def step(self, key, state, action, params=None):
+        obs, *rest = self._env.step(key, state, action, params)
+        return (jnp.zeros_like(obs), *rest)
+
+
+def _rollout(env, params, steps: int = 12):
+    """Every output of `steps` steps of 16 envs (random actions), `info` included."""
+    vec = VmapWrapper(env, 16)
+    obs, state = vec.reset(jax.random.key(0), params)
+    outputs = [obs]
+    for i in range(steps):
+        keys = jax.random.split(jax.random.key(100 + i), 16)
+        action = jax.vmap(env.action_space(params).sample)(keys)
+        obs, state, reward, terminated, truncated, info = vec.step(jax.random.key(i), state, action, params)
+        outputs.append((obs, reward, terminated, truncated, info))
+    return outputs, bool(np.any(np.asarray([np.asarray(o[2] | o[3]) for o in outputs[1:]])))
+
+
+@pytest.mark.parametrize("order", ["noise outside autoreset", "noise inside autoreset"])
+def test_noise_control_leaks_no_real_observation(env, order):
+    """Built either way round, no output of `reset` or `step` (info included) depends on the
+    real observation: the same keys give the same outputs over the real env and a blanked one."""
+    compose = {"noise outside autoreset": lambda e: NoiseObservationWrapper(AutoResetWrapper(e)),
+               "noise inside autoreset": lambda e: AutoResetWrapper(NoiseObservationWrapper(e))}[order]
+    params = env.default_params.replace(max_steps_in_episode=3)  # truncations bootstrap from final_observation
+    real, ended = _rollout(compose(env), params)
+    blank, _ = _rollout(compose(_BlankObservation(env)), params)
+    assert ended
+    jax.tree.map(lambda a, b: np.testing.assert_array_equal(np.asarray(a), np.asarray(b)), real, blank)
+    # And the control fails the leak test it is meant to fail: the real env's own outputs differ.
+    plain, _ = _rollout(AutoResetWrapper(env), params)
+    plain_blank, _ = _rollout(AutoResetWrapper(_BlankObservation(env)), params)
+    assert not np.array_equal(np.asarray(plain[-1][4]["final_observation"]),
+                              np.asarray(plain_blank[-1][4]["final_observation"]))
+
+
+def test_make_observation_noise_composes_inside_the_autoreset():
+    import jaxnat
+    from jaxnat.datasets import DatasetNotFoundError
+
+    try:
+        env, params = jaxnat.make("Classify/Digits-v0", observation_noise=True, M=3)
+    except DatasetNotFoundError:
+        pytest.skip("Classify/Digits-v0 data not installed")
+    assert isinstance(env, AutoResetWrapper) and isinstance(env._env, NoiseObservationWrapper)
+    assert int(params.max_steps_in_episode) == 3
+    with pytest.raises(TypeError, match="background='noise'"):
+        jaxnat.make_vec("NaturalAtari/Pong-v0", 2, observation_noise=True)

@@ -17,6 +17,11 @@ class NoiseObservationWrapper(Wrapper):
     Dict observations are noised leaf by leaf. Fresh noise at every reset and step, drawn from
     a key split off the one passed in (the inner env sees its own, independent key).
 
+    Leak-free in either order: wrapped around an autoresetting env it also replaces
+    `info["final_observation"]` (else a learner bootstrapping truncated episodes would see the
+    real last frame); `jaxnat.make(id, observation_noise=True)` puts it inside the autoreset,
+    where the final observation is already noise.
+
     Args:
         loc, scale: mean and standard deviation of the noise. The defaults (None) pick
             `N(0, 1)` for floats and `N(127.5, 50)` for integers, both well inside the range.
@@ -54,4 +59,7 @@ class NoiseObservationWrapper(Wrapper):
         obs, state, reward, terminated, truncated, info = self._env.step(
             key_env, state, action, params
         )
+        if "final_observation" in info:  # an autoreset inside: its last frame is real
+            info = {**info, "final_observation": self._noise(jax.random.fold_in(key_noise, 1),
+                                                             info["final_observation"])}
         return self._noise(key_noise, obs), state, reward, terminated, truncated, info
