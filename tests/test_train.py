@@ -190,3 +190,47 @@ def test_recurrent_run_resumes_exactly(tmp_path):
     for a, b in zip(jax.tree.leaves(checkpoints.to_saveable(expected)),
                     jax.tree.leaves(checkpoints.to_saveable(actual)), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@needs_digits
+def test_damaged_run_directories_are_refused_in_one_line(tmp_path, capsys):
+    """Resuming a damaged run never starts over and never prints a traceback: one line says what
+    is wrong and what to do, and the run directory is left as it was."""
+    import shutil
+
+    run = tmp_path / "run"
+    assert train.main([*TINY, "--run-dir", str(run)], compiler_options=FAST) == 0  # checkpoints at 2 and 4
+
+    def damaged(name, damage):
+        copy = tmp_path / name
+        shutil.copytree(run, copy)
+        damage(copy)
+        before = {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()}
+        capsys.readouterr()
+        assert train.main(["--resume", str(copy)], compiler_options=FAST) == 2
+        assert {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()} == before
+        return _error(capsys)
+
+    assert "config.json is not readable JSON" in damaged(
+        "bad_json", lambda d: (d / "config.json").write_text("{not json"))
+
+    def drop_config(d):
+        saved = json.loads((d / "config.json").read_text())
+        del saved["spec"]["config"]
+        (d / "config.json").write_text(json.dumps(saved))
+
+    assert "run spec is damaged" in damaged("no_config", drop_config)
+    assert "holds no checkpoint" in damaged("no_checkpoints", lambda d: shutil.rmtree(d / "checkpoints"))
+    err = damaged("no_state", lambda d: shutil.rmtree(d / "checkpoints" / "4" / "state"))
+    assert "checkpoint 4" in err and "is damaged" in err
+
+    def truncate_largest(d):
+        largest = max((p for p in (d / "checkpoints" / "4").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+        largest.write_bytes(largest.read_bytes()[: largest.stat().st_size // 2])
+
+    assert "is damaged" in damaged("truncated", truncate_largest)
+
+    # A flag given at its default value still has to match the run's (the run has 2 seeds).
+    capsys.readouterr()
+    assert train.main(["--resume", str(run), "--seeds", "5"], compiler_options=FAST) == 2
+    assert "--seeds" in _error(capsys)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import sys
 import typing
 from pathlib import Path
 from typing import Annotated, Any, Optional
@@ -89,6 +90,9 @@ class TrainArgs:
     """Continue the run in this directory from its latest checkpoint; other arguments must be left out or match its config.json."""
     config: Annotated[ConfigOverrides, tyro.conf.OmitArgPrefixes] = dataclasses.field(
         default_factory=ConfigOverrides)
+    given: Annotated[tuple[str, ...], tyro.conf.Suppress] = ()
+    """The fields named on the command line (set by `parse_args`): with --resume, one given at
+    its default value must still match the run's."""
 
 
 def parse_env_kwargs(items) -> dict[str, Any]:
@@ -116,4 +120,7 @@ def _parse_value(value: Any) -> Any:
 
 
 def parse_args(argv=None) -> TrainArgs:
-    return tyro.cli(TrainArgs, args=argv, prog=PROG, description=inspect.cleandoc(TrainArgs.__doc__))
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = tyro.cli(TrainArgs, args=argv, prog=PROG, description=inspect.cleandoc(TrainArgs.__doc__))
+    given = {item[2:].partition("=")[0].replace("-", "_") for item in argv if item.startswith("--")}
+    return dataclasses.replace(args, given=tuple(sorted(given)))

@@ -49,12 +49,13 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
     defaults = TrainArgs()
     conflicts = []
     for field in dataclasses.fields(TrainArgs):
-        if field.name in ("resume", "run_dir", "config"):
+        if field.name in ("resume", "run_dir", "config", "given"):
             continue
         value, default = getattr(args, field.name), getattr(defaults, field.name)
         if field.name == "env_kwargs":
             value, default = parse_env_kwargs(value), parse_env_kwargs(default)
-        if value != default and value != saved.get(field.name, saved["config"].get(field.name)):
+        given = value != default or field.name in args.given
+        if given and value != saved.get(field.name, saved["config"].get(field.name)):
             conflicts.append(f"--{field.name.replace('_', '-')}")
     for field in dataclasses.fields(args.config):
         value = getattr(args.config, field.name)
@@ -74,11 +75,21 @@ def open_resumed(args: TrainArgs):
     config_path = run_dir / "config.json"
     if not config_path.is_file():
         raise TrainError(f"cannot resume {run_dir}: no config.json there")
-    saved = json.loads(config_path.read_text())
-    if "spec" not in saved:
-        raise TrainError(f"cannot resume {run_dir}: it was written without checkpoints (an older jaxnat)")
-    check_resume_args(args, saved["spec"])
-    return RunSpec.from_json(saved["spec"]), run_dir, saved
+    try:
+        saved = json.loads(config_path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise TrainError(f"cannot resume {run_dir}: {config_path} is not readable JSON ({err}); restore it "
+                         "from a copy, or start a new run") from None
+    if not isinstance(saved, dict) or "spec" not in saved:
+        raise TrainError(f"cannot resume {run_dir}: its config.json holds no run spec (written by an older "
+                         "jaxnat, or not by jaxnat train)")
+    try:
+        spec = RunSpec.from_json(saved["spec"])
+        check_resume_args(args, saved["spec"])
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise TrainError(f"cannot resume {run_dir}: its config.json's run spec is damaged ({type(err).__name__}: "
+                         f"{err}); restore it from a copy, or start a new run") from None
+    return spec, run_dir, saved
 
 
 def check_counts(args: TrainArgs) -> None:

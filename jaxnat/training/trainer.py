@@ -25,6 +25,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from jaxnat.training.args import TrainError
 from jaxnat.training.checkpoints import Checkpoints
 from jaxnat.training.progress import Progress
 from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
@@ -95,9 +96,17 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
             try:
                 state = backend.init(group)
                 if checkpoints.latest_step() is not None:
-                    state, meta = checkpoints.restore(state)
+                    state, meta = _restore(checkpoints, state, run_dir / backend.checkpoint_dir(group))
                     prior_wall = max(prior_wall, float(meta.get("wall_time_s", 0.0)))
                     console.print(f"{label}resumed from checkpoint at update {meta['update']}")
+                elif new_run is None:
+                    # Rows past the first chunk mean a checkpoint was written and is gone.
+                    recorded = max((r["update"] for r in metrics_rows if r["seed"] in group), default=0)
+                    if recorded > spec.eval_every:
+                        raise TrainError(
+                            f"cannot resume {run_dir}: its metrics go to update {recorded} but "
+                            f"{run_dir / backend.checkpoint_dir(group)} holds no checkpoint; restore that "
+                            "folder, or start a new run (nothing was changed)")
                 update = backend.update_of(state)
                 # Drop the group's records written after its checkpoint (a run stopped between
                 # writing and saving); other groups' rows stay.
@@ -171,6 +180,19 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
     if interrupted:
         raise KeyboardInterrupt
     return state, summary, complete
+
+
+def _restore(checkpoints: Checkpoints, state, directory: Path):
+    """`checkpoints.restore(state)`, with a damaged checkpoint reported in one line."""
+    step = checkpoints.latest_step()
+    try:
+        return checkpoints.restore(state)
+    except TrainError:
+        raise
+    except Exception as err:  # noqa: BLE001 (orbax and tensorstore raise many kinds for bad bytes)
+        raise TrainError(f"cannot resume: checkpoint {step} in {directory} is damaged ({type(err).__name__}); "
+                         f"delete {directory / str(step)} to resume from the checkpoint before it, or start "
+                         "a new run") from None
 
 
 def _train_field(metrics: dict) -> str:
