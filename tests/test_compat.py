@@ -143,6 +143,15 @@ def test_actions_are_checked(env, vec):
         vec.step(np.zeros((N - 1, 2), np.int64))
     with pytest.raises(ValueError, match=r"expected shape \(4, 2\)"):
         vec.step(np.zeros(2, np.int64))
+    # Outside the space: refused, as Gymnasium's envs do, not rounded or remapped.
+    with pytest.raises(TypeError, match="must be integers"):
+        vec.step(np.full((N, 2), 1.0))
+    for bad in ([4, 0], [0, 3], [-1, 0]):  # MultiDiscrete([4, 3]): 3 labels
+        actions = np.zeros((N, 2), np.int64)
+        actions[2] = bad
+        with pytest.raises(ValueError, match=r"of env 2 is \[.*\], outside MultiDiscrete\(\[4, 3\]\)"):
+            vec.step(actions)
+    vec.step(np.tile([3, 2], (N, 1)))  # the largest valid action
 
 
 def test_wrappers(env, vec):

@@ -211,6 +211,16 @@ def _cast_actions(actions, space: spaces.Space, num_envs: int, what: str):
     expected = (num_envs, *space.shape)
     if actions.shape != expected:
         raise ValueError(f"{what} has shape {actions.shape}, expected shape {expected}")
+    if isinstance(space, (spaces.Discrete, spaces.MultiDiscrete)):
+        # As Gymnasium's own envs: an action outside the space is an error, never rounded or
+        # wrapped (a jitted env cannot raise, so this is the place to catch it).
+        if not np.issubdtype(actions.dtype, np.integer):
+            raise TypeError(f"{what} must be integers for {space}, got dtype {actions.dtype}")
+        size = space.nvec if isinstance(space, spaces.MultiDiscrete) else space.n
+        outside = (actions < 0) | (actions >= size)
+        if outside.any():
+            env = int(np.argwhere(outside)[0][0])
+            raise ValueError(f"{what} of env {env} is {actions[env].tolist()}, outside {space}")
     return actions.astype(space.dtype)
 
 
