@@ -234,3 +234,29 @@ def test_damaged_run_directories_are_refused_in_one_line(tmp_path, capsys):
     capsys.readouterr()
     assert train.main(["--resume", str(run), "--seeds", "5"], compiler_options=FAST) == 2
     assert "--seeds" in _error(capsys)
+
+
+def test_progress_without_a_terminal_prints_plain_lines():
+    """Output to a file (CI, a log) gets a plain line with steps/s and the ETA at least every
+    `interval` seconds; a terminal gets the live bar only."""
+    import io
+    import types
+
+    from rich.console import Console
+
+    from jaxnat.training.progress import Progress
+
+    spec = types.SimpleNamespace(num_updates=10, steps_per_update=64)
+    out = io.StringIO()
+    progress = Progress(Console(file=out, width=80), spec, seeds=2, start_update=0, interval=0.0)
+    for update in range(1, 4):
+        for _ in range(2):  # once per seed
+            progress(update, {"episode_return": 0.5})
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 3 and lines[-1].startswith("update 3/10 · ") and "steps/s · eta " in lines[-1]
+    assert all(len(line) <= 80 for line in lines)
+    quiet = io.StringIO()
+    live = Progress(Console(file=quiet, width=80, force_terminal=True), spec, seeds=2, start_update=0, interval=0.0)
+    live(1, {"episode_return": 0.5})
+    live(1, {"episode_return": 0.5})
+    assert "update 1/10" not in quiet.getvalue()

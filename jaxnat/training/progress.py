@@ -6,6 +6,7 @@ from __future__ import annotations
 import collections
 import math
 import threading
+import time
 
 import numpy as np
 
@@ -14,11 +15,15 @@ from jaxnat.training.spec import RunSpec
 
 class Progress:
     """A rich progress bar over one group of `seeds` seeds trained together, advanced once per
-    update and seed (`progress(update, metrics)`)."""
+    update and seed (`progress(update, metrics)`). The bar's columns put speed and ETA first,
+    so a narrow (80-column) terminal crops the train/test fields rather than them. When the
+    output is not a terminal (a log file, CI), a plain line with the same figures is printed at
+    least every `interval` seconds instead."""
 
-    def __init__(self, console, spec: RunSpec, seeds: int, start_update: int):
+    def __init__(self, console, spec: RunSpec, seeds: int, start_update: int, interval: float = 15.0):
         from rich.progress import (BarColumn, MofNCompleteColumn, Progress, ProgressColumn,
-                                   TextColumn, TimeElapsedColumn, TimeRemainingColumn)
+                                   TextColumn, TimeRemainingColumn)
+        from rich.table import Column
         from rich.text import Text
 
         self.seeds = seeds
@@ -29,12 +34,17 @@ class Progress:
                 return Text("— steps/s" if speed is None else f"{speed * seeds:,.0f} steps/s")
 
         self.spec = spec
+        self.console = console
+        self.live = console.is_terminal or console.is_jupyter
+        self.interval = interval
+        keep = lambda: Column(no_wrap=True)  # noqa: E731
         self.progress = Progress(
-            TextColumn("[bold]{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(),
-            TextColumn("steps/seed ·"), SpeedColumn(),
-            TextColumn("· train {task.fields[train]} · test {task.fields[test]} ·"),
-            TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=console,
-            speed_estimate_period=10, disable=not (console.is_terminal or console.is_jupyter),
+            BarColumn(bar_width=8), MofNCompleteColumn(table_column=keep()),  # env steps per seed
+            TextColumn("·", table_column=keep()), SpeedColumn(table_column=keep()),
+            TextColumn("· eta", table_column=keep()), TimeRemainingColumn(table_column=keep()),
+            TextColumn("· train {task.fields[train]} · test {task.fields[test]}",
+                       table_column=Column(no_wrap=True, overflow="ellipsis")),
+            console=console, speed_estimate_period=10, disable=not self.live,
         )
         self.task = self.progress.add_task(
             "training", total=spec.num_updates * spec.steps_per_update,
@@ -43,6 +53,7 @@ class Progress:
         self._calls = 0
         self._start = start_update
         self._returns = collections.deque(maxlen=seeds)
+        self._started = self._last_line = time.monotonic()
 
     def __call__(self, update, metrics) -> None:
         value = float(np.asarray(metrics["episode_return"]))
@@ -54,6 +65,18 @@ class Progress:
                 done = self._start + self._calls // self.seeds
                 train = f"{np.mean(self._returns):+.3f}" if self._returns else "—"
                 self.progress.update(self.task, completed=done * self.spec.steps_per_update, train=train)
+                if not self.live and time.monotonic() - self._last_line >= self.interval:
+                    self._line(done, train)
+
+    def _line(self, done: int, train: str) -> None:
+        """The plain progress line (no terminal): updates, steps/s over this session, ETA."""
+        now = time.monotonic()
+        self._last_line = now
+        per_update = (now - self._started) / max(done - self._start, 1)
+        eta = int(per_update * (self.spec.num_updates - done))
+        speed = self.spec.steps_per_update * self.seeds / per_update
+        self.console.print(f"update {done}/{self.spec.num_updates} · {speed:,.0f} steps/s · "
+                           f"eta {eta // 60}:{eta % 60:02d} · train return {train}", highlight=False)
 
     def sync(self, update: int, test: str | None = None) -> None:
         with self._lock:
