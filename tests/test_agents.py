@@ -428,3 +428,15 @@ def test_ppo_weight_decay_is_decoupled_and_off_by_default():
         updates, _ = tx.update(zero_grads, tx.init(params), params)
         np.testing.assert_allclose(updates["w"], expected, rtol=1e-6)
     assert PPOConfig().weight_decay == 0.0
+
+
+@pytest.mark.parametrize("probe, expected", [("sign", 0.5), ("factored", 1 / 6)])
+def test_chance_is_the_uniform_random_policy(probe, expected):
+    """`make_chance` scores uniformly drawn actions: half the sign probe's right answers, one in
+    six of the factored probe's (2 x 3 actions, one right pair)."""
+    from jaxnat.agents.rollout import make_chance
+
+    env, params = make_probe(probe)
+    scores = jax.jit(make_chance(env, params, num_episodes=4000, max_steps=1))(jax.random.key(0))
+    assert abs(float(scores["return"]) - expected) < 0.03, scores
+    assert float(scores["length"]) == 1.0 and float(scores["unfinished"]) == 0.0

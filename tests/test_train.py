@@ -72,6 +72,8 @@ def _check_run_dir(run_dir):
     assert (run_dir / "curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["complete"] and summary["env_steps_per_seed"] == 512
+    # The baseline printed and plotted beside the results: 10 labels, a guess until right or M.
+    assert 0.0 < summary["chance"]["terminated_fraction"] < 1.0 and summary["chance"]["return"] < 1.0
     for name in ("train_return", "test_greedy_return", "test_greedy_accuracy", "test_sampled_return"):
         assert len(summary["metrics"][name]["per_seed"]) == 2
     assert summary["metrics"]["test_greedy_return"]["per_seed"] == [e["greedy_return"] for e in evals[-2:]]

@@ -42,7 +42,8 @@ __all__ = [
     "static", "Transition", "EnvStep", "RunnerState", "UpdateRule", "Learner", "HostState", "HostLearner",
     "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_scalar_action", "env_action",
     "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_updates",
-    "on_policy_learner", "on_policy_host_learner", "check_host_batch", "make_evaluate", "evaluate_host",
+    "on_policy_learner", "on_policy_host_learner", "check_host_batch", "make_evaluate", "make_chance",
+    "evaluate_host",
     "clipped_optimizer", "host_jit", "EPISODE_KEYS",
 ]
 
@@ -536,6 +537,46 @@ def _host_transitions(rollout: dict, last_value) -> Transition:
 # Evaluation
 
 
+def _first_episodes(env, env_params, num_episodes: int, max_steps: int | None):
+    """`play(policy, memory, key) -> scores`: each of `num_episodes` envs plays its first episode
+    to the end (at most `max_steps` steps); `policy(obs, key, memory) -> (action [B, F], hidden)`."""
+    if max_steps is None:
+        max_steps = int(env_params.max_steps_in_episode)
+    scalar = is_scalar_action(env.action_space(env_params))
+    reset = jax.vmap(env.reset, in_axes=(0, None))
+    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def play(policy: Callable, memory, key):
+        key_reset, key_steps = jax.random.split(key)
+        obs, state = reset(jax.random.split(key_reset, num_episodes), env_params)
+        zeros = jnp.zeros(num_episodes)
+        running = jnp.ones(num_episodes, bool)
+
+        def body(carry, key):
+            obs, state, running, total, length, terminated_any, memory = carry
+            key_act, key_env = jax.random.split(key)
+            action, hidden = policy(obs, key_act, memory)
+            obs, state, reward, terminated, truncated, _ = step(
+                jax.random.split(key_env, num_episodes), state, env_action(action, scalar), env_params
+            )
+            total = total + jnp.where(running, reward, 0.0)
+            length = length + running
+            terminated_any = terminated_any | (running & terminated)
+            running = running & ~(terminated | truncated)
+            if memory is not None:  # the first episode is all that counts: no reset to mark
+                memory = Memory(hidden, action, reward.astype(jnp.float32), jnp.zeros_like(running))
+            return (obs, state, running, total, length, terminated_any, memory), None
+
+        carry = (obs, state, running, zeros, zeros, jnp.zeros(num_episodes, bool), memory)
+        (_, _, running, total, length, terminated, _), _ = jax.lax.scan(
+            body, carry, jax.random.split(key_steps, max_steps)
+        )
+        return {"return": total.mean(), "terminated_fraction": terminated.mean(),
+                "length": length.mean(), "unfinished": running.mean()}
+
+    return play
+
+
 def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps: int | None = None):
     """`evaluate(network_params, key) -> dict of scalars`; pure and jittable.
 
@@ -548,51 +589,36 @@ def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps:
     correctly), the mean length and the fraction unfinished, for the greedy policy (most likely
     action per factor) and for actions sampled from the policy.
     """
-    if max_steps is None:
-        max_steps = int(env_params.max_steps_in_episode)
-    scalar = is_scalar_action(env.action_space(env_params))
-    reset = jax.vmap(env.reset, in_axes=(0, None))
-    step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
-
-    def play(network_params, key, greedy: bool):
-        key_reset, key_steps = jax.random.split(key)
-        obs, state = reset(jax.random.split(key_reset, num_episodes), env_params)
-        zeros = jnp.zeros(num_episodes)
-        running = jnp.ones(num_episodes, bool)
-
-        def body(carry, key):
-            obs, state, running, total, length, terminated_any, memory = carry
-            key_act, key_env = jax.random.split(key)
-            logits, _, hidden = act(network, network_params, obs, memory)
-            action = env_action(choose(logits, key_act, greedy), scalar)
-            obs, state, reward, terminated, truncated, _ = step(
-                jax.random.split(key_env, num_episodes), state, action, env_params
-            )
-            total = total + jnp.where(running, reward, 0.0)
-            length = length + running
-            terminated_any = terminated_any | (running & terminated)
-            running = running & ~(terminated | truncated)
-            if memory is not None:  # the first episode is all that counts: no reset to mark
-                memory = Memory(hidden, action[..., None] if scalar else action, reward.astype(jnp.float32),
-                                jnp.zeros_like(running))
-            return (obs, state, running, total, length, terminated_any, memory), None
-
-        memory = initial_memory(network, num_episodes) if network.memory else None
-        carry = (obs, state, running, zeros, zeros, jnp.zeros(num_episodes, bool), memory)
-        (_, _, running, total, length, terminated, _), _ = jax.lax.scan(
-            body, carry, jax.random.split(key_steps, max_steps)
-        )
-        return {"return": total.mean(), "terminated_fraction": terminated.mean(),
-                "length": length.mean(), "unfinished": running.mean()}
+    play = _first_episodes(env, env_params, num_episodes, max_steps)
 
     def evaluate(network_params, key):
+        def policy(greedy):
+            def choose_action(obs, key, memory):
+                logits, _, hidden = act(network, network_params, obs, memory)
+                return choose(logits, key, greedy), hidden
+            return choose_action
+
+        memory = initial_memory(network, num_episodes) if network.memory else None
         key_greedy, key_sampled = jax.random.split(key)
-        greedy = play(network_params, key_greedy, greedy=True)
-        sampled = play(network_params, key_sampled, greedy=False)
+        greedy = play(policy(True), memory, key_greedy)
+        sampled = play(policy(False), memory, key_sampled)
         return {**{f"greedy_{k}": v for k, v in greedy.items()},
                 **{f"sampled_{k}": v for k, v in sampled.items()}}
 
     return evaluate
+
+
+def make_chance(env, env_params, num_episodes: int = 1000, max_steps: int | None = None):
+    """`chance(key) -> dict of scalars`: `make_evaluate`'s scores for the uniform random policy
+    (every action factor drawn uniformly), the baseline a trained policy must beat."""
+    play = _first_episodes(env, env_params, num_episodes, max_steps)
+    space = env.action_space(env_params)
+
+    def uniform(obs, key, memory):
+        action = jax.vmap(space.sample)(jax.random.split(key, num_episodes))
+        return (action[:, None] if is_scalar_action(space) else action), None
+
+    return lambda key: play(uniform, None, key)
 
 
 def evaluate_host(learner: HostLearner, params, env, num_episodes: int, key,

@@ -137,6 +137,10 @@ class HostBackend:
             scores[f"{mode}_return"] = np.asarray([returns.mean()])
         return scores
 
+    def chance(self) -> None:
+        """Not measured: random play of whole Atari games costs as much as evaluating a seed."""
+        return None
+
     def close(self) -> None:
         self.env.close()
         self.test_env.close()

@@ -14,7 +14,7 @@ import numpy as np
 
 import jaxnat
 from jaxnat.agents import ALGORITHMS
-from jaxnat.agents.rollout import make_evaluate
+from jaxnat.agents.rollout import make_chance, make_evaluate
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainError
@@ -97,6 +97,7 @@ class DeviceBackend:
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
             raise TrainError(str(err)) from None
         evaluate = make_evaluate(self.learner.network, test_env, test_params, spec.eval_episodes)
+        self._chance_fn = jax.jit(jax.vmap(make_chance(test_env, test_params, spec.eval_episodes)))
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
         init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
         self.runner_shape = jax.eval_shape(init, keys)
@@ -150,6 +151,11 @@ class DeviceBackend:
 
     def evaluate(self, group, state) -> dict:
         return jax.device_get(self.compiled_evaluate(state.train_state.params, self.eval_keys()))
+
+    def chance(self) -> dict:
+        """The uniform random policy's test scores, over the seeds' evaluation keys."""
+        scores = jax.device_get(self._chance_fn(self.eval_keys()))
+        return {name: float(np.mean(value)) for name, value in scores.items()}
 
     def close(self) -> None:
         pass

@@ -92,7 +92,9 @@ def nanmean(x, axis):
     return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
-def plot(path: Path, spec: RunSpec, history: History) -> None:
+def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None) -> None:
+    """Return and accuracy against env steps: train, test greedy and test sampled (mean ± std
+    over seeds), and the uniform random policy's test scores (`chance`) as a dashed line."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -114,21 +116,30 @@ def plot(path: Path, spec: RunSpec, history: History) -> None:
 
     band(axes[0], steps, returns, "train (episodes ending in each rollout)", color="C0")
     band(axes[1], steps, accuracy, "train (episodes ending in each rollout)", color="C0")
-    for ax, key in zip(axes, ("greedy_return", "greedy_terminated_fraction")):
-        if history.evals and all(key in e for e in history.evals):  # (host runs score returns only)
-            band(ax, eval_steps, np.stack([e[key] for e in history.evals]), "test split, greedy",
-                 color="C1", marker="o", markersize=3)
-    titles = ("Episode return", "Accuracy (fraction of episodes terminated)")
-    for ax, title in zip(axes, titles):
+    for ax, score in zip(axes, ("return", "terminated_fraction")):
+        for mode, color in (("greedy", "C1"), ("sampled", "C2")):
+            key = f"{mode}_{score}"
+            if history.evals and all(key in e for e in history.evals):  # (host runs score returns only)
+                band(ax, eval_steps, np.stack([e[key] for e in history.evals]), f"test split, {mode}",
+                     color=color, marker="o", markersize=3)
+        if chance is not None and chance.get(score) is not None:
+            ax.axhline(chance[score], color="0.4", linestyle="--", linewidth=1,
+                       label="test split, uniform random policy")
+    labels = (("Episode return", "return"), ("Accuracy (fraction of episodes terminated)", "accuracy"))
+    for ax, (title, ylabel) in zip(axes, labels):
         ax.set_title(title)
         ax.set_xlabel("env steps per seed")
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize="small")
     fig.suptitle(f"{spec.env_id}  {spec.algo}  (mean ± std over {spec.seeds} seeds)")
     fig.savefig(path, dpi=110)
 
 
-def run_summary(spec: RunSpec, history: History, wall_time: float, complete: bool) -> dict:
+def run_summary(spec: RunSpec, history: History, wall_time: float, complete: bool,
+                chance: dict | None = None) -> dict:
+    """The final table as JSON; `chance`: the uniform random policy's test scores (means over
+    the seeds' evaluation keys), the baseline to read the test scores against."""
     updates, returns, accuracy = history.train_arrays()
     window = max(1, min(spec.eval_every, len(updates)))  # the last chunk's updates
     per_seed = {
@@ -153,6 +164,7 @@ def run_summary(spec: RunSpec, history: History, wall_time: float, complete: boo
         "updates": int(updates[-1]) if len(updates) else 0,
         "env_steps_per_seed": int(updates[-1]) * spec.steps_per_update if len(updates) else 0,
         "metrics": metrics,
+        "chance": chance,
         "steps_per_second": {"mean": json_value(sps_mean), "std": json_value(sps_std),
                              "note": "env steps/s over all seeds, mean ± std over chunks"},
         "wall_time_s": wall_time,
@@ -178,6 +190,11 @@ def print_summary(console, summary: dict) -> None:
         m = summary["metrics"][name]
         pattern = ".1%" if "accuracy" in name else "+.4f"
         table.add_row(label, fmt(m["mean"], pattern), fmt(m["std"], pattern.lstrip("+")))
+    chance = summary.get("chance")
+    if chance:
+        table.add_row("chance: uniform random policy, test return", fmt(chance.get("return"), "+.4f"), "")
+        if chance.get("terminated_fraction") is not None:
+            table.add_row("chance: uniform random policy, test accuracy", fmt(chance["terminated_fraction"], ".1%"), "")
     sps = summary["steps_per_second"]
     table.add_row("env steps/s (all seeds, over chunks)", fmt(sps["mean"], ",.0f"), fmt(sps["std"], ",.0f"))
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s", "")

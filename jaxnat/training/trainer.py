@@ -59,6 +59,9 @@ class Backend(Protocol):
     def evaluate(self, group: list[int], state) -> dict:
         """Test-split scores `{name: [len(group)]}` (`greedy_return`, `sampled_return`, ...)."""
 
+    def chance(self) -> dict | None:
+        """The uniform random policy's test scores `{return, terminated_fraction, ...}`, or None."""
+
 
 def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new_run: dict | None,
                  stop_after_chunks: int | None = None) -> tuple[Any, dict, bool]:
@@ -73,6 +76,11 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
         metrics_path.write_text("")
         eval_path.write_text("")
     metrics_rows, eval_rows = read_jsonl(metrics_path), read_jsonl(eval_path)
+    chance = backend.chance()
+    if chance is not None:
+        accuracy = chance.get("terminated_fraction")
+        console.print(f"chance (uniform random policy on the test split): return {chance['return']:+.3f}"
+                      + ("" if accuracy is None else f" · accuracy {accuracy:.1%}"))
     prior_wall, chunks_done, interrupted, stopped = 0.0, 0, False, False
     num_chunks = -(-spec.num_updates // spec.eval_every)
     state = None
@@ -148,7 +156,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                         checkpoints.save(state, {"chunk": chunk_index, "update": update,
                                                  "env_steps": update * spec.steps_per_update,
                                                  "wall_time_s": prior_wall + time.perf_counter() - session_start})
-                        plot(run_dir / "curve.png", spec, History.load(spec, metrics_rows, eval_rows))
+                        plot(run_dir / "curve.png", spec, History.load(spec, metrics_rows, eval_rows), chance)
                         chunks_done += 1
                         progress.sync(update, None if scores is None else f"{mean_std(scores['greedy_return'])[0]:+.3f}")
                         console.print(f"{label}chunk {chunk_index}/{num_chunks} · update {update}/{spec.num_updates}"
@@ -168,8 +176,8 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
     complete = finished >= set(spec.seed_values)
     history = History.load(spec, metrics_rows, eval_rows)
     if not (run_dir / "curve.png").exists() or not complete:
-        plot(run_dir / "curve.png", spec, history)
-    summary = run_summary(spec, history, prior_wall + time.perf_counter() - session_start, complete)
+        plot(run_dir / "curve.png", spec, history, chance)
+    summary = run_summary(spec, history, prior_wall + time.perf_counter() - session_start, complete, chance)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print_summary(console, summary)
     if not complete:
