@@ -1,34 +1,69 @@
-"""Factored categorical policies: one categorical per action factor, log-probs and entropies
-summed (the authors' two heads for move and label)."""
+"""The policies' action distributions, behind one set of functions (`sample`, `mode`,
+`log_prob`, `entropy`) that dispatch on what the network's policy head returned:
+
+- a tuple of logits: factored categoricals, one per action factor (Discrete, MultiDiscrete:
+  the authors' two heads for move and label); actions int32 `[..., F]`, log-probs and
+  entropies summed over the factors;
+- a `Gaussian(mean, log_std)`: a diagonal Gaussian over a `Box` (continuous control), with a
+  state-independent, learned log-std as in the authors' baselines code, CleanRL and Brax;
+  actions float32 `[..., D]`, log-probs and entropies summed over the dimensions. Samples are
+  not squashed: they are clipped to the space's bounds at the env boundary
+  (`rollout.env_action`), while the log-prob is that of the unclipped sample (the one stored).
+"""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["Gaussian", "sample", "mode", "log_prob", "entropy"]
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
 
 
-def sample(key, logits: tuple) -> jax.Array:
-    """Actions `[..., F]` (int32), one per factor."""
-    keys = jax.random.split(key, len(logits))
-    return jnp.stack([jax.random.categorical(k, l) for k, l in zip(keys, logits)], axis=-1).astype(jnp.int32)
+class Gaussian(NamedTuple):
+    """A diagonal Gaussian: `mean` `[..., D]`, `log_std` `[D]` (or broadcastable to the mean)."""
+
+    mean: jax.Array
+    log_std: jax.Array
 
 
-def mode(logits: tuple) -> jax.Array:
-    """The most likely action `[..., F]` (greedy)."""
-    return jnp.stack([jnp.argmax(l, axis=-1) for l in logits], axis=-1).astype(jnp.int32)
+def sample(key, dist) -> jax.Array:
+    """Actions `[..., F]` (int32 categories) or `[..., D]` (float32)."""
+    if isinstance(dist, Gaussian):
+        std = jnp.exp(dist.log_std)
+        return dist.mean + std * jax.random.normal(key, jnp.shape(dist.mean), jnp.float32)
+    keys = jax.random.split(key, len(dist))
+    return jnp.stack([jax.random.categorical(k, l) for k, l in zip(keys, dist)], axis=-1).astype(jnp.int32)
 
 
-def log_prob(logits: tuple, actions: jax.Array) -> jax.Array:
+def mode(dist) -> jax.Array:
+    """The most likely action (greedy): the argmax per factor, or the Gaussian's mean."""
+    if isinstance(dist, Gaussian):
+        return dist.mean
+    return jnp.stack([jnp.argmax(l, axis=-1) for l in dist], axis=-1).astype(jnp.int32)
+
+
+def log_prob(dist, actions: jax.Array) -> jax.Array:
+    if isinstance(dist, Gaussian):
+        z = (actions - dist.mean) * jnp.exp(-dist.log_std)
+        return jnp.sum(-0.5 * z**2 - dist.log_std - 0.5 * _LOG_2PI, axis=-1)
     total = 0.0
-    for i, l in enumerate(logits):
+    for i, l in enumerate(dist):
         logp = jax.nn.log_softmax(l)
         total = total + jnp.take_along_axis(logp, actions[..., i : i + 1], axis=-1)[..., 0]
     return total
 
 
-def entropy(logits: tuple) -> jax.Array:
+def entropy(dist) -> jax.Array:
+    if isinstance(dist, Gaussian):
+        per_dim = jnp.broadcast_to(dist.log_std + 0.5 * (1.0 + _LOG_2PI), jnp.shape(dist.mean))
+        return jnp.sum(per_dim, axis=-1)
     total = 0.0
-    for l in logits:
+    for l in dist:
         logp = jax.nn.log_softmax(l)
         total = total - jnp.sum(jnp.exp(logp) * logp, axis=-1)
     return total
