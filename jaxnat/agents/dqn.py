@@ -60,7 +60,7 @@ from flax.training.train_state import TrainState
 from jaxnat.agents import distributions
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_batch, count_updates, episode_metrics,
-                                   host_jit, host_steps, host_updates, is_scalar_action, scan_steps, scan_updates,
+                                   host_jit, host_steps, host_updates, scan_steps, scan_updates,
                                    static, step_info, vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
@@ -273,7 +273,6 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
     total_updates = count_updates(config)
     action_space = env.action_space(env_params)
     parts = make_dqn_parts(config, env.observation_space(env_params), action_space)
-    scalar = is_scalar_action(action_space)
     reset, step = vector_env(env)
 
     def init(key, config=config) -> DQNRunner:
@@ -297,7 +296,7 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
             return state, (step_info(s.info, s.terminated), rate)
 
         (state, env_state, obs, key), (infos, rates) = scan_steps(
-            step, env_params, scalar, config.num_envs, config.num_steps, policy, observe,
+            step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             runner.learner, runner.env_state, runner.obs, runner.key)
         env_steps = (first_step + config.num_steps) * config.num_envs
         key, key_learn = jax.random.split(key)
@@ -353,7 +352,7 @@ def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) 
                                   "terminated": s.terminated, "done": s.done}, first_step + t)
             return state, [*infos, step_info(s.info, s.terminated)], rate
 
-        (state, infos, rate), obs, key = host_steps(env, is_scalar_action(env.single_action_space), config.num_steps,
+        (state, infos, rate), obs, key = host_steps(env, config.num_steps,
                                                     policy, observe, (state, [], None), obs, key)
         key, key_learn = jax.random.split(key)
         learning = (index + 1) * config.num_steps * config.num_envs >= config.learning_starts

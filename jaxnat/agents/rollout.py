@@ -40,7 +40,7 @@ from jaxnat.wrappers import LogWrapper
 
 __all__ = [
     "static", "Transition", "EnvStep", "RunnerState", "UpdateRule", "Learner", "HostState", "HostLearner",
-    "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_scalar_action", "env_action",
+    "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box", "is_scalar_action", "env_action",
     "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_updates",
     "on_policy_learner", "on_policy_host_learner", "check_host_batch", "make_evaluate", "make_chance",
     "evaluate_host",
@@ -172,15 +172,25 @@ def count_updates(config) -> int:
     return total_updates
 
 
+def is_box(action_space) -> bool:
+    """Whether the env takes continuous actions (a `Box`, jaxnat's or gymnax's)."""
+    return hasattr(action_space, "low") and hasattr(action_space, "high")
+
+
 def is_scalar_action(action_space) -> bool:
     """Whether the env takes one integer per step (Discrete, jaxnat's or gymnax's) rather than a
-    vector (MultiDiscrete); the agents always hold actions as `[..., F]`."""
-    return not hasattr(action_space, "nvec")
+    vector (MultiDiscrete, Box); the agents always hold actions as `[..., F]` (or `[..., D]`)."""
+    return not hasattr(action_space, "nvec") and not is_box(action_space)
 
 
-def env_action(action, scalar: bool):
-    """The agent's `[..., F]` action in the env's form."""
-    return action[..., 0] if scalar else action
+def env_action(action, action_space):
+    """The agent's action in the env's form: a Discrete env's integer; a Box env's vector
+    clipped to the bounds (NaN, from a diverged policy, becomes 0 first: it never reaches the
+    env). numpy in, numpy out (the host driver); else jax."""
+    if is_box(action_space):
+        xp = np if isinstance(action, np.ndarray) else jnp
+        return xp.clip(xp.nan_to_num(action, nan=0.0), action_space.low, action_space.high)
+    return action[..., 0] if is_scalar_action(action_space) else action
 
 
 def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):
@@ -236,7 +246,7 @@ def vector_env(env) -> tuple[Callable, Callable]:
     return reset, jax.vmap(one_step, in_axes=(0, 0, 0, None))
 
 
-def scan_steps(step: Callable, env_params, scalar: bool, num_envs: int, num_steps: int,
+def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_steps: int,
                policy: Callable, observe: Callable, carry, env_state, obs, key):
     """`num_steps` steps of `num_envs` JAX envs in one `lax.scan` (`step` from `vector_env`).
     Returns `((carry, env_state, obs, key), records stacked over time)`."""
@@ -246,7 +256,7 @@ def scan_steps(step: Callable, env_params, scalar: bool, num_envs: int, num_step
         key, key_act, key_env = jax.random.split(key, 3)
         action, aux = policy(carry, obs, key_act, t)
         next_obs, env_state, reward, terminated, done, final_obs, info = step(
-            jax.random.split(key_env, num_envs), env_state, env_action(action, scalar), env_params)
+            jax.random.split(key_env, num_envs), env_state, env_action(action, action_space), env_params)
         carry, record = observe(carry, EnvStep(obs, action, next_obs, reward, terminated, done, final_obs, info),
                                 aux, t)
         return (carry, env_state, next_obs, key), record
@@ -292,7 +302,6 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)
     network = make_actor_critic(observation_space, action_space, config.trunk, **rule.network_options(config))
-    scalar = is_scalar_action(action_space)
     reset, step = vector_env(env)
 
     def init(key, config=config) -> RunnerState:
@@ -325,7 +334,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
     def update(runner: RunnerState, config):
         first_memory = runner.memory
         ((_, memory), env_state, obs, key), transitions = scan_steps(
-            step, env_params, scalar, config.num_envs, config.num_steps, policy, observe,
+            step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             (runner.train_state.params, runner.memory), runner.env_state, runner.obs, runner.key)
         advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
         if first_memory is not None:  # (after gae, which scans every field over time)
@@ -385,7 +394,7 @@ def check_host_batch(config, env, memory: int = 0) -> int:
     return count_updates(config)
 
 
-def host_steps(env, scalar: bool, num_steps: int, policy: Callable, observe: Callable, carry, obs, key):
+def host_steps(env, num_steps: int, policy: Callable, observe: Callable, carry, obs, key):
     """`num_steps` steps of a host-batched env from Python: per step one jitted `policy` call
     (observations to the device, actions back to the host) and `observe` with the outcome.
     Returns `(carry, obs, key)` (records are the carry's business)."""
@@ -394,7 +403,7 @@ def host_steps(env, scalar: bool, num_steps: int, policy: Callable, observe: Cal
         obs_device = jax.device_put(obs)
         action, aux = policy(carry, obs_device, key_act, t)
         action = np.asarray(action)
-        next_obs, reward, terminated, truncated, info = env.step(env_action(action, scalar))
+        next_obs, reward, terminated, truncated, info = env.step(env_action(action, env.single_action_space))
         done = terminated | truncated
         final_obs = info.get("final_observation", next_obs)
         carry = observe(carry, EnvStep(obs_device, action, next_obs, reward, terminated, done, final_obs, info),
@@ -461,7 +470,6 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     num_updates = check_host_batch(config, env, options.get("memory", 0))
     observation_space = env.single_observation_space
     network = make_actor_critic(observation_space, env.single_action_space, config.trunk, **options)
-    scalar = is_scalar_action(env.single_action_space)
     jit = host_jit(compiler_options)
 
     @jit
@@ -502,7 +510,7 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
 
         rollout = {name: [] for name in ("obs", "action", "log_prob", "value", "reward", "done",
                                          "terminated", "final_value", *EPISODE_KEYS)}
-        rollout, obs, key = host_steps(env, scalar, config.num_steps,
+        rollout, obs, key = host_steps(env, config.num_steps,
                                        lambda carry, o, k, t: policy(params, o, k), observe, rollout, obs, key)
         transitions = _host_transitions(rollout, value_of(params, jax.device_put(obs)))
         key, key_update = jax.random.split(key)
@@ -542,7 +550,7 @@ def _first_episodes(env, env_params, num_episodes: int, max_steps: int | None):
     to the end (at most `max_steps` steps); `policy(obs, key, memory) -> (action [B, F], hidden)`."""
     if max_steps is None:
         max_steps = int(env_params.max_steps_in_episode)
-    scalar = is_scalar_action(env.action_space(env_params))
+    action_space = env.action_space(env_params)
     reset = jax.vmap(env.reset, in_axes=(0, None))
     step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
@@ -557,7 +565,7 @@ def _first_episodes(env, env_params, num_episodes: int, max_steps: int | None):
             key_act, key_env = jax.random.split(key)
             action, hidden = policy(obs, key_act, memory)
             obs, state, reward, terminated, truncated, _ = step(
-                jax.random.split(key_env, num_episodes), state, env_action(action, scalar), env_params
+                jax.random.split(key_env, num_episodes), state, env_action(action, action_space), env_params
             )
             total = total + jnp.where(running, reward, 0.0)
             length = length + running
@@ -635,7 +643,7 @@ def evaluate_host(learner: HostLearner, params, env, num_episodes: int, key,
 
     obs, _ = env.reset()
     while len(returns) < num_episodes:
-        returns, obs, key = host_steps(env, is_scalar_action(env.single_action_space), 1,
+        returns, obs, key = host_steps(env, 1,
                                        lambda carry, o, k, t: (policy(params, o, k), None), observe,
                                        returns, obs, key)
     return np.asarray(returns[:num_episodes], np.float32)
