@@ -27,7 +27,6 @@ sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import common  # noqa: E402
 
 import jaxnat  # noqa: E402
-from jaxnat.vision_envs.observation import masked_image_observation_reference  # noqa: E402
 
 
 class NumpyClassify:
@@ -104,8 +103,7 @@ def main(argv=None):
     raw, params = jaxnat.make(env_id, autoreset=False)
     auto, _ = jaxnat.make(env_id)
     # The same env writing its observation byte-wise (the straightforward jnp.concatenate).
-    bytewise, _ = jaxnat.make(env_id, autoreset=False)
-    bytewise.unwrapped._render = masked_image_observation_reference
+    bytewise, _ = jaxnat.make(env_id, autoreset=False, observation_writer="bytewise")
     obs_bytes = int(np.prod(raw.observation_space(params).shape))
     print(f"{env_id}: {params.images.shape[0]} images, observation {obs_bytes} bytes; {info['device']}")
 

@@ -26,7 +26,6 @@ sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parent))
 import common  # noqa: E402
 
 import jaxnat  # noqa: E402
-from jaxnat.vision_envs.observation import masked_image_observation_reference  # noqa: E402
 
 
 def observation_bytes(space) -> int:
@@ -56,8 +55,8 @@ def main(argv=None):
     auto, _ = jaxnat.make(args.env_id, **kwargs)
     variants = [("raw", raw), ("auto", auto)]
     if on_gpu:  # CPUs run the byte-wise writer anyway
-        bytewise, _ = jaxnat.make(args.env_id, autoreset=False, **kwargs)
-        bytewise.unwrapped._render = masked_image_observation_reference
+        bytewise, _ = jaxnat.make(args.env_id, autoreset=False, observation_writer="bytewise",
+                                  **kwargs)
         variants.append(("bytewise", bytewise))
     obs_bytes = observation_bytes(raw.observation_space(params))
     print(f"{args.env_id}: {params.images.shape[0]} images, observation {obs_bytes:,} bytes; "

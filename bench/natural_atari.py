@@ -17,7 +17,8 @@ Contenders are timed in interleaved rounds (median), so load from other processe
 alike. For our env the table also splits a batched step into the wait for ALE's emulation and
 the background work done while ALE emulates (next video frames, noise draws) and the host work
 after it (ms per batched step, from `env.step_timings`; host us/env = that host work per env).
-Target (performance.md): video >= 90% of ale-py's own throughput.
+Target: video >= 90% of ale-py's own throughput (the "target" line of each run in
+bench/results/natural_atari.md).
 
 Also writes bench/results/natural_atari_frames.png: one row per background, the agent's newest
 84x84 frame at a few steps, then the next RGB screen composited at full resolution with a
@@ -28,9 +29,10 @@ frame of that background's source (the env itself composites in gray).
     python bench/natural_atari.py --threads 1 4 8 16 --num-envs 64 --steps 100
     python bench/natural_atari.py --video-sources out/videos   # a folder of your own clips
 
-On a 16-core host this sweeps 1, 4, 8 and 16 threads with 64 envs (about 2-3 minutes). A host
-without Debian's opencv-doc needs videos: copy some there (e.g. opencv-doc's vtest.avi, tree.avi
-and Megamind.avi into out/videos/) and pass --video-sources out/videos.
+On a 16-core host this sweeps 1, 4, 8 and 16 threads with 64 envs (how long a run takes: the
+"bench seconds" line of each run in bench/results/natural_atari.md). A host without Debian's
+opencv-doc needs videos: copy some there (e.g. opencv-doc's vtest.avi, tree.avi and
+Megamind.avi into out/videos/) and pass --video-sources out/videos.
 """
 
 from __future__ import annotations
@@ -94,7 +96,7 @@ def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_po
                      for h in host_threads]
     for bg, pool, host in variants:
         name = f"jaxnat {bg}" + (" (pool=rgb)" if pool == "rgb" else "")
-        if host and host == envs[name]._runner.threads:
+        if host and host == envs[name].host_threads:
             continue
         env = NaturalAtariVecEnv(game, num_envs, background=bg, num_threads=threads, seed=seed,
                                  video_sources=video_sources, pool=pool, host_threads=host,
@@ -103,11 +105,28 @@ def contenders(game, num_envs, threads, backgrounds, seed, video_sources, rgb_po
         envs[name + (f" (host_threads={host})" if host else "")] = env
     if extras and "video" in backgrounds:  # the host pass before jaxnat.atari.hostpass, to compare
         env = NaturalAtariVecEnv(game, num_envs, background="video", num_threads=threads,
-                                 seed=seed, video_sources=video_sources, **SETTINGS)
-        env._fused_plan = None  # private switch: chunks on a Python thread pool instead
+                                 seed=seed, video_sources=video_sources, host_pass="pool",
+                                 host_threads=envs["jaxnat video"].host_threads, **SETTINGS)
         env.reset()
         envs["jaxnat video (Python thread-pool chunks)"] = env
     return envs
+
+
+def rgb_twin(game: str, seed: int):
+    """ale-py's own vector env emulating exactly what `frame_strip`'s one-env
+    `NaturalAtariVecEnv(..., pool="rgb", num_threads=1, seed=seed, **SETTINGS)` emulates (the
+    same settings and seed: the same games under the same actions), returning its max-pooled
+    210x160 RGB screens."""
+    from ale_py.vector_env import AtariVectorEnv
+
+    env = AtariVectorEnv(
+        GAMES[game], 1, img_height=210, img_width=160, grayscale=False, stack_num=1,
+        frameskip=4, maxpool=True, noop_max=30, use_fire_reset=False, episodic_life=False,
+        reward_clipping=False, repeat_action_probability=0.25, full_action_space=False,
+        max_num_frames_per_episode=27_000 * 4, num_threads=1, autoreset_mode="SameStep",
+    )
+    env.reset(seed=seed)
+    return env
 
 
 def frame_strip(game: str, backgrounds, video_sources, path: Path, steps=(0, 40, 80)) -> None:
@@ -117,6 +136,7 @@ def frame_strip(game: str, backgrounds, video_sources, path: Path, steps=(0, 40,
     for bg in backgrounds:
         env = NaturalAtariVecEnv(game, 1, background=bg, num_threads=1, seed=1, pool="rgb",
                                  video_sources=video_sources, **SETTINGS)
+        twin = rgb_twin(game, seed=1)
         obs, _ = env.reset()
         tiles = []
         rng = np.random.default_rng(0)
@@ -124,9 +144,12 @@ def frame_strip(game: str, backgrounds, video_sources, path: Path, steps=(0, 40,
             if t in steps:
                 tiles.append(cv2.resize(obs[0, ..., -1], (168, 168), interpolation=cv2.INTER_NEAREST))
             if t < max(steps):
-                obs, *_ = env.step(rng.integers(0, env.single_action_space.n, 1))
-        # The RGB composite this step showed (the env composites in gray; redo it in RGB).
-        rgb = env._ale.step(np.zeros(1, np.int64))[0][:, 0]
+                actions = rng.integers(0, env.single_action_space.n, 1)
+                obs, *_ = env.step(actions)
+                twin.step(actions)
+        # The next RGB screen, composited in RGB (the env composites in gray).
+        rgb = twin.step(np.zeros(1, np.int64))[0][:, 0]
+        twin.close()
         background = _rgb_background(env, bg)
         full = composite(rgb, background)[0] if background is not None else rgb[0]
         full = cv2.resize(full, (128, 168), interpolation=cv2.INTER_AREA)
@@ -270,7 +293,7 @@ def main(argv=None):
                        steps_per_s=rate, vs_ale_py=rate / reference)
             timings = getattr(envs[name], "step_timings", None)
             if timings:
-                row["host_threads"] = envs[name]._runner.threads
+                row["host_threads"] = envs[name].host_threads
                 row["ale_wait_ms"] = 1e3 * timings["ale_s"] / timings["steps"]
                 row["ahead_ms"] = 1e3 * timings["ahead_s"] / timings["steps"]
                 row["host_ms"] = 1e3 * timings["host_s"] / timings["steps"]

@@ -257,8 +257,9 @@ def main(argv=None):
     info = common.machine()
     on_gpu = info["backend"] != "cpu"
     sizes = args.sizes or ([1024, 16384] if on_gpu else [16, 64])
-    # 10 steps of 16,384 envs take ~2 s (Hopper, H200): long enough to time, short enough for
-    # all four robots, every mode, in ~5 minutes.
+    # 10 steps a timed scan on a GPU: long enough to time at 16,384 envs, short enough to run
+    # all four robots in every mode in one sitting (each run's "bench_seconds" is recorded in
+    # bench/results/pixel_mujoco.md).
     steps = args.steps or (10 if on_gpu else 4)
     print(f"{info['backend']}: {info['device']}; sizes {sizes}, {steps} scan steps", flush=True)
     pool = ThreadPoolExecutor(max(1, args.compile_workers))

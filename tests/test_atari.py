@@ -314,7 +314,7 @@ def test_video_background_one_frame_per_step_and_new_video_at_reset(clips):
         "Breakout", 3, background="video", split="all", video_sources=str(clips),
         max_episode_steps=8, num_threads=1, seed=0,
     )
-    bank_levels = env._background.bank.frames[:, 0, 0, 0].astype(int)  # one level per frame
+    bank_levels = env.background_bank.frames[:, 0, 0, 0].astype(int)  # one level per frame
     assert len(set(bank_levels)) == len(bank_levels)  # every bank frame is recognisable
     index = {level: i for i, level in enumerate(bank_levels)}
     obs, _ = env.reset()
@@ -323,8 +323,8 @@ def test_video_background_one_frame_per_step_and_new_video_at_reset(clips):
         obs, *_, info = env.step(np.zeros(3, np.int64))
         positions.append([index[v] for v in _background_level(obs)])
     positions = np.array(positions)
-    starts = np.asarray(env._background.bank.starts)
-    lengths = np.asarray(env._background.bank.lengths)
+    starts = np.asarray(env.background_bank.starts)
+    lengths = np.asarray(env.background_bank.lengths)
     video_of = np.searchsorted(starts, np.arange(len(bank_levels)), side="right") - 1
     for t in range(1, len(positions)):
         for e in range(3):
@@ -343,7 +343,7 @@ def test_video_split_is_disjoint(clips):
     for split in ("train", "test", "all"):
         env = NaturalAtariVecEnv("Breakout", 1, background="video", split=split,
                                  video_sources=str(clips), num_threads=1)
-        names[split] = set(env._background.bank.names)
+        names[split] = set(env.background_bank.names)
     assert names["train"] and names["test"]
     assert not names["train"] & names["test"]
     assert names["train"] | names["test"] == names["all"]
@@ -462,7 +462,7 @@ def test_threaded_host_work_equals_serial(clips, background, autoreset_mode):
             max_episode_steps=7, autoreset_mode=autoreset_mode, num_threads=2,
             host_threads=host_threads, seed=4,
         )
-        assert env._runner.threads == min(host_threads, 5)
+        assert env.host_threads == min(host_threads, 5)
         return _trajectory(env, 16)
 
     serial = run(1)
@@ -522,7 +522,7 @@ def test_whole_batch_host_work_equals_the_per_env_definition(clips, background, 
         env = cls("Breakout", 5, background=background, split="all", video_sources=str(clips),
                   max_episode_steps=6, autoreset_mode=autoreset_mode, num_threads=2,
                   host_threads=host_threads, seed=9, obs_size=obs_size)
-        assert (env._fused_plan is not None) == (obs_size == 84)
+        assert (env.host_pass == "numba") == (obs_size == 84)
         return _trajectory(env, 14)
 
     reference = run(PerEnvReference, 1)
@@ -530,6 +530,26 @@ def test_whole_batch_host_work_equals_the_per_env_definition(clips, background, 
     for host_threads in (1, 2):
         for a, b in zip(reference, run(NaturalAtariVecEnv, host_threads), strict=True):
             np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("background", ["none", "video"])
+def test_python_pool_host_pass_gives_the_same_trajectory(clips, background):
+    """`host_pass="pool"` runs the host work on the Python thread pool where numba's single
+    call would apply (84x84 gray): same observations."""
+    def run(host_pass):
+        env = NaturalAtariVecEnv(
+            "Breakout", 5, background=background, split="all", video_sources=str(clips),
+            max_episode_steps=6, num_threads=2, host_threads=2, host_pass=host_pass, seed=3)
+        chosen = env.host_pass
+        return chosen, _trajectory(env, 12)
+
+    (auto_pass, auto), (pool_pass, pool) = run("auto"), run("pool")
+    assert pool_pass == ("inline" if background == "none" else "pool")
+    assert auto_pass in (("inline",) if background == "none" else ("numba", "pool"))
+    for a, b in zip(auto, pool, strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="host_pass must be one of"):
+        NaturalAtariVecEnv("Breakout", 2, host_pass="numba")
 
 
 def test_step_timings_add_up():

@@ -1,4 +1,4 @@
-"""Classification-by-navigation semantics (shared/spec/environments.md section 1)."""
+"""Classification-by-navigation semantics (docs/environments.md section 1)."""
 
 import jax
 import jax.numpy as jnp
@@ -190,7 +190,7 @@ def test_pack_unpack_round_trip(width):
 @pytest.mark.parametrize("width", [10, 32, 40, 70])
 def test_window_bits_equal_packed_window_mask(width):
     from jaxnat.datasets import ImageDataset
-    from jaxnat.vision_envs.classify import _window_mask
+    from jaxnat.vision_envs.classify import window_mask
 
     images = np.zeros((1, 9, width, 1), np.uint8)
     env = Classify(ImageDataset("blank", "train", images, np.zeros(1, np.int32), ("a",)))
@@ -198,5 +198,5 @@ def test_window_bits_equal_packed_window_mask(width):
         for row in range(0, 9 - side + 1, 2):
             for col in range(0, width - side + 1, 3):
                 top_left = jnp.array([row, col])
-                want = pack_mask(_window_mask(top_left, side, 9, width))
+                want = pack_mask(window_mask(top_left, side, 9, width))
                 np.testing.assert_array_equal(np.asarray(env._window_bits(top_left, side)), np.asarray(want))

@@ -1,4 +1,4 @@
-"""Localization-by-navigation semantics (shared/spec/environments.md section 2)."""
+"""Localization-by-navigation semantics (docs/environments.md section 2)."""
 
 import jax
 import jax.numpy as jnp
@@ -235,15 +235,14 @@ def test_registered_ids_route_their_arguments(tmp_path, monkeypatch):
     assert env.num_classes == 20 and params.images.shape[0] + env.num_dropped == 8
 
 
-def test_wordwise_writer_gives_the_same_observation(env):
+def test_wordwise_writer_gives_the_same_observation(dataset):
     """GPUs take the word-wise writer (CPUs the byte-wise one): same bytes either way."""
-    from jaxnat.vision_envs import observation
-
-    params = env.default_params
+    bytewise = Localize(dataset, w=SIDE, M=7, observation_writer="bytewise")
+    wordwise = Localize(dataset, w=SIDE, M=7, observation_writer="wordwise")
+    params = bytewise.default_params
     keys = jax.random.split(jax.random.key(5), 8)
-    _, state = jax.vmap(env.reset, in_axes=(0, None))(keys, params)
+    _, state = jax.vmap(bytewise.reset, in_axes=(0, None))(keys, params)
     state = state.replace(top_left=jnp.array([[0, 0], [16, 20], [3, 7], [8, 10]] * 2, jnp.int32))
-    expected = jax.vmap(env.get_obs, in_axes=(0, None))(state, params)
-    env._render = observation._wordwise_observation
-    got = jax.vmap(env.get_obs, in_axes=(0, None))(state, params)
+    expected = jax.vmap(bytewise.get_obs, in_axes=(0, None))(state, params)
+    got = jax.vmap(wordwise.get_obs, in_axes=(0, None))(state, params)
     jax.tree_util.tree_map(np.testing.assert_array_equal, got, expected)

@@ -115,7 +115,7 @@ def test_cityscapes_resizes_photos_by_area_and_labels_by_nearest(tree):
     expected = cv2.resize(image, (16, 16), interpolation=cv2.INTER_AREA)
     np.testing.assert_array_equal(ds.images[0], expected)
     # Nearest neighbour: every resized value is one of the original's, no blending.
-    table = cityscapes._lookup("train")
+    table = cityscapes.label_table("train")
     assert set(np.unique(ds.class_maps[0])) <= set(np.unique(table[labels]))
     np.testing.assert_array_equal(
         ds.class_maps[0], table[cv2.resize(labels, (16, 16), interpolation=cv2.INTER_NEAREST)])
@@ -235,7 +235,7 @@ def test_clutter_backgrounds_from_your_own_files(tmp_path):
 def test_clutter_objects_are_disjoint_between_splits():
     _require_embedded_data()
     (train_items, train_classes), (test_items, test_classes) = (
-        clutter._objects("train"), clutter._objects("test"))
+        clutter.object_items("train"), clutter.object_items("test"))
     assert set(np.unique(train_classes)) == set(np.unique(test_classes)) == set(range(20))
     # Digits come from the sheet's fixed split; Fashion-MNIST from its train / t10k files.
     assert len(train_items) == 4000 + 60000 and len(test_items) == 1000 + 10000
@@ -265,13 +265,13 @@ def test_clutter_mask_is_exactly_the_pasted_pixels():
     """On a black background, void pixels stay black and every object pixel is brighter than
     the threshold (pixel = colour * intensity / 255 with a colour of value 255)."""
     _require_embedded_data()
-    items, classes = clutter._objects("test")
+    items, classes = clutter.object_items("test")
     by_class = [np.flatnonzero(classes == c) for c in range(20)]
     black = natural.FrameBank(np.zeros((1, 64, 64, 3), np.uint8), np.array([0], np.int32),
                               np.array([1], np.int32), ("black",))
     rng = np.random.default_rng(0)
     for _ in range(20):
-        image, class_map = clutter._scene(rng, black, items, classes, by_class, (3, 5))
+        image, class_map = clutter.scene(rng, black, items, classes, by_class, (3, 5))
         void = class_map == VOID
         assert (image[void] == 0).all()
         assert (image[~void].max(axis=-1) > clutter.THRESHOLD * 0.99).all()

@@ -167,7 +167,7 @@ def test_pyav_decodes_what_opencv_cannot(videos, monkeypatch):
         opened.append(path)
         return 0, iter(())
 
-    monkeypatch.setattr(decode, "READERS", (opencv_fails, decode._pyav_reader))
+    monkeypatch.setattr(decode, "READERS", (opencv_fails, decode.pyav_reader))
     bank = load(videos[3:4], cache=False)
     assert opened and bank.names == ("clip3.avi",)
     np.testing.assert_array_equal(bank.frames, expected_frames(3, 6))

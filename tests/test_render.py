@@ -294,10 +294,10 @@ def test_row_spans_hold_every_pixel_of_their_geom(robot):
     for seed in range(4):
         data = posed(model, seed)
         pos, mat = camera.pose(data)
-        terms = np.asarray(renderer._frame_terms(pos, mat, data.geom_xpos, data.geom_xmat))
+        spans = np.asarray(renderer.row_spans(pos, mat, data.geom_xpos, data.geom_xmat))
         geom = np.asarray(renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat).geom)
         for g in range(table.num_geoms):
-            first, last = terms[g, render._ROW_LO], terms[g, render._ROW_HI]
+            first, last = spans[g]
             rows = np.flatnonzero(np.any(geom == g, axis=1))
             assert np.all((rows >= first) & (rows <= last)), f"geom {g}: rows {rows} vs {first}..{last}"
             if g != table.floor:

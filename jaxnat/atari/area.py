@@ -1,9 +1,10 @@
-"""OpenCV's INTER_AREA downscaling, bit-exact and about three times cheaper, fused with the
-background compositing: `composite_resize(screens, backgrounds, out)`.
+"""OpenCV's INTER_AREA downscaling, bit-exact and cheaper, fused with the background
+compositing: `composite_resize(screens, backgrounds, out)`.
 
 Why: OpenCV resizes 210x160 -> 84x84 (a non-integer scale) with its generic INTER_AREA code, a
-scalar float loop of 60-110 us an env on one core: most of Natural Atari's host work, which
-ale-py itself does inside its emulation threads (bench/results/natural_atari.md).
+scalar float loop: most of Natural Atari's host work, which ale-py itself does inside its
+emulation threads (the "host pieces" lines of bench/results/natural_atari.md time OpenCV's
+resize and this kernel side by side).
 
 How. Area weights are rational. With an axis of `n` source pixels shrunk to `m`, output pixel `j`
 covers `[j n/m, (j+1) n/m)`; counted in units of `1/m` source pixel every overlap is an integer,
@@ -190,7 +191,7 @@ def _kernel(screens, backgrounds, out, denominator, reciprocal, dtype_of_sums, y
     # Per image: composite; weighted sums of source rows (one per output row), stored
     # transposed; weighted sums of those columns; round; fix ties. Loops are written so that
     # LLVM vectorises them: inner loops run over contiguous rows with few pointers, and the
-    # mask is arithmetic (a data-dependent branch per pixel was several times slower).
+    # mask is arithmetic (a data-dependent branch per pixel keeps the loop from vectorising).
     n_rows, n_cols = screens.shape[1], screens.shape[2]
     h, w = out.shape[1], out.shape[2]
     sum_type = dtype_of_sums.dtype
@@ -304,8 +305,7 @@ def _interleave(ring, slots, lo, hi, obs):  # pragma: no cover
     """`obs[i, :, :, k] = ring[slots[k], i]` for envs `lo <= i < hi`: the frame stack's
     channels-last observation, oldest first."""
     # Writes whole output rows; with 4 frames the four sources are named so that LLVM
-    # vectorises the interleave (~1 us an env, as fast as cv2.merge; a loop over frames inside
-    # the pixel loop is eight times slower).
+    # vectorises the interleave (a loop over frames inside the pixel loop does not vectorise).
     depth, h, w = slots.shape[0], ring.shape[2], ring.shape[3]
     rows = obs.reshape(obs.shape[0], h, w * depth)
     for i in range(lo, hi):

@@ -57,9 +57,10 @@ class NoiseBackground(NoBackground):
     from its own generator (seeded from `seed` and `i`), once per step and once per `reset()`,
     so a seed gives one sequence however the batch is chunked.
 
-    The draws (~2 ns a pixel: ~60 us an env) start in `advance` while ALE emulates: on the
-    `runner`'s pool threads, one chunk of envs each, or on the calling thread without a pool;
-    `frames` waits for them."""
+    The draws cost about as much host time as OpenCV's resize ("noise draws" and "resize" in
+    the host pieces of bench/results/natural_atari.md), so they start in `advance`, while ALE
+    emulates: on the `runner`'s pool threads, one chunk of envs each, or on the calling thread
+    without a pool; `frames` waits for them."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0,
                  runner=None):

@@ -25,8 +25,9 @@ Two pooling orders (the env's `pool`):
   spec, with the RGB mask (`background_mask`). It moves three times the bytes.
 
 Compositing and resizing run fused in one pass (`composite_and_resize`): jaxnat.atari.area's
-numba kernel, bit-identical to OpenCV's INTER_AREA and about three times cheaper on one core
-(most of the host work per step); `cv2.resize` for sizes the kernel has no plan for.
+numba kernel, bit-identical to OpenCV's INTER_AREA and cheaper (resizing is most of the host
+work per step; the "host pieces" lines of bench/results/natural_atari.md time both);
+`cv2.resize` for sizes the kernel has no plan for.
 
 The OpenCV calls take a batch `[B, H, W(, C)]` as one tall image `[B*H, W(, C)]`: every
 operation here is per pixel, and INTER_AREA shrinking by the same factor keeps the images' rows
@@ -166,8 +167,8 @@ class FrameStack:
 
     Kept in a ring buffer `ring[depth, B, h, w]` (no per-step allocation: each step writes its
     frames into the oldest slot, which becomes the newest) and interleaved with one `cv2.merge`
-    of the batch (~2 us an env) instead of shifting a channels-last array (a strided copy, ten
-    times slower).
+    of the batch instead of shifting a channels-last array, which would be a strided copy of
+    every frame each step ("stack merge" in bench/results/natural_atari.md's host pieces).
     """
 
     def __init__(self, depth: int):
@@ -263,8 +264,8 @@ class GrayNoiseSampler:
         """Draws of `shape` from `rng` (default: the sampler's), into `out` when given.
 
         The 16-bit uniforms are the four quarters of the bit generator's raw 64-bit words (each
-        uniform and independent), twice as fast as `rng.integers`; both numpy steps release
-        the GIL, so threads drawing from their own generators run in parallel."""
+        uniform and independent), which skips `rng.integers`' bounded-integer work; both numpy
+        steps release the GIL, so threads drawing from their own generators run in parallel."""
         rng = self.rng if rng is None else rng
         if rng is None:
             raise ValueError("GrayNoiseSampler.sample needs an rng: pass one, or give the sampler one")

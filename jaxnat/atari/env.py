@@ -23,12 +23,13 @@ __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
+_HOST_PASSES = ("auto", "pool")
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
-# Default host_threads, at most, on 16-core H100 hosts (64 envs, 16 ALE threads, video;
-# bench/results/natural_atari.md). numba's parallel pass (jaxnat.atari.hostpass), four runs:
-# 4 threads 0.91-0.97x ale-py with 1.05-1.46 ms of host work a step, 8 threads 0.92-0.95x with
-# 0.76-1.16 ms (less in every run), 16 threads 0.86x. The Python thread pool (other sizes,
-# pool="rgb"): 1 chunk 0.66x, 2 0.77x, 4 0.81-0.92x, 8 0.82-0.85x, 16 0.78x.
+# Default host_threads, at most. Beside ALE's threads on a fully used host, numba's parallel
+# pass (jaxnat.atari.hostpass) still gains from 8 threads, while more would take cores from the
+# emulation; the Python thread pool gains nothing past about 4 chunks, whose hand-offs through
+# the GIL then cost what more threads save. The host_threads sweeps behind both numbers are in
+# bench/results/natural_atari.md.
 _DEFAULT_HOST_THREADS = {"numba": 8, "pool": 4}
 
 
@@ -81,8 +82,12 @@ class NaturalAtariVecEnv:
     alone). With gray pooling at a size the exact resize kernel covers (84x84 does) the whole
     pass is one parallel numba call on numba's own threads (jaxnat.atari.hostpass, which
     explains their OpenMP wait policy); otherwise, and for the noise draws, a pool of Python
-    threads runs whole-chunk numba/OpenCV calls that release the GIL. Observations do not
-    depend on either count: each env draws its noise from its own generator. `step_timings`
+    threads runs whole-chunk numba/OpenCV calls that release the GIL. `host_pass="pool"` takes
+    the Python pool even where numba's call applies (`bench/natural_atari.py` compares the
+    two). The attributes `host_pass` ("numba", "pool", or "inline" where ALE resized and only
+    the stacking is left, on the calling thread) and `host_threads` say what was chosen.
+    Observations depend on neither choice nor count: each env draws its noise from its own
+    generator. `step_timings`
     adds up, over steps, the seconds spent in ALE's send and recv (`ale_s`: handing over the
     actions, then waiting for the emulation), on the background while ALE emulates
     (`ahead_s`), and in the rest of `step` (`host_s`).
@@ -107,6 +112,7 @@ class NaturalAtariVecEnv:
         stack: int = 4,
         num_threads: int = 0,
         host_threads: int = 0,
+        host_pass: str = "auto",
         autoreset_mode: str = "same_step",
         noise_scale: float = 50.0,
         seed: int = 0,
@@ -119,6 +125,8 @@ class NaturalAtariVecEnv:
             raise ValueError(f"autoreset_mode must be one of {sorted(_AUTORESET_MODES)}, got {autoreset_mode!r}")
         if pool not in ("gray", "rgb"):
             raise ValueError(f"pool must be 'gray' or 'rgb', got {pool!r}")
+        if host_pass not in _HOST_PASSES:
+            raise ValueError(f"host_pass must be one of {_HOST_PASSES}, got {host_pass!r}")
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         if not 0.0 <= float(sticky_actions) <= 1.0:
@@ -166,8 +174,10 @@ class NaturalAtariVecEnv:
         )
         # gray screens at a size the exact kernel handles (84x84 does): jaxnat.atari.hostpass
         self._fused_plan = (area_plan(SCREEN_SHAPE, self.obs_size)
-                            if pool == "gray" and not self._ale_resizes and hostpass.usable()
-                            else None)
+                            if pool == "gray" and not self._ale_resizes and host_pass == "auto"
+                            and hostpass.usable() else None)
+        self.host_pass = ("inline" if self._ale_resizes
+                          else "numba" if self._fused_plan is not None else "pool")
         ale_threads = int(num_threads) or default_threads(self.num_envs)
         most = _DEFAULT_HOST_THREADS["numba" if self._fused_plan is not None else "pool"]
         chunks = int(host_threads) or min(ale_threads, most, self.num_envs // _ENVS_PER_HOST_CHUNK)
@@ -258,6 +268,18 @@ class NaturalAtariVecEnv:
         timings["ahead_s"] += advanced - sent
         timings["host_s"] += time.perf_counter() - received
         return obs, reward, terminated, truncated, info
+
+    @property
+    def background_bank(self):
+        """The `jaxnat.natural.FrameBank` (gray frames) the "video" and "image" backgrounds draw
+        from; None for "none" and "noise"."""
+        return getattr(self._background, "bank", None)
+
+    @property
+    def host_threads(self) -> int:
+        """How many chunks of envs the host work is split into (the `host_threads` argument,
+        or the default it resolved to)."""
+        return self._runner.threads
 
     def close(self) -> None:
         self._ale.close()

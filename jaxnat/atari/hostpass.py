@@ -3,29 +3,29 @@ screen over its background, shrink it with jaxnat.atari.area's exact INTER_AREA 
 frame stack's newest slot, and interleave the stack into the channels-last observation
 (`composite_resize_stack`; the numba code is `jaxnat.atari.area.parallel_pass`).
 
-Why one numba call and not a pool of Python threads: at 16 ALE threads on a 16-core host (64
-envs) the kernel's ~0.5 ms of work a chunk took ~1.3 ms a step split over four Python pool
-threads (jaxnat.atari.chunks), much of it waking the threads and passing the GIL between them
-and the caller (an empty four-chunk round trip costs ~0.1 ms on an idle 2-core machine).
-numba's own threads (`parallel=True`) need no GIL: the same empty round trip takes ~5 us.
+Why one numba call and not a pool of Python threads: split over Python pool threads
+(jaxnat.atari.chunks), the kernel's short chunks of work cost much more than the work itself
+beside a busy emulator, most of it waking the threads and passing the GIL between them and the
+caller. numba's own threads (`parallel=True`) need no GIL, and an empty round trip through them
+is a small fraction of the pool's. (`host_pass="pool"` keeps the pool, for comparison; the
+host ms per step of both are in bench/results/natural_atari.md.)
 
 `threads` sets how many of numba's threads the call uses (`numba.set_num_threads`, which only
 affects the calling thread, restored afterwards); envs are split into that many contiguous
 chunks. The output does not depend on `threads`.
 
 Idle threads must sleep, not spin: ALE's threads need every core as soon as the pass returns.
-numba's usual threading layer is OpenMP (GNU libgomp), whose idle threads spin by default
-(~8 ms of CPU a thread after each call on a 2-core machine); beside 16 ALE threads on a 16-core
-host, 8 spinning threads cut the env's throughput from 0.95x to 0.71x of ale-py's, and 16 to
-0.45x (bench/results/natural_atari.md). libgomp reads `OMP_WAIT_POLICY` once, when it is loaded,
-so the first pass starts numba's threads with `OMP_WAIT_POLICY=PASSIVE` set for that moment only
-(unless you set it yourself; the process's environment is restored at once, so libraries that
-load their own OpenMP later are not affected). If libgomp was already loaded by then, its policy
-stays as it was; `GOMP_SPINCOUNT`, if set, overrides the policy.
+numba's usual threading layer is OpenMP (GNU libgomp), whose idle threads spin for a while after
+each call by default, taking those cores from the emulation (the spinning and passive
+throughputs are compared in bench/results/natural_atari.md). libgomp reads `OMP_WAIT_POLICY`
+once, when it is loaded, so the first pass starts numba's threads with `OMP_WAIT_POLICY=PASSIVE`
+set for that moment only (unless you set it yourself; the process's environment is restored at
+once, so libraries that load their own OpenMP later are not affected). If libgomp was already
+loaded by then, its policy stays as it was; `GOMP_SPINCOUNT`, if set, overrides the policy.
 
 `usable()` says whether the pass may be used: not on numba's `workqueue` layer (chosen when
 neither OpenMP nor TBB is available), which aborts the process when two threads call parallel
-code at once (two envs stepped from two threads) and measured slower than the Python pool; and
+code at once (two envs stepped from two threads) and ran slower than the Python pool; and
 not in a process forked after numba's OpenMP threads started (GNU OpenMP is not fork-safe:
 numba terminates such a child at its first parallel call), where envs made in the child use
 the Python pool instead. An env made before a fork cannot be stepped in the child either way

@@ -38,7 +38,8 @@ from jaxnat.datasets import locate
 from jaxnat.datasets.base import DatasetFormatError, DatasetNotFoundError
 from jaxnat.datasets.segmentation import VOID, SegmentationDataset, cached
 
-__all__ = ["load", "find_files", "LABEL_NAMES", "TRAIN_IDS", "LABEL_SETS", "class_names"]
+__all__ = ["load", "find_files", "LABEL_NAMES", "TRAIN_IDS", "LABEL_SETS", "class_names",
+           "label_table"]
 
 # Cityscapes label id -> name, ids 0..33 (cityscapesscripts/helpers/labels.py).
 LABEL_NAMES = (
@@ -64,8 +65,10 @@ def class_names(labels: str = "train") -> tuple[str, ...]:
     return tuple(LABEL_NAMES[i] for i in ids)
 
 
-def _lookup(labels: str) -> np.ndarray:
-    """uint8 [256]: label id -> class id, VOID for everything that is no class."""
+def label_table(labels: str = "train") -> np.ndarray:
+    """uint8 [256]: label id -> class id of the label set, VOID for everything that is no class
+    (`load` maps every label map through it)."""
+    _check_labels(labels)
     table = np.full(256, VOID, np.uint8)
     ids = TRAIN_IDS if labels == "train" else range(_FIRST_ANNOTATED, len(LABEL_NAMES))
     table[list(ids)] = np.arange(len(ids), dtype=np.uint8)
@@ -80,7 +83,7 @@ def _check_labels(labels: str) -> None:
 
 def _dataset_dir(root) -> Path:
     searched = []
-    for folder, why in locate._search_dirs("cityscapes", root):
+    for folder, why in locate.search_dirs("cityscapes", root):
         if (folder / "leftImg8bit").is_dir() and (folder / "gtFine").is_dir():
             return folder
         searched.append(f"  {folder}  ({why})")
@@ -144,7 +147,7 @@ def load(split: str = "train", *, root=None, shape: tuple[int, int] = (256, 256)
     _check_labels(labels)
     shape = tuple(int(s) for s in shape)
     pairs = find_files(split, root)
-    table = _lookup(labels)
+    table = label_table(labels)
 
     def decode() -> SegmentationDataset:
         with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # OpenCV releases the GIL

@@ -47,8 +47,8 @@ from jaxnat.datasets.base import DatasetNotFoundError
 from jaxnat.datasets.idx import CLASS_NAMES as _IDX_CLASS_NAMES
 from jaxnat.datasets.segmentation import VOID, SegmentationDataset, cached
 
-__all__ = ["load", "build", "background_frames", "background_files", "CLASS_NAMES", "THRESHOLD",
-           "DEFAULT_NUM_IMAGES"]
+__all__ = ["load", "build", "background_frames", "background_files", "object_items", "scene",
+           "CLASS_NAMES", "THRESHOLD", "DEFAULT_NUM_IMAGES"]
 
 CLASS_NAMES = tuple(f"digit {d}" for d in digits.CLASS_NAMES) + _IDX_CLASS_NAMES["fashion_mnist"]
 THRESHOLD = 48  # object pixels: resized intensity > THRESHOLD (0..255)
@@ -85,8 +85,9 @@ def background_frames(split: str, shape: tuple[int, int], sources=None) -> natur
     return natural.FrameBank.concatenate(banks)
 
 
-def _objects(split: str):
-    """(uint8 [M, 28, 28] intensities, int32 [M] clutter classes) of the split's objects."""
+def object_items(split: str):
+    """(uint8 [M, 28, 28] intensities, int32 [M] clutter classes) of the split's objects: the
+    digits and Fashion-MNIST items its scenes paste (step 2 of the module docstring)."""
     from jaxnat import datasets
 
     sheet = datasets.load("digits", split)
@@ -116,7 +117,11 @@ def _background(rng, bank: natural.FrameBank) -> np.ndarray:
                       interpolation=cv2.INTER_AREA)
 
 
-def _scene(rng, bank, items, classes, by_class, objects):
+def scene(rng, bank, items, classes, by_class, objects):
+    """One scene (steps 1-4 of the module docstring), drawn from `rng`: a background from `bank`
+    (a `natural.FrameBank`) with `objects = (min, max)` items of distinct classes pasted on it.
+    `items, classes` are `object_items(split)`; `by_class[c]` the indices of class c's items.
+    Returns `(uint8 [H, W, 3] image, uint8 [H, W] class map)`."""
     image = _background(rng, bank)
     h, w = image.shape[:2]
     class_map = np.full((h, w), VOID, np.uint8)
@@ -159,13 +164,13 @@ def build(split: str, *, shape=(256, 256), num_images: int | None = None, object
     if num_images < 1:
         raise ValueError(f"num_images must be >= 1, got {num_images}")
     bank = background_frames(split, (h, w), backgrounds)
-    items, classes = _objects(split)
+    items, classes = object_items(split)
     by_class = [np.flatnonzero(classes == c) for c in range(len(CLASS_NAMES))]
     rng = np.random.default_rng([seed, _SPLITS.index(split)])
     images = np.empty((num_images, h, w, 3), np.uint8)
     maps = np.empty((num_images, h, w), np.uint8)
     for n in range(num_images):
-        images[n], maps[n] = _scene(rng, bank, items, classes, by_class, (lo, hi))
+        images[n], maps[n] = scene(rng, bank, items, classes, by_class, (lo, hi))
     return SegmentationDataset("clutter", split, images, maps, CLASS_NAMES)
 
 

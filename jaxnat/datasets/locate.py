@@ -25,7 +25,7 @@ from pathlib import Path
 from jaxnat.datasets.base import DatasetNotFoundError
 
 __all__ = ["Source", "Layout", "LAYOUTS", "SYSTEM_DIRS", "data_dir", "default_download_dir",
-           "find"]
+           "search_dirs", "find"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -127,8 +127,9 @@ def default_download_dir(name: str) -> Path:
     return (base if base is not None else _home_data_dir()) / name
 
 
-def _search_dirs(name: str, root: str | os.PathLike | None) -> list[tuple[Path, str]]:
-    """(folder, why it is searched), in search order."""
+def search_dirs(name: str, root: str | os.PathLike | None) -> list[tuple[Path, str]]:
+    """(folder, why it is searched), in search order (the module docstring's list), for a
+    dataset `name`; datasets with their own layout (Cityscapes) search the same folders."""
     if root is not None:
         return [(Path(root).expanduser(), "root argument")]
     dirs = []
@@ -157,7 +158,7 @@ def _resolve(folder: Path, names: tuple[tuple[str, ...], ...]) -> tuple[Path, ..
 def find(name: str, split: str, root: str | os.PathLike | None = None) -> Source:
     """Resolve the files of `split` of dataset `name`, or raise `DatasetNotFoundError`."""
     searched = []
-    for folder, why in _search_dirs(name, root):
+    for folder, why in search_dirs(name, root):
         for layout in LAYOUTS[name]:
             candidates = [folder / layout.subdir, folder] if layout.subdir else [folder]
             for candidate in candidates:

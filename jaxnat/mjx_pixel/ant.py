@@ -39,6 +39,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxnat.core import EnvParams
+from jaxnat.mjx_pixel import mjx_internals
 from jaxnat.mjx_pixel.base import MJXEnv, MJXState
 
 __all__ = ["Ant", "AntState", "AntParams"]
@@ -104,7 +105,7 @@ class Ant(MJXEnv):
     def contact_forces(self, data, params: AntParams) -> jax.Array:
         """`cfrc_ext` clipped to `contact_force_range`, per body (world included)."""
         low, high = params.contact_force_range
-        return jnp.clip(data._impl.cfrc_ext, low, high)  # MJX 3.x keeps it in `_impl`
+        return jnp.clip(mjx_internals.cfrc_ext(data), low, high)
 
     def is_healthy(self, data, params: AntParams) -> jax.Array:
         low, high = params.healthy_z_range

@@ -13,27 +13,30 @@ adds Gymnasium MuJoCo v5's reward and termination (and observation where it is n
   `mj_forward` (body, geom and camera poses, centres of mass; free-joint quaternions come
   back normalised, as C leaves them): all that an observation or the renderer reads. The
   first step's forward pass computes the rest from `qpos`, `qvel` alone, so trajectories are
-  those after a full `mj_forward`, and reset compiles ~3x faster (it also runs inside every
-  autoresetting step).
+  those after a full `mj_forward`, and reset, which also runs inside every autoresetting step,
+  compiles only those stages: no collision detection, no constraint solver.
 - **Step** (Gymnasium's `do_simulation`): `ctrl = action` (MuJoCo clamps it to `ctrlrange`),
   `frame_skip` calls of `mj_step`, then `mj_rnePostConstraint` where the robot reads
   `cfrc_ext` (Ant). As in MuJoCo C, the position-dependent fields of the data after a step
   (`xpos`, `geom_xpos`, contacts) are those of the last forward pass (the step's start for
   Euler, the last Runge-Kutta stage for RK4), not of the new `qpos`.
 - **Compile time**: MJX's `rungekutta4` unrolls its three inner stages, so XLA compiles four
-  copies of the forward dynamics (with the contact solver) per physics step (Hopper's step:
-  69 s to compile on the shared 2-core CPU). `_rk4_step` runs the same four stages as one `lax.scan`
-  (one copy of the forward dynamics), with MJX's own tableau and state advance, so the
-  arithmetic is MJX's (35 s). Tests check it against MuJoCo C's `mj_step`.
+  copies of the forward dynamics (with the contact solver) per physics step. `_rk4_step` runs
+  the same four stages as one `lax.scan` (one copy of the forward dynamics), with MJX's own
+  tableau and state advance (`mjx_internals`), so the arithmetic is MJX's and the compile is
+  shorter (compile seconds: bench/results/mjx_physics.md). Tests check it against MuJoCo C's
+  `mj_step`.
 - **Contact frames**: plane-capsule contacts get MuJoCo C's frame (`_forward_with_c_capsule_
   frames`); MJX's differs for steep capsules, which changes pyramidal friction (Ant).
 - **Line search**: MJX's contact solver runs its line search as a `lax.scan` of
   `ls_iterations` steps (the models say 50) that go idle once converged; under `vmap` an idle
-  step still costs a full evaluation, so every solver iteration pays for all of them. MuJoCo C
-  needed at most 8 line-search evaluations per iteration over 3,000 random-action steps of
-  each robot, and MJX rollouts with a bound of 8 are identical to those with 50. jaxnat's
-  default bound is 10 (3-7x faster batched physics on CPU); `ls_iterations=None` restores the
-  model's 50. The Newton iterations themselves keep the model's bound and tolerance.
+  step still costs a full evaluation, so every solver iteration pays for all of them. On
+  random-action rollouts of each robot MuJoCo C's line search never needed 10 evaluations in
+  an iteration, and MJX rollouts bounded below 10 equal those bounded at 50, so jaxnat's
+  default bound is 10: batched physics runs faster with the same trajectories (the
+  `ls_iterations=50` rows and the moved notes of bench/results/mjx_physics.md).
+  `ls_iterations=None` restores the model's 50. The Newton iterations themselves keep the
+  model's bound and tolerance.
 - **Precision**: MJX runs in float32 (MuJoCo C in float64). Its matrix products are traced
   at full float32 precision: JAX's default on recent NVIDIA GPUs is TF32 (10-bit mantissa),
   too coarse for a contact solver.
@@ -47,11 +50,10 @@ import mujoco
 import numpy as np
 from flax import struct
 from mujoco import mjx
-from mujoco.mjx._src import forward as mjx_forward  # RK4 tableau and state advance, see _rk4_step
-from mujoco.mjx._src import scan as mjx_scan
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvState
+from jaxnat.mjx_pixel import mjx_internals  # MJX's private names: RK4 tableau, `_impl` fields
 from jaxnat.mjx_pixel.models import load_model, torso_body_id
 
 __all__ = ["MJXState", "MJXEnv"]
@@ -192,14 +194,14 @@ def _rk4_step(m: mjx.Model, d0: mjx.Data, forward) -> mjx.Data:
     `b = (1/6, 1/3, 1/3, 1/6)` advance the state, as `mjx.rungekutta4` does.
     """
     h = m.opt.timestep
-    a = jnp.concatenate([jnp.zeros(1), jnp.diag(jnp.asarray(mjx_forward._RK4_A))])
-    b = jnp.asarray(mjx_forward._RK4_B)
-    times = d0.time + h * jnp.concatenate([jnp.zeros(1), jnp.tril(mjx_forward._RK4_A).sum(0)])
+    a = jnp.concatenate([jnp.zeros(1), jnp.diag(jnp.asarray(mjx_internals.RK4_A))])
+    b = jnp.asarray(mjx_internals.RK4_B)
+    times = d0.time + h * jnp.concatenate([jnp.zeros(1), jnp.tril(mjx_internals.RK4_A).sum(0)])
     first = jnp.arange(4) == 0
 
     def integrate(qpos, qvel):
-        fn = lambda *args: mjx_forward._integrate_pos(*args, dt=h)
-        return mjx_scan.flat(m, fn, "jqv", "q", m.jnt_type, qpos, qvel)
+        fn = lambda *args: mjx_internals.integrate_pos(*args, dt=h)
+        return mjx_internals.scan_flat(m, fn, "jqv", "q", m.jnt_type, qpos, qvel)
 
     def stage(carry, x):
         sums, d = carry  # d: the previous stage's dynamics
@@ -216,7 +218,7 @@ def _rk4_step(m: mjx.Model, d0: mjx.Data, forward) -> mjx.Data:
     (sums, d1), _ = jax.lax.scan(stage, (zeros, d0), (a, b, times, first))
     qvel, qacc, act_dot = sums
     d = d1.replace(qpos=d0.qpos, qvel=d0.qvel, act=d0.act, time=d0.time)
-    return mjx_forward._advance(m, d, act_dot, qacc, qvel)
+    return mjx_internals.advance(m, d, act_dot, qacc, qvel)
 
 
 def _forward_with_c_capsule_frames(m: mjx.Model, d: mjx.Data) -> mjx.Data:
@@ -231,7 +233,7 @@ def _forward_with_c_capsule_frames(m: mjx.Model, d: mjx.Data) -> mjx.Data:
     are rebuilt as C does before the constraints are made; the rest is `mjx.forward`'s stages.
     """
     d = mjx.fwd_position(m, d)
-    contact = d._impl.contact
+    contact = mjx_internals.contact(d)
     plane, capsule = contact.geom[:, 0], contact.geom[:, 1]
     geom_type = jnp.asarray(m.geom_type)
     is_plane_capsule = (geom_type[plane] == _PLANE) & (geom_type[capsule] == _CAPSULE)
@@ -242,7 +244,7 @@ def _forward_with_c_capsule_frames(m: mjx.Model, d: mjx.Data) -> mjx.Data:
     use = (is_plane_capsule & (length[:, 0] > 1e-6))[:, None, None]
     tangent = tangent / jnp.maximum(length, 1e-6)
     frame = jnp.stack([normal, tangent, jnp.cross(normal, tangent)], axis=1)
-    d = d.tree_replace({"_impl.contact.frame": jnp.where(use, frame, contact.frame)})
+    d = mjx_internals.replace_contact_frame(d, jnp.where(use, frame, contact.frame))
     # The constraints made inside fwd_position from the old frames are dead code to XLA.
     d = mjx.make_constraint(m, d)
     # The rest of mjx.forward.
@@ -251,7 +253,7 @@ def _forward_with_c_capsule_frames(m: mjx.Model, d: mjx.Data) -> mjx.Data:
     d = mjx.sensor_vel(m, d)
     d = mjx.fwd_actuation(m, d)
     d = mjx.fwd_acceleration(m, d)
-    if d._impl.efc_J.size == 0:
+    if mjx_internals.constraint_jacobian(d).size == 0:
         return d.replace(qacc=d.qacc_smooth)
     d = mjx.solve(m, d)
     return mjx.sensor_acc(m, d)

@@ -23,9 +23,9 @@ from jax.experimental import pallas as pl
 
 __all__ = ["nearest_hit", "BLOCK", "CULL"]
 
-# Pixels per kernel instance (a power of two, as Triton wants). Ant on an H200 at 16,384 envs:
-# 3.5e6 frames/s with 128, 3.9e6-4.1e6 with 256, 3.5e6 with 512, 2.5e6 with 1024 (smaller
-# blocks cull more, until the blocks get too small to keep the GPU busy).
+# Pixels per kernel instance (a power of two, as Triton wants). Smaller blocks cull more geoms,
+# until they get too small to keep the GPU busy; 256 was the fastest size for Ant (the block
+# sizes compared: bench/results/pixel_mujoco.md).
 BLOCK = 256
 CULL = True  # skip a geom for a block of rows its bounding sphere cannot cover
 
@@ -33,8 +33,7 @@ CULL = True  # skip a geom for a block of rows its bounding sphere cannot cover
 def nearest_hit(renderer, terms, d):
     """`(t, geom)`, each `[H, W]`, of the nearest hit along the unit world rays `d` (three
     `[H, W]` arrays) for one frame whose geom terms are `terms [G, NUM_TERMS]`."""
-    from jaxnat.mjx_pixel.render import NUM_TERMS
-
+    num_terms = terms.shape[-1]  # render.NUM_TERMS (read from the array: render imports this module)
     shape = d[0].shape
     pixels = int(np.prod(shape))
     padded = -(-pixels // BLOCK) * BLOCK
@@ -50,7 +49,7 @@ def nearest_hit(renderer, terms, d):
         block = pl.program_id(0)
         rows = ((block * BLOCK // width).astype(jnp.float32),
                 ((block * BLOCK + BLOCK - 1) // width).astype(jnp.float32)) if cull else None
-        t, g = renderer.nearest(lambda geom, k: terms_ref[geom * NUM_TERMS + k], rays, rows)
+        t, g = renderer.nearest(lambda geom, k: terms_ref[geom * num_terms + k], rays, rows)
         t_ref[...] = t
         g_ref[...] = g
 

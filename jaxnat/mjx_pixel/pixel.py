@@ -1,6 +1,6 @@
 """PixelMuJoCo: an MJX robot seen through its tracking camera: `PixelMuJoCo/*-v0`.
 
-Semantics: `shared/spec/environments.md` section 4.
+Semantics: `docs/environments.md` section 4.
 
 - **Physics**: the robot's MJX env (`jaxnat.mjx_pixel.{ant,half_cheetah,hopper,swimmer}`,
   Gymnasium MuJoCo v5 dynamics, rewards, termination and reset noise).

@@ -376,24 +376,25 @@ class Renderer:
         fovy: vertical field of view in degrees (MuJoCo's `cam_fovy`; 45 by default).
         grayscale: uint8 `[H, W, 1]` (luminance, ITU-R 601 weights as OpenCV) instead of RGB.
         shadows: hard shadows from the model's first light (one more ray per pixel and geom:
-            about twice the work, three times the compile time).
+            about twice the work, and a longer compile).
         sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
             Gymnasium's skybox).
         kernel: "auto" (the default: Pallas when JAX's default backend is a GPU, else XLA),
             "xla" (plain JAX, any backend) or "pallas" (the nearest-hit search as one Pallas
             kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU). Both render the same
-            frames (tests on CPU; on an H200 too, 0 of 256 x 7,056 pixels differed).
+            frames (tests check it on CPU; bench/results/pixel_mujoco.md records the check on
+            a GPU).
 
     Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
     image, with no `dot` and no `[..., 3]` vectors in between, so XLA fuses it into a few
-    kernels (15 for Ant on an H200; the Pallas kernel does the geom loop in one). Per frame,
-    the few numbers each geom contributes (its position relative to
-    the camera, its axes) are computed once, packed in one small array and kept out of the
-    kernel (`optimization_barrier`), so the kernel does not redo them per pixel. Spheres and
-    capsules (all of Gymnasium's robots) are intersected in the world frame from two dot
-    products per pixel. A camera orientation given as host numbers (a tracking camera's never
-    changes) makes the ray directions compile-time constants. The normal is computed once per
-    pixel, for the winning geom only (its pose gathered by geom index).
+    kernels (the Pallas kernel does the geom loop in one). Per frame, the few numbers each geom
+    contributes (its position relative to the camera, its axes) are computed once, packed in
+    one small array and kept out of the kernel (`optimization_barrier`), so the kernel does not
+    redo them per pixel. Spheres and capsules (all of Gymnasium's robots) are intersected in the
+    world frame from two dot products per pixel. A camera orientation given as host numbers (a
+    tracking camera's never changes) makes the ray directions compile-time constants. The
+    normal is computed once per pixel, for the winning geom only (its pose gathered by geom
+    index).
     """
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
@@ -460,6 +461,13 @@ class Renderer:
             return tuple(world[..., i] for i in range(3))
         return tuple(rays[..., 0] * cam_mat[i, 0] + rays[..., 1] * cam_mat[i, 1]
                      + rays[..., 2] * cam_mat[i, 2] for i in range(3))
+
+    def row_spans(self, cam_pos, cam_mat, geom_xpos, geom_xmat) -> jax.Array:
+        """float32 `[G, 2]`: per geom (table order), the first and last image row its bounding
+        sphere may cover in this frame. The Pallas kernel skips a geom for the blocks of rows
+        outside its span."""
+        terms = self._frame_terms(cam_pos, cam_mat, geom_xpos, geom_xmat)
+        return terms[:, _ROW_LO:_ROW_HI + 1]
 
     def _frame_terms(self, cam_pos, cam_mat, geom_xpos, geom_xmat):
         """float32 [G, NUM_TERMS]: per geom, the columns from `_W`, `_XMAT`, `_WW`, `_W_LOCAL`,

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 __all__ = ["VideoDecodeWarning", "decode_video", "decode_image", "resize_frame",
-           "pyav_available"]
+           "pyav_available", "READERS", "opencv_reader", "pyav_reader"]
 
 
 class VideoDecodeWarning(UserWarning):
@@ -74,7 +74,7 @@ def _plain_file(path: Path) -> Iterator[Path]:
         Path(tmp).unlink(missing_ok=True)
 
 
-def _opencv_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
+def opencv_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
     """(frame count the container claims, BGR frames as they decode)."""
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
@@ -94,8 +94,8 @@ def _opencv_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
     return int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), frames()
 
 
-def _pyav_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
-    """As `_opencv_reader`, through PyAV; nothing when PyAV is not installed. A decoding error
+def pyav_reader(path: Path) -> tuple[int, Iterator[np.ndarray]]:
+    """As `opencv_reader`, through PyAV; nothing when PyAV is not installed. A decoding error
     mid-stream ends the frames (those before it are kept)."""
     try:
         import av
@@ -131,7 +131,7 @@ def pyav_available() -> bool:
 
 
 # Tried in order; the first that decodes at least one frame wins.
-READERS = (_opencv_reader, _pyav_reader)
+READERS = (opencv_reader, pyav_reader)
 
 
 def _decode_resized(plain: Path, shape: tuple[int, int], grayscale: bool,

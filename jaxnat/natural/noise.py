@@ -7,9 +7,10 @@ integer, so about half the pixels are black and the rest spread over 1 ... ~200.
 Drawing a float normal per pixel and rounding it wastes most of the work: the result takes only
 256 values. With a fixed (Python number) scale and mean, noise is drawn by inverse transform
 from 16 random bits per pixel through a 65,536-entry table of the law's quantiles (each value's
-probability is exact to within 2^-16): about 2x faster in JAX on a CPU (where generating the
-random bits then dominates) and 4x in NumPy. A traced scale or mean (vmapped over envs) takes
-the direct route: a float normal per pixel. The JAX and NumPy versions draw from the same law
+probability is exact to within 2^-16): fewer random bits and no float transcendentals per
+pixel, which is faster in JAX and in NumPy (the speed-ups are recorded in
+bench/results/natural_sources.md). A traced scale or mean (vmapped over envs) takes the direct
+route: a float normal per pixel. The JAX and NumPy versions draw from the same law
 with different generators: their values differ, their distributions do not.
 """
 

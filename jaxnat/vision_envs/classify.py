@@ -1,7 +1,7 @@
 """Image classification by navigation: `Classify/*`.
 
 The agent sees a masked image and uncovers it one square window at a time while guessing the
-class. Semantics: `shared/spec/environments.md` section 1.
+class. Semantics: `docs/environments.md` section 1.
 
 - **Data**: uint8 images `[N, H, W, C]` and int32 labels `[N]` of one official split
   (`split="train"` or `"test"`), held on the device in `params.images` / `params.labels`.
@@ -44,16 +44,16 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState
-from jaxnat.vision_envs.observation import masked_image_observation
+from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
 __all__ = [
-    "Classify", "ClassifyState", "ClassifyParams", "pack_mask", "unpack_mask",
-    "UP", "DOWN", "LEFT", "RIGHT",
+    "Classify", "ClassifyState", "ClassifyParams", "pack_mask", "unpack_mask", "window_mask",
+    "UP", "DOWN", "LEFT", "RIGHT", "MOVES",
 ]
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
-# (dy, dx) per move, in units of the window side.
-_MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
+# (dy, dx) per move, in units of the window side (Localize moves its footprint the same way).
+MOVES = np.array([[-1, 0], [1, 0], [0, -1], [0, 1]], dtype=np.int32)
 _STARTS = ("random", "center")
 
 
@@ -92,6 +92,9 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         image_size: optional `(H, W)` or int to resize every image to at load time.
         w, M: shortcuts accepted by `jaxnat.make`; see `ClassifyParams.window` and
             `max_steps_in_episode`.
+        observation_writer: how observations are written, "auto" (the default), "wordwise" or
+            "bytewise" (`jaxnat.vision_envs.observation`); the bytes are the same, only the
+            speed differs (`bench/classify_throughput.py` compares them).
     """
 
     params_type = ClassifyParams
@@ -105,9 +108,13 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         image_size: int | tuple[int, int] | None = None,
         w: int | None = None,
         M: int | None = None,
+        observation_writer: str = "auto",
     ):
         if start not in _STARTS:
             raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
+        if observation_writer not in WRITERS:
+            raise ValueError(f"observation_writer must be one of {WRITERS}, got "
+                             f"{observation_writer!r}")
         if isinstance(dataset, str):
             from jaxnat import datasets
 
@@ -125,8 +132,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         self.class_names = tuple(dataset.class_names)
         self.num_classes = len(self.class_names)
         self.start = start
-        # The observation writer; benchmarks swap in the byte-wise reference to compare.
-        self._render = masked_image_observation
+        self.observation_writer = observation_writer
         self.image_shape = images.shape[1:]
         self._window = 5 if w is None else int(w)
         self._max_steps = 20 if M is None else int(M)
@@ -179,7 +185,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         h, w = self.image_shape[:2]
         side = params.window
         limit = jnp.array([h, w]) - side
-        top_left = jnp.clip(state.top_left + jnp.asarray(_MOVES)[move] * side, 0, limit)
+        top_left = jnp.clip(state.top_left + jnp.asarray(MOVES)[move] * side, 0, limit)
         revealed = state.revealed | self._window_bits(top_left, side)
         state = state.replace(top_left=top_left, revealed=revealed)
         correct = label == state.label
@@ -190,11 +196,12 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         """uint8 `[H, W, C+2]`: image where revealed (else 0), revealed mask, window."""
         h, w = self.image_shape[:2]
         revealed = unpack_mask(state.revealed, w)
-        window = _window_mask(state.top_left, params.window, h, w)
-        return self._render(params.images, state.image_index, revealed, [revealed, window])
+        window = window_mask(state.top_left, params.window, h, w)
+        return masked_image_observation(params.images, state.image_index, revealed,
+                                        [revealed, window], writer=self.observation_writer)
 
     def _window_bits(self, top_left, side) -> jax.Array:
-        """`pack_mask(_window_mask(...))`, computed word by word without a reduction."""
+        """`pack_mask(window_mask(...))`, computed word by word without a reduction."""
         h, w = self.image_shape[:2]
         word_start = 32 * jnp.arange(-(-w // 32))
         low = jnp.clip(top_left[1] - word_start, 0, 32).astype(jnp.uint32)
@@ -210,7 +217,7 @@ def _low_bits(n):
     return jnp.left_shift(jnp.uint32(1), n) - jnp.uint32(1)
 
 
-def _window_mask(top_left, side, height: int, width: int) -> jax.Array:
+def window_mask(top_left, side, height: int, width: int) -> jax.Array:
     """bool[H, W]: True inside the `side` x `side` window whose top-left is `top_left`."""
     rows = jnp.arange(height)[:, None]
     cols = jnp.arange(width)[None, :]

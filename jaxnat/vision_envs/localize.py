@@ -1,7 +1,7 @@
 """Object localization by navigation: `Localize/Cityscapes-v0`, `Localize/Clutter-v0`.
 
 The agent starts at the centre of a natural photo, is told which object class to find, and must
-move its footprint onto an object of that class. Semantics: `shared/spec/environments.md`
+move its footprint onto an object of that class. Semantics: `docs/environments.md`
 section 2 (the paper's task; where the authors' code differs, this env follows the paper).
 
 - **Data**: uint8 RGB photos `[N, H, W, 3]` and uint8 class maps `[N, H, W]` (a class id per
@@ -58,8 +58,8 @@ from flax import struct
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState
 from jaxnat.datasets.segmentation import SegmentationDataset
-from jaxnat.vision_envs.classify import _MOVES, DOWN, LEFT, RIGHT, UP, _window_mask
-from jaxnat.vision_envs.observation import masked_image_observation
+from jaxnat.vision_envs.classify import DOWN, LEFT, MOVES, RIGHT, UP, window_mask
+from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
 __all__ = ["Localize", "LocalizeState", "LocalizeParams", "valid_goals",
            "UP", "DOWN", "LEFT", "RIGHT"]
@@ -101,6 +101,9 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
             the seed they are built from.
         backgrounds: Clutter only: photos and/or videos (a folder, glob or list) to paste the
             objects on, instead of opencv-doc's.
+        observation_writer: how `pixels` is written, "auto" (the default), "wordwise" or
+            "bytewise" (`jaxnat.vision_envs.observation`); the bytes are the same, only the
+            speed differs (`bench/localize_throughput.py` compares them).
     """
 
     params_type = LocalizeParams
@@ -119,7 +122,11 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         objects: tuple[int, int] | None = None,
         seed: int | None = None,
         backgrounds: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
+        observation_writer: str = "auto",
     ):
+        if observation_writer not in WRITERS:
+            raise ValueError(f"observation_writer must be one of {WRITERS}, got "
+                             f"{observation_writer!r}")
         if isinstance(dataset, str):
             image_size = 256 if image_size is None else image_size
             dataset = _load(dataset, split, root=root, image_size=image_size, labels=labels,
@@ -149,8 +156,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
                              f"start footprint; choose other classes or a smaller w")
         self.num_dropped = int((~keep).sum())
         self._max_steps = 200 if M is None else int(M)
-        # The observation writer; benchmarks swap in the byte-wise reference to compare.
-        self._render = masked_image_observation
+        self.observation_writer = observation_writer
         self._images = jnp.asarray(dataset.images[keep])
         self._class_maps = jnp.asarray(dataset.class_maps[keep])
         self._goals = jnp.asarray(goals[keep])
@@ -188,7 +194,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
     def step_env(self, key, state: LocalizeState, action, params: LocalizeParams):
         side = self.footprint
         limit = jnp.array(self.image_shape) - side
-        top_left = jnp.clip(state.top_left + jnp.asarray(_MOVES)[action] * side, 0, limit)
+        top_left = jnp.clip(state.top_left + jnp.asarray(MOVES)[action] * side, 0, limit)
         state = state.replace(top_left=top_left)
         under = jax.lax.dynamic_slice(params.class_maps[state.image_index], top_left, (side, side))
         found = jnp.any(under == state.goal)
@@ -198,9 +204,10 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
     def get_obs(self, state: LocalizeState, params: LocalizeParams) -> dict:
         """`{"pixels": uint8[H, W, 4] (photo, footprint 255/0), "goal": int32[]}`."""
         h, w = self.image_shape
-        footprint = _window_mask(state.top_left, self.footprint, h, w)
+        footprint = window_mask(state.top_left, self.footprint, h, w)
         everywhere = jnp.ones((h, w), jnp.bool_)
-        pixels = self._render(params.images, state.image_index, everywhere, [footprint])
+        pixels = masked_image_observation(params.images, state.image_index, everywhere,
+                                          [footprint], writer=self.observation_writer)
         return {"pixels": pixels, "goal": state.goal}
 
 

@@ -6,7 +6,8 @@ writes a uint8 array with a minor dimension of 3 to 5 one byte per thread, at a 
 the memory bandwidth. `masked_image_observation` builds the same bytes as uint32 words (and
 reads the image as words) and bitcasts the result, which XLA turns into wide loads and stores
 (`bench/classify_throughput.py` measures both paths side by side). On CPUs XLA's byte-wise
-code is the faster one, so that path is taken there.
+code is the faster one, so that path is taken there. `writer=` picks a path by hand (the envs'
+`observation_writer` argument); every path writes the same bytes.
 
 Byte layout: pixel `(r, c)`, channel `ch` is byte `(c * P + ch)` of row `r` (P = C + K); a
 group of 4 pixels is exactly P words, so when `W % 4 == 0` each output word is an OR of four
@@ -18,10 +19,14 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["masked_image_observation", "masked_image_observation_reference"]
+__all__ = ["masked_image_observation", "masked_image_observation_reference",
+           "wordwise_observation", "WRITERS"]
+
+# `writer=` of `masked_image_observation`: "auto" picks by platform at lowering.
+WRITERS = ("auto", "wordwise", "bytewise")
 
 
-def masked_image_observation(images, index, image_mask, planes) -> jax.Array:
+def masked_image_observation(images, index, image_mask, planes, writer: str = "auto") -> jax.Array:
     """uint8 `[H, W, C + K]`: `images[index]` where `image_mask` (0 elsewhere), then each of the
     K boolean `planes` as 255/0.
 
@@ -30,18 +35,28 @@ def masked_image_observation(images, index, image_mask, planes) -> jax.Array:
         index: int scalar.
         image_mask: bool `[H, W]`.
         planes: sequence of bool `[H, W]`.
+        writer: "auto" (word-wise, except on CPUs), "wordwise" (`wordwise_observation`) or
+            "bytewise" (`masked_image_observation_reference`). Widths that are not a multiple
+            of 4 always take the byte-wise path. Every choice gives the same bytes.
     """
-    if images.shape[2] % 4:
+    if writer not in WRITERS:
+        raise ValueError(f"writer must be one of {WRITERS}, got {writer!r}")
+    if writer == "bytewise" or images.shape[2] % 4:
         return masked_image_observation_reference(images, index, image_mask, planes)
-    # On CPUs the byte-wise form is faster (measured ~2.7x); the choice is made at lowering.
+    if writer == "wordwise":
+        return wordwise_observation(images, index, image_mask, planes)
+    # XLA's byte-wise code is the faster one on CPUs (bench/results/classify_throughput.md), so
+    # the choice is made per platform, at lowering.
     return jax.lax.platform_dependent(
         images, index, image_mask, list(planes),
         cpu=masked_image_observation_reference,
-        default=_wordwise_observation,
+        default=wordwise_observation,
     )
 
 
-def _wordwise_observation(images, index, image_mask, planes) -> jax.Array:
+def wordwise_observation(images, index, image_mask, planes) -> jax.Array:
+    """The same observation, built as uint32 words (see the module docstring); needs
+    `W % 4 == 0`."""
     _, h, w, c = images.shape
     p = c + len(planes)
     # Free views: [N, H, W*C] bytes -> [N, H, W*C/4] words (little-endian: byte j is bits 8j).
@@ -63,8 +78,7 @@ def _wordwise_observation(images, index, image_mask, planes) -> jax.Array:
         byte(4 * k) | byte(4 * k + 1) << 8 | byte(4 * k + 2) << 16 | byte(4 * k + 3) << 24
         for k in range(p)
     ]
-    # Stacking computes each word once (a select over an iota computed all P per word, and
-    # measured 1.4x slower on an H200).
+    # Stacking computes each word once (a select over an iota would compute all P per word).
     return jax.lax.bitcast_convert_type(jnp.stack(group, -1), jnp.uint8).reshape(h, w, p)
 
 
