@@ -35,7 +35,12 @@ from flax import struct
 
 from jaxnat import spaces
 
-__all__ = ["Environment", "EnvState", "EnvParams", "HostBatchedEnv"]
+__all__ = ["Environment", "EnvState", "EnvParams", "HostBatchedEnv", "is_concrete"]
+
+
+def is_concrete(value) -> bool:
+    """Whether `value` is known now (a number or an array), not a tracer inside jit or vmap."""
+    return not isinstance(value, jax.core.Tracer)
 
 
 @struct.dataclass
@@ -98,6 +103,13 @@ class Environment(Generic[TState, TParams]):
     def has_state_observation(self) -> bool:
         """True when `get_obs(state, params)` is implemented (observation = f(state))."""
         return type(self).get_obs is not Environment.get_obs
+
+    def check_params(self, params: TParams) -> None:
+        """Raise `ValueError` for params out of range; `jaxnat.make` calls it on the params it
+        builds (under jit a traced value cannot be checked). Envs with more params extend it."""
+        limit = params.max_steps_in_episode
+        if is_concrete(limit) and int(limit) < 1:
+            raise ValueError(f"max_steps_in_episode (M) must be at least 1, got {limit}")
 
     def observation_space(self, params: TParams) -> spaces.Space:
         raise NotImplementedError

@@ -140,6 +140,24 @@ def _split_kwargs(entry: Callable[..., Any], kwargs: dict, env_id: str) -> tuple
     return ctor, params
 
 
+def _check_param_types(env_id: str, params, values: dict) -> None:
+    """Params given to `make` are numbers (or numeric arrays) of their field's kind: an int
+    field takes a whole number, not a string or 5.5 (JAX would fail later, far from the cause)."""
+    import jax
+    import numpy as np
+
+    for name, value in values.items():
+        default = getattr(params, name)
+        kind = np.asarray(value).dtype if isinstance(value, (np.ndarray, np.generic, jax.Array)) else type(value)
+        numeric = (isinstance(value, (bool, int, float, np.generic, np.ndarray, jax.Array))
+                   and np.issubdtype(kind, np.number) | np.issubdtype(kind, np.bool_))
+        if not numeric:
+            raise TypeError(f"{env_id}: {name}={value!r} must be a number (a traced param), got {type(value).__name__}")
+        wants_int = isinstance(default, (int, np.integer)) and not isinstance(default, bool)
+        if wants_int and not float(np.asarray(value)).is_integer():
+            raise TypeError(f"{env_id}: {name}={value!r} must be a whole number")
+
+
 def make(id: str, *, autoreset: bool = True, observation_noise: bool = False, **kwargs: Any):
     """Build a registered env: `env, params = jaxnat.make("Classify/MNIST-v0", w=5)`.
 
@@ -168,7 +186,12 @@ def make(id: str, *, autoreset: bool = True, observation_noise: bool = False, **
     env = entry(**ctor_kwargs)
     params = env.default_params
     if param_kwargs:
+        _check_param_types(id, params, param_kwargs)
         params = params.replace(**param_kwargs)
+    try:
+        env.check_params(params)
+    except ValueError as err:
+        raise ValueError(f"{id}: {err}") from None
     if observation_noise:
         from jaxnat.wrappers import NoiseObservationWrapper
 

@@ -50,6 +50,32 @@ def test_unknown_kwarg_is_named(toy_registered):
         jaxnat.make(toy_registered, windw=3)
 
 
+@pytest.mark.parametrize("kwargs, error, message", [
+    ({"window": 11}, ValueError, r"Test/Toy-v0: window w=11 must be in \[1, 10\] for 12x10 images"),
+    ({"window": 0}, ValueError, r"window w=0 must be in \[1, 10\]"),
+    ({"max_steps_in_episode": 0}, ValueError, r"Test/Toy-v0: max_steps_in_episode \(M\) must be at least 1"),
+    ({"M": 0}, ValueError, r"M=0 must be at least 1"),
+    ({"window": "5"}, TypeError, r"Test/Toy-v0: window='5' must be a number"),
+    ({"window": 2.5}, TypeError, r"window=2.5 must be a whole number"),
+    ({"wrong_reward": None}, TypeError, r"wrong_reward=None must be a number"),
+])
+def test_params_are_checked_at_make_time(toy_registered, kwargs, error, message):
+    """Traced params given to `make` get the same one-line errors as the constructor's `w=`:
+    under jit an env cannot raise, so out-of-range values would silently misbehave."""
+    with pytest.raises(error, match=message):
+        jaxnat.make(toy_registered, **kwargs)
+
+
+def test_params_in_range_and_arrays_pass(toy_registered):
+    _, params = jaxnat.make(toy_registered, window=10, max_steps_in_episode=np.int32(3), correct_reward=2)
+    assert int(params.window) == 10 and int(params.max_steps_in_episode) == 3 and float(params.correct_reward) == 2.0
+    # Traced params stay vmappable: the check skips values it cannot see.
+    env, params = jaxnat.make(toy_registered)
+    windows = jax.numpy.array([1, 3])
+    obs = jax.vmap(lambda w: env.reset(jax.random.key(0), params.replace(window=w))[0])(windows)
+    assert obs.shape[0] == 2
+
+
 def test_make_vec(toy_registered):
     env = jaxnat.make_vec(toy_registered, 6, window=2)
     assert isinstance(env, VmapWrapper)

@@ -43,7 +43,7 @@ import numpy as np
 from flax import struct
 
 from jaxnat import spaces
-from jaxnat.core import Environment, EnvParams, EnvState
+from jaxnat.core import Environment, EnvParams, EnvState, is_concrete
 from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
 __all__ = [
@@ -137,6 +137,8 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         self._window = 5 if w is None else int(w)
         self._max_steps = 20 if M is None else int(M)
         _check_window(self._window, self.image_shape)
+        if self._max_steps < 1:
+            raise ValueError(f"max_steps_in_episode M={self._max_steps} must be at least 1")
         # Device-resident once; params hand the same buffers to every trace.
         self._images = jnp.asarray(images)
         self._labels = jnp.asarray(labels)
@@ -144,6 +146,11 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
     @property
     def name(self) -> str:
         return f"Classify[{self.dataset_name}/{self.split}]"
+
+    def check_params(self, params: ClassifyParams) -> None:
+        super().check_params(params)
+        if is_concrete(params.window):
+            _check_window(int(params.window), self.image_shape)
 
     @property
     def default_params(self) -> ClassifyParams:
