@@ -10,7 +10,8 @@ import difflib
 import os
 from pathlib import Path
 
-__all__ = ["ROM_IDS", "GAMES", "AUTHORS_GAMES", "game_name", "rom_id", "rom_path", "RomNotFoundError"]
+__all__ = ["ROM_IDS", "MULTIPLAYER_ONLY", "GAMES", "AUTHORS_GAMES", "game_name", "rom_id", "rom_path",
+           "RomNotFoundError"]
 
 # Every ROM that ale-py 0.12 ships (snake_case ids, as `ale_py.roms.get_all_rom_ids()`).
 ROM_IDS: tuple[str, ...] = (
@@ -33,13 +34,19 @@ ROM_IDS: tuple[str, ...] = (
 )
 
 
+# ROMs that ALE runs only in its multi-agent mode: in single-player mode it refuses them by
+# ending the whole process (exit code 1, no exception), so they are not registered as envs and
+# `rom_id` refuses them with a Python error first.
+MULTIPLAYER_ONLY: tuple[str, ...] = ("combat", "joust", "maze_craze", "warlords")
+
+
 def game_name(rom: str) -> str:
     """ROM id -> env name, as Gymnasium's ALE ids spell it (`space_invaders` -> `SpaceInvaders`)."""
     return rom.title().replace("_", "")
 
 
-# Env name (`Breakout`) -> ROM id (`breakout`).
-GAMES: dict[str, str] = {game_name(r): r for r in ROM_IDS}
+# Env name (`Breakout`) -> ROM id (`breakout`): the games a single agent can play.
+GAMES: dict[str, str] = {game_name(r): r for r in ROM_IDS if r not in MULTIPLAYER_ONLY}
 
 # The 16 games of Zhang, Wu and Pineau (2018), table 1.
 AUTHORS_GAMES: tuple[str, ...] = (
@@ -57,8 +64,11 @@ def rom_id(game: str) -> str:
     """`Breakout` (or `breakout`) -> `breakout`; unknown names list the closest games."""
     if game in GAMES:
         return GAMES[game]
-    if game in ROM_IDS:
+    if game in ROM_IDS and game not in MULTIPLAYER_ONLY:
         return game
+    if game in MULTIPLAYER_ONLY or game in {game_name(r) for r in MULTIPLAYER_ONLY}:
+        raise ValueError(f"{game} is a multiplayer-only ROM: ALE runs it only in its multi-agent mode, "
+                         "which Natural Atari does not offer (single-agent games: jaxnat.atari.GAMES)")
     close = difflib.get_close_matches(game, list(GAMES), n=5, cutoff=0.5)
     folded = {g.lower(): g for g in GAMES}
     close += [folded[m] for m in difflib.get_close_matches(game.lower(), folded, n=5, cutoff=0.5)]
