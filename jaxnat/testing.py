@@ -1,10 +1,13 @@
-"""`check_env`: the contract every jaxnat env keeps, as one reusable check.
+"""`check_env`: the contract every jaxnat env keeps, as one reusable check; `check_determinism`:
+same key, same trajectory, bit for bit (on the GPU too).
 
 Each env's tests call it; it also runs over every registered env whose data is present.
 It raises `AssertionError` with a message naming the broken contract.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -13,7 +16,7 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.core import Environment
 
-__all__ = ["check_env"]
+__all__ = ["check_env", "check_determinism", "DeterminismReport"]
 
 
 def check_env(env: Environment, params=None, *, num_steps: int = 30, num_envs: int = 4, seed: int = 0):
@@ -139,3 +142,100 @@ def has_dataset(name: str, split: str = "test") -> bool:
     except DatasetNotFoundError:
         return False
     return True
+
+
+class DeterminismReport(NamedTuple):
+    """`check_determinism`'s answer: `identical`, and where the first difference is."""
+
+    env_id: str
+    num_envs: int
+    steps: int
+    identical: bool
+    first_difference: dict | None  # {"run": "repeat" | "recompiled", "step", "field", "env"}
+
+    def __str__(self) -> str:
+        if self.identical:
+            return f"{self.env_id}: {self.num_envs} envs x {self.steps} steps identical bit for bit (repeat and recompiled)"
+        d = self.first_difference
+        return (f"{self.env_id}: the {d['run']} run differs first at step {d['step']} in {d['field']} "
+                f"(env {d['env']})")
+
+
+def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed: int = 0,
+                      **env_kwargs) -> DeterminismReport:
+    """Roll `num_envs` envs of `env_id` out for `steps` steps with random actions, three times
+    under the same key: twice with one compiled program, once more after compiling it again.
+    Every output of every step (observation, reward, flags, the state and `info`) must be the
+    same bit for bit; the report names the first step, field and env that differ.
+
+    Same key, same trajectory is jaxnat's promise on any backend (same device kind, same
+    versions); on a GPU, XLA's scatter-adds may reorder float sums unless
+    `--xla_gpu_deterministic_ops=true` is in `XLA_FLAGS`.
+    """
+    from jaxnat.registration import make
+
+    env, params = make(env_id, **env_kwargs)
+    space = env.action_space(params)
+
+    def rollout(key):
+        key_reset, key_steps = jax.random.split(key)
+        obs, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key_reset, num_envs), params)
+
+        def body(carry, key):
+            state = carry
+            key_act, key_env = jax.random.split(key)
+            action = jax.vmap(space.sample)(jax.random.split(key_act, num_envs))
+            out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(jax.random.split(key_env, num_envs), state, action,
+                                                             params)
+            return out[1], {"obs": out[0], "reward": out[2], "terminated": out[3], "truncated": out[4],
+                            "state": out[1], "info": out[5]}
+
+        return obs, jax.lax.scan(body, state, jax.random.split(key_steps, steps))[1]
+
+    key = jax.random.key(seed)
+    compiled = jax.jit(rollout)
+    reference = jax.device_get(compiled(key))
+    runs = {"repeat": jax.device_get(compiled(key))}
+    jax.clear_caches()
+    runs["recompiled"] = jax.device_get(jax.jit(lambda k: rollout(k))(key))
+    for run, outputs in runs.items():
+        difference = _first_difference(reference, outputs)
+        if difference is not None:
+            return DeterminismReport(env_id, num_envs, steps, False, {"run": run, **difference})
+    return DeterminismReport(env_id, num_envs, steps, True, None)
+
+
+def _first_difference(reference, other) -> dict | None:
+    """The earliest step (then field, then env) at which two rollouts' outputs differ."""
+    (obs_a, steps_a), (obs_b, steps_b) = reference, other
+    found = None
+    if not _tree_equal(obs_a, obs_b):
+        return {"step": "reset", "field": "obs", "env": _first_env(obs_a, obs_b)}
+    flat_a, _ = jax.tree_util.tree_flatten_with_path(steps_a)
+    flat_b = jax.tree.leaves(steps_b)
+    for (path, a), b in zip(flat_a, flat_b):
+        a, b = _bits(a), _bits(b)
+        if a.shape != b.shape:
+            return {"step": 0, "field": jax.tree_util.keystr(path), "env": None}
+        differs = (a != b).reshape(a.shape[0], -1).any(-1) if a.ndim else np.asarray([a != b])
+        if differs.any():
+            step = int(np.argmax(differs))
+            if found is None or step < found["step"]:
+                rows = (a[step] != b[step]).reshape(a.shape[1], -1).any(-1) if a.ndim > 1 else np.asarray([True])
+                found = {"step": step, "field": jax.tree_util.keystr(path), "env": int(np.argmax(rows))}
+    return found
+
+
+def _bits(x) -> np.ndarray:
+    """An array compared by its bits (NaN equals NaN; -0.0 differs from 0.0); keys by their data."""
+    x = np.asarray(jax.random.key_data(x) if jnp.issubdtype(getattr(x, "dtype", np.float32), jax.dtypes.prng_key) else x)
+    return x.view(np.uint8).reshape(*x.shape, -1) if x.dtype.kind in "fc" and x.ndim else x
+
+
+def _first_env(a, b) -> int:
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        x, y = _bits(x), _bits(y)
+        rows = (x != y).reshape(x.shape[0], -1).any(-1)
+        if rows.any():
+            return int(np.argmax(rows))
+    return 0
