@@ -7,6 +7,7 @@ It raises `AssertionError` with a message naming the broken contract.
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import jax
@@ -152,6 +153,11 @@ class DeterminismReport(NamedTuple):
     steps: int
     identical: bool
     first_difference: dict | None  # {"run": "repeat" | "recompiled", "step", "field", "env"}
+    seconds: float  # median wall time of one compiled rollout (the repeats), compile excluded
+
+    @property
+    def steps_per_second(self) -> float:
+        return self.num_envs * self.steps / self.seconds
 
     def __str__(self) -> str:
         if self.identical:
@@ -161,7 +167,7 @@ class DeterminismReport(NamedTuple):
                 f"(env {d['env']})")
 
 
-def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed: int = 0,
+def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed: int = 0, repeats: int = 2,
                       **env_kwargs) -> DeterminismReport:
     """Roll `num_envs` envs of `env_id` out for `steps` steps with random actions, three times
     under the same key: twice with one compiled program, once more after compiling it again.
@@ -195,14 +201,20 @@ def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed
     key = jax.random.key(seed)
     compiled = jax.jit(rollout)
     reference = jax.device_get(compiled(key))
-    runs = {"repeat": jax.device_get(compiled(key))}
+    runs, times = [], []
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        outputs = jax.block_until_ready(compiled(key))
+        times.append(time.perf_counter() - start)
+        runs.append(("repeat", jax.device_get(outputs)))
     jax.clear_caches()
-    runs["recompiled"] = jax.device_get(jax.jit(lambda k: rollout(k))(key))
-    for run, outputs in runs.items():
+    runs.append(("recompiled", jax.device_get(jax.jit(lambda k: rollout(k))(key))))
+    seconds = float(np.median(times))
+    for run, outputs in runs:
         difference = _first_difference(reference, outputs)
         if difference is not None:
-            return DeterminismReport(env_id, num_envs, steps, False, {"run": run, **difference})
-    return DeterminismReport(env_id, num_envs, steps, True, None)
+            return DeterminismReport(env_id, num_envs, steps, False, {"run": run, **difference}, seconds)
+    return DeterminismReport(env_id, num_envs, steps, True, None, seconds)
 
 
 def _first_difference(reference, other) -> dict | None:
@@ -229,7 +241,7 @@ def _first_difference(reference, other) -> dict | None:
 def _bits(x) -> np.ndarray:
     """An array compared by its bits (NaN equals NaN; -0.0 differs from 0.0); keys by their data."""
     x = np.asarray(jax.random.key_data(x) if jnp.issubdtype(getattr(x, "dtype", np.float32), jax.dtypes.prng_key) else x)
-    return x.view(np.uint8).reshape(*x.shape, -1) if x.dtype.kind in "fc" and x.ndim else x
+    return x.view(np.uint8).reshape(*x.shape, -1) if x.dtype.kind in "fc" and x.ndim and x.size else x
 
 
 def _first_env(a, b) -> int:
