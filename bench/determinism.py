@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 DEFAULT_IDS = [  # cheapest first, so a run stopped early has the most rows
     "Classify/Digits-v0", "Localize/Clutter-v0",
@@ -39,6 +40,8 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--deterministic-ops", action="store_true",
                         help="run with XLA_FLAGS=--xla_gpu_deterministic_ops=true")
+    parser.add_argument("--budget-seconds", type=float, default=None,
+                        help="start no new env after this long; the rest are listed as not run")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     if args.deterministic_ops:  # before JAX starts: XLA reads its flags once
@@ -53,8 +56,11 @@ def main(argv=None):
 
     info = common.machine()
     mode = "xla_gpu_deterministic_ops" if args.deterministic_ops else "default"
-    rows = []
+    rows, not_run, start = [], [], time.perf_counter()
     for item in args.ids:
+        if args.budget_seconds is not None and time.perf_counter() - start > args.budget_seconds:
+            not_run.append(item)
+            continue
         env_id, kwargs = parse_id(item)
         try:
             report = check_determinism(env_id, args.num_envs, args.steps, **kwargs)
@@ -71,7 +77,8 @@ def main(argv=None):
                                          ("first_difference", "first difference", ""),
                                          ("steps_per_second", "env steps/s", ",.0f")])
     summary = {"mode": mode, "num_envs": args.num_envs, "steps": args.steps,
-               "identical": f"{sum(r['identical'] for r in rows)} of {len(rows)}"}
+               "identical": f"{sum(r['identical'] for r in rows)} of {len(rows)}",
+               **({"not run (time budget)": ", ".join(not_run)} if not_run else {})}
     common.record("determinism", info, table, summary, rows, save=not args.no_record)
 
 
