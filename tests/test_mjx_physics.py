@@ -241,3 +241,21 @@ def test_wrong_action_shape_fails_at_trace_time():
     _, state = robot.reset(jax.random.key(0), robot.params)
     with pytest.raises(ValueError, match="expects shape"):
         robot.env.step(jax.random.key(1), state, jnp.zeros(3), robot.params)
+
+
+def test_mujoco_is_quiet_and_logs_to_the_cache(tmp_path):
+    """Making a MuJoCo env prints nothing about MJX's optional Warp backend and writes no
+    MUJOCO_LOG.TXT into the working folder: MuJoCo's warnings (Gymnasium's half_cheetah.xml
+    uses the deprecated settotalmass) go to mujoco.log in jaxnat's cache folder."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import jaxnat; jaxnat.make('MuJoCo/HalfCheetah-v0'); print('made')"
+    env = {**os.environ, "JAXNAT_CACHE_DIR": str(tmp_path / "cache"), "JAX_PLATFORMS": "cpu"}
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "made" and "Failed to import" not in out.stderr
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+    assert "settotalmass" in (tmp_path / "cache" / "mujoco.log").read_text()

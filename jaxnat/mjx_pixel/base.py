@@ -49,12 +49,14 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvState
-from jaxnat.mjx_pixel import mjx_internals  # MJX's private names: RK4 tableau, `_impl` fields
-from jaxnat.mjx_pixel.models import load_model, torso_body_id
+from jaxnat.mjx_pixel.models import import_mjx, load_model, torso_body_id
+
+mjx = import_mjx()  # (before mjx_internals, which imports MJX's private modules)
+
+from jaxnat.mjx_pixel import mjx_internals  # noqa: E402  MJX's private names: RK4 tableau, `_impl` fields
 
 __all__ = ["MJXState", "MJXEnv"]
 

@@ -13,13 +13,47 @@ tracking camera follows it (`torso_body_id`).
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import datetime
 import functools
 import importlib.resources
+import io
+import sys
 
 import mujoco
 
-__all__ = ["ROBOTS", "TORSO_BODY", "load_model", "model_path", "torso_body_id"]
+from jaxnat.datasets.cache import cache_dir
+
+__all__ = ["ROBOTS", "TORSO_BODY", "load_model", "model_path", "torso_body_id", "import_mjx", "mujoco_log_path"]
+
+
+def mujoco_log_path():
+    """Where MuJoCo's warnings go: `mujoco.log` in jaxnat's cache folder (MuJoCo's own default
+    is `MUJOCO_LOG.TXT` in whatever folder the program runs in)."""
+    return cache_dir() / "mujoco.log"
+
+
+def _log_warning(message: str) -> None:
+    path = mujoco_log_path()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as log:
+        log.write(f"{datetime.datetime.now().isoformat(timespec='seconds')} {message}\n")
+
+
+if mujoco.get_mju_user_warning() is None:  # a handler the user set stays
+    mujoco.set_mju_user_warning(_log_warning)
+
+
+def import_mjx():
+    """`mujoco.mjx`, without the lines it prints when its optional Warp backend is not installed
+    (jaxnat runs MJX's JAX backend only); anything else it prints still shows."""
+    with contextlib.redirect_stdout(io.StringIO()) as printed:
+        from mujoco import mjx
+    kept = [line for line in printed.getvalue().splitlines() if not line.startswith("Failed to import")]
+    if kept:
+        print("\n".join(kept), file=sys.stdout)
+    return mjx
 
 # Robot name -> Gymnasium's XML file.
 ROBOTS = {
