@@ -208,7 +208,7 @@ def test_kfac_factors_are_in_the_checkpointed_state():
     runner = jax.eval_shape(learner.init, jax.random.key(0))
     kfac_state = runner.train_state.opt_state[0]
     assert isinstance(kfac_state, kfac.KFACState)
-    # mlp trunk: Dense 1->64, 64->64, policy head 64->2, value head 64->1.
+    # mlp trunk, actor and critic each: Dense 1->64, 64->64; policy head 64->2, value head 64->1.
     shapes = {name: (a.shape, g.shape) for name, (a, g) in kfac_state.factors.items()}
-    assert sorted(shapes.values()) == sorted([((2, 2), (64, 64)), ((65, 65), (64, 64)),
-                                              ((65, 65), (2, 2)), ((65, 65), (1, 1))])
+    assert sorted(shapes.values()) == sorted([((2, 2), (64, 64)), ((65, 65), (64, 64))] * 2
+                                             + [((65, 65), (2, 2)), ((65, 65), (1, 1))])

@@ -8,7 +8,7 @@ import pytest
 
 from jaxnat import spaces
 from jaxnat.agents.conv import conv2d
-from jaxnat.agents.networks import default_trunk, make_actor_critic
+from jaxnat.agents.networks import Memory, default_trunk, init_params, make_actor_critic
 
 
 @pytest.mark.parametrize("implementation", ["im2col", "native"])
@@ -105,3 +105,53 @@ def test_bfloat16_trunk_keeps_float32_parameters_and_heads(trunk, shape):
 def test_unknown_dtype_is_a_clear_error():
     with pytest.raises(ValueError, match="dtype 'float16'.*bfloat16"):
         make_actor_critic(spaces.Box(0, 1, (6,)), spaces.Discrete(4), "mlp", dtype="float16")
+
+
+def _moved_by(fn, params) -> set[str]:
+    """The parameters (paths) that `fn(params)` has a non-zero gradient for."""
+    grads = jax.grad(fn)(params)
+    return {jax.tree_util.keystr(path) for path, g in jax.tree_util.tree_leaves_with_path(grads)
+            if np.any(np.asarray(g) != 0)}
+
+
+def _outputs(network, params, space, memory):
+    """`(logits, value)` of `network` on 3 random observations (a 3-step sequence of 2 envs with
+    an episode start in the middle, for a recurrent one)."""
+    sample = lambda i: space.sample(jax.random.key(i))  # noqa: E731
+    if not memory:
+        return network.apply(params, jax.tree_util.tree_map(lambda *x: jnp.stack(x), *map(sample, range(3))))
+    obs = jax.tree_util.tree_map(lambda *x: jnp.stack(x).reshape(3, 2, *x[0].shape), *map(sample, range(6)))
+    state = Memory(hidden=jnp.ones((2, memory)), prev_action=jnp.ones((3, 2, 2), jnp.int32),
+                   prev_reward=jnp.ones((3, 2)), start=jnp.array([[True, False], [False, True], [False, False]]))
+    logits, value, _ = network.apply(params, obs, state)
+    return logits, value
+
+
+@pytest.mark.parametrize("memory", [0, 8])
+@pytest.mark.parametrize("goal", [False, True])
+def test_mlp_actor_and_critic_are_separate_networks(memory, goal):
+    """The mlp trunk: the policy's logits depend on actor parameters only (the GRU included),
+    the value on critic parameters only, and every parameter is one or the other; with a goal
+    each network embeds it."""
+    vector = spaces.Box(-1.0, 1.0, (4,), jnp.float32)
+    space = spaces.Dict({"pixels": vector, "goal": spaces.Discrete(3)}) if goal else vector
+    network = make_actor_critic(space, spaces.MultiDiscrete([2, 3]), "mlp", memory=memory)
+    params = init_params(network, space, jax.random.key(0))
+    actor = _moved_by(lambda p: sum(x.sum() for x in _outputs(network, p, space, memory)[0]), params)
+    critic = _moved_by(lambda p: _outputs(network, p, space, memory)[1].sum(), params)
+    every = {jax.tree_util.keystr(path) for path, _ in jax.tree_util.tree_leaves_with_path(params)}
+    assert actor.isdisjoint(critic) and actor | critic == every
+    assert all("'critic" not in name for name in actor) and all("'actor" not in name for name in critic)
+    assert any("'memory'" in name for name in actor) == bool(memory)
+    assert any("'critic_goal'" in name for name in critic) == goal
+
+
+
+def test_paper_trunks_stay_shared():
+    """A CNN trunk (the authors' CNNBase) feeds both heads."""
+    image = spaces.Box(0, 255, (28, 28, 1), jnp.uint8)
+    network = make_actor_critic(image, spaces.Discrete(4), "mnist")
+    params = init_params(network, image, jax.random.key(0))
+    actor = _moved_by(lambda p: _outputs(network, p, image, 0)[0][0].sum(), params)
+    critic = _moved_by(lambda p: _outputs(network, p, image, 0)[1].sum(), params)
+    assert {name for name in actor & critic} == {name for name in actor if "PaperCNN_0" in name}

@@ -10,16 +10,21 @@ followed by ReLU, then a ReLU dense layer of 512:
 | `cityscapes` | conv 32@8x8/7, 64@4x4/4, 32@3x3          | 256x256 localization       |
 | `atari`      | conv 32@8x8/4, 64@4x4/2, 32@3x3          | 84x84 Atari and MuJoCo     |
 | `resnet18`   | 3x3 stem, BasicBlocks [2,2,2,2], no pool | any of the above           |
-| `mlp`        | dense 64, 64 (tanh)                      | vector observations        |
+| `mlp`        | dense 64, 64 (tanh); actor and critic each | vector observations     |
 
 uint8 pixels are scaled to [0, 1] inside the network. `dtype` is the computation dtype of the
 trunk (flax's convention: parameters stay float32): `"bfloat16"` runs its convolutions and dense
 layer on a GPU's bf16 tensor cores; the heads (logits, value) always compute in float32, so
 log-probabilities and value targets keep full precision. Dict observations (`{"pixels", "goal"}`)
 embed the integer goal and concatenate it to the trunk's features. Heads: one categorical per
-action factor (e.g. move and label) and a scalar value, on the shared trunk, as the authors did.
-With `memory > 0` a GRU over the trunk's features (and the previous action and reward) makes
-the policy recurrent; the heads read features and GRU output side by side (`ActorCritic`).
+action factor (e.g. move and label) and a scalar value. The convolutional trunks are shared by
+both heads, as the authors' `CNNBase`; the `mlp` trunk is two networks, an actor MLP under the
+policy heads and a critic MLP under the value head, as the authors' `MLPBase`, PureJaxRL and
+CleanRL have for vector observations (on one shared MLP the value loss, with targets near 100
+on CartPole, dominates the features the policy reads: PPO with PureJaxRL's CartPole settings
+ended at a median return of 231 instead of 492). With `memory > 0` a GRU over the trunk's features
+(and the previous action and reward) makes the policy recurrent; the heads read features and
+GRU output side by side (`ActorCritic`).
 The ResNet uses GroupNorm rather than BatchNorm: running batch statistics are mutable state that
 does not fit a pure, vmapped on-policy learner.
 """
@@ -51,8 +56,8 @@ TRUNKS = (*_PAPER_CNNS, "resnet18", "mlp")
 DTYPES = ("float32", "bfloat16")
 
 
-def _dense(features: int, scale: float = np.sqrt(2), dtype: str = "float32") -> nn.Dense:
-    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(scale), dtype=dtype)
+def _dense(features: int, scale: float = np.sqrt(2), dtype: str = "float32", name: str | None = None) -> nn.Dense:
+    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(scale), dtype=dtype, name=name)
 
 
 class ValidConv(nn.Module):
@@ -172,14 +177,21 @@ class _ResettingGRU(nn.Module):
 
 
 class ActorCritic(nn.Module):
-    """`(obs) -> (tuple of logits, one per action factor; value)` on a shared trunk.
+    """`(obs) -> (tuple of logits, one per action factor; value)`.
+
+    A convolutional trunk is shared by the heads; the `mlp` trunk is two MLPs with disjoint
+    parameters, `actor` under the logits and `critic` under the value (a Dict observation's goal
+    embedding is built in each). With `memory`, the GRU is the actor's: it reads the actor's
+    features, and the value reads the critic's features and the GRU output through a
+    `stop_gradient`, so the value loss trains critic parameters only and the policy loss actor
+    parameters only.
 
     With `memory > 0` (a GRU of that size) the call is `(obs, Memory) -> (logits, value,
     hidden)` over a sequence: `obs` `[T, B, ...]`, the memory's per-step fields `[T, B, ...]`
     and its `hidden` `[B, H]`; outputs are `[T, B, ...]` and the state after the last step.
     The trunk runs on all `T * B` observations at once; only the GRU steps through time. Its
-    input is the trunk's features with the previous action (one-hot per factor) and reward;
-    the heads read the features and the GRU's output side by side.
+    input is the (actor) trunk's features with the previous action (one-hot per factor) and
+    reward; the heads read the features and the GRU's output side by side.
     """
 
     action_dims: Sequence[int]
@@ -195,37 +207,45 @@ class ActorCritic(nn.Module):
                 raise ValueError("a recurrent network (memory > 0) is called as (obs, Memory)")
             time_batch = memory.start.shape
             obs = jax.tree_util.tree_map(lambda x: x.reshape(-1, *x.shape[len(time_batch):]), obs)
-        features = self._features(obs)
+        separate = self.trunk == "mlp"
+        if separate:
+            features, critic = self._features(obs, "actor"), self._features(obs, "critic")
+        else:
+            features = critic = self._features(obs)
         if self.memory:
-            features = features.reshape(*time_batch, -1)
+            features, critic = (f.reshape(*time_batch, -1) for f in (features, critic))
             keep = ~memory.start[..., None]
             previous = [jax.nn.one_hot(memory.prev_action[..., i], n) * keep for i, n in enumerate(self.action_dims)]
             x = jnp.concatenate([features, *previous, (memory.prev_reward[..., None] * keep)], axis=-1)
             gru = nn.scan(_ResettingGRU, variable_broadcast="params", split_rngs={"params": False})
             hidden, outputs = gru(self.memory, name="memory")(memory.hidden, (x, memory.start))
             features = jnp.concatenate([features, outputs], axis=-1)
+            critic = jnp.concatenate([critic, jax.lax.stop_gradient(outputs)], axis=-1) if separate else features
         logits = tuple(_dense(n, 0.01)(features) for n in self.action_dims)
-        value = _dense(1, 1.0)(features)[..., 0]
+        value = _dense(1, 1.0)(critic)[..., 0]
         if self.memory:
             return logits, value, hidden
         return logits, value
 
-    def _features(self, obs):
+    def _features(self, obs, branch: str | None = None):
+        """The trunk's features (with the goal's embedding); `branch` names the modules of one
+        of several trunks ("actor", "critic"), None keeps flax's automatic names."""
+        named = (lambda suffix: f"{branch}{suffix}") if branch else (lambda suffix: None)
         pixels = obs["pixels"] if isinstance(obs, dict) else obs
         x = pixels.astype(jnp.float32)
         if pixels.dtype == jnp.uint8:
             x = x / 255.0
         x = x.astype(self.dtype)
         if self.trunk == "mlp":
-            features = MLP(dtype=self.dtype)(x)
+            features = MLP(dtype=self.dtype, name=named(""))(x)
         elif self.trunk == "resnet18":
             features = ResNet18(dtype=self.dtype)(x)
         else:
             features = PaperCNN(_PAPER_CNNS[self.trunk], dtype=self.dtype)(x)
         features = features.astype(jnp.float32)
         if self.num_goals:
-            goal = nn.Embed(self.num_goals, 32)(obs["goal"])
-            features = nn.relu(_dense(512)(jnp.concatenate([features, goal], axis=-1)))
+            goal = nn.Embed(self.num_goals, 32, name=named("_goal"))(obs["goal"])
+            features = nn.relu(_dense(512, name=named("_goal_dense"))(jnp.concatenate([features, goal], axis=-1)))
         return features
 
 
