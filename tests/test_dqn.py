@@ -7,10 +7,9 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 import pytest
 
-from jaxnat.agents.dqn import DQNConfig, epsilon, make_dqn, nstep_transition, td_loss
+from jaxnat.agents.dqn import DQNConfig, epsilon, make_dqn, nstep_transition, td_error_loss, td_loss
 from jaxnat.agents.probes import make_probe
 from jaxnat.agents.replay import replay_add, replay_init, replay_sample
 
@@ -29,23 +28,41 @@ class QTable:
         return tuple(q[states] for q in params), jnp.zeros(states.shape)
 
 
+def huber(error):
+    """Huber's loss with delta 1, written out."""
+    return np.where(np.abs(error) <= 1.0, 0.5 * np.square(error), np.abs(error) - 0.5)
+
+
+@pytest.mark.parametrize("loss", ["mse", "huber"])
 @pytest.mark.parametrize("double", [False, True])
 @pytest.mark.parametrize("terminated", [0.0, 1.0])
-def test_td_target_by_hand(double, terminated):
+def test_td_target_by_hand(double, terminated, loss):
     # Two factors (2 and 3 actions), states 0 and 1; the transition 0 -> 1 took action (0, 1).
     online = (jnp.array([[0.5, 0.0], [0.0, 5.0]]), jnp.array([[0.0, -1.0, 0.0], [2.0, 1.0, 0.0]]))
     target = (jnp.array([[9.0, 9.0], [3.0, 1.0]]), jnp.array([[9.0, 9.0, 9.0], [0.0, 4.0, 1.0]]))
     batch = {"obs": jnp.array([0]), "action": jnp.array([[0, 1]]), "reward": jnp.array([1.0]),
              "next_obs": jnp.array([1]), "discount": jnp.array([0.5 * (1.0 - terminated)])}
-    config = DQNConfig(gamma=0.5, double_dqn=double)
+    config = DQNConfig(gamma=0.5, double_dqn=double, loss=loss)
     # Plain: each head's best target value, 3 and 4; double: the target's values of the online
     # network's best actions (1 and 0), 1 and 0. The next-state value is their mean.
     next_value = 0.5 if double else 3.5
     y = 1.0 + 0.5 * (1.0 - terminated) * next_value
-    expected = np.mean([optax.huber_loss(0.5 - y), optax.huber_loss(-1.0 - y)])
+    errors = np.array([0.5 - y, -1.0 - y])  # per head: Q(s, a_f) - y
+    expected = np.mean(np.square(errors) if loss == "mse" else huber(errors))
     loss, info = td_loss(config, QTable(), online, target, batch)
     np.testing.assert_allclose(float(loss), expected, rtol=1e-6)
     np.testing.assert_allclose(float(info["q_mean"]), -0.25)
+
+
+def test_td_error_losses_by_hand():
+    """"mse" squares the TD error; "huber" (Nature DQN's, delta 1) is half its square within 1
+    and grows linearly beyond, so a large error pulls no harder than an error of 1."""
+    errors = jnp.array([0.5, -2.0, 3.0])
+    np.testing.assert_allclose(td_error_loss(errors, "mse"), [0.25, 4.0, 9.0])
+    np.testing.assert_allclose(td_error_loss(errors, "huber"), [0.125, 1.5, 2.5])
+    assert DQNConfig().loss == "mse"
+    with pytest.raises(ValueError, match=r"^DQN loss 'l2' is not one of \('mse', 'huber'\)$"):
+        td_error_loss(errors, "l2")
 
 
 def test_nstep_transition_by_hand():
@@ -151,6 +168,8 @@ def test_bad_config_is_a_clear_error():
         make_dqn(DQNConfig(buffer_size=4, trunk="mlp"), env, params)
     with pytest.raises(ValueError, match="n_step=0"):
         make_dqn(DQNConfig(n_step=0, trunk="mlp"), env, params)
+    with pytest.raises(ValueError, match=r"^DQN loss 'l1' is not one of \('mse', 'huber'\)$"):
+        make_dqn(DQNConfig(loss="l1", trunk="mlp"), env, params)
 
 
 # --- learning the probes ----------------------------------------------------------------------

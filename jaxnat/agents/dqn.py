@@ -5,24 +5,26 @@ device, vmappable over seeds like `ppo.py`.
     runner, metrics = jax.jit(jax.vmap(learner.train))(jax.random.split(jax.random.key(0), 5))
 
 One update: `num_steps` epsilon-greedy steps of `num_envs` envs go into the replay buffer,
-then `gradient_steps` Huber-loss steps on minibatches of `batch_size` sampled uniformly from it
-(none before `learning_starts` env steps); the target network copies the online one every
-`target_update_period` gradient steps. `double_dqn` picks the next action with the online
-network and values it with the target one (van Hasselt et al. 2016). `n_step` > 1 stores
-n-step returns (Sutton 1988; as Rainbow): the transition from `s_t` carries
-`r_t + gamma r_{t+1} + ... + gamma^{m-1} r_{t+m-1}` and bootstraps from `s_{t+m}` with
-`gamma^m`, where m = n, or fewer when the episode ends first (then no bootstrap if it
-terminated, a bootstrap from its final observation if it was truncated). One-step Q-learning
+then `gradient_steps` TD-loss steps (`loss`: squared error, or Nature DQN's Huber) on
+minibatches of `batch_size` sampled uniformly from it (none before `learning_starts` env
+steps); the target network copies the online one every `target_update_period` gradient steps.
+`double_dqn` picks the next action with the online network and values it with the target one
+(van Hasselt et al. 2016). `n_step` > 1 stores n-step returns (Sutton 1988; as Rainbow): the
+transition from `s_t` carries `r_t + gamma r_{t+1} + ... + gamma^{m-1} r_{t+m-1}` and
+bootstraps from `s_{t+m}` with `gamma^m`, where m = n, or fewer when the episode ends first
+(then no bootstrap if it terminated, a bootstrap from its final observation if it was
+truncated). One-step Q-learning
 cannot solve a task whose reward comes after an observation that hides the earlier action
 (`probes.TwoStepProbe`); two-step returns can.
 
 Settings: Nature DQN's (RMSprop lr 2.5e-4, decay 0.95, centered, batch 32, gamma 0.99, epsilon
-1.0 -> 0.1, one gradient step per 4 env steps, Huber loss), with the replay memory, exploration
-period, learning start and target period 10x shorter (100k, 100k, 10k env steps; 1k gradient
-steps) since the paper's tasks train for 1-10M steps rather than Atari's 50M. RMSprop's
-epsilon is 1e-5 (Dopamine's), not DeepMind's 0.01: DeepMind summed the loss over the batch of
-32, we average it, so our gradients are 32x smaller and their squares 1024x; 0.01 under the
-square root then floors the denominator at 0.1 and all but stops learning (on
+1.0 -> 0.1, one gradient step per 4 env steps) but for the loss, the squared error (Huber's is
+`loss="huber"`, which `jaxnat train` keeps for Atari; see `DQNConfig`), and with the replay
+memory, exploration period, learning start and target period 10x shorter (100k, 100k, 10k env
+steps; 1k gradient steps) since the paper's tasks train for 1-10M steps rather than Atari's
+50M. RMSprop's epsilon is 1e-5 (Dopamine's), not DeepMind's 0.01: DeepMind summed the loss
+over the batch of 32, we average it, so our gradients are 32x smaller and their squares 1024x;
+0.01 under the square root then floors the denominator at 0.1 and all but stops learning (on
 Classify/Digits-v0 the greedy accuracy stayed at chance, 12.5%, after 5M env steps per seed).
 `optimizer="adam"` uses Adam (eps 1.5e-4, as Dopamine's DQN).
 Time limits: the target bootstraps from the final observation of a truncated episode and not
@@ -65,13 +67,30 @@ from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_bat
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
 __all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_host_dqn", "make_dqn_parts",
-           "make_train", "nstep_transition", "td_loss"]
+           "make_train", "nstep_transition", "td_error_loss", "td_loss"]
 
 OPTIMIZERS = ("rmsprop", "adam")
+LOSSES = ("mse", "huber")
 
 
 @struct.dataclass
 class DQNConfig:
+    """DQN's settings (defaults: the module docstring).
+
+    `loss` is the loss of the TD error: `"mse"` (the default) its square, as in PureJaxRL's and
+    CleanRL's DQN, or `"huber"`, Huber's with delta 1, Nature DQN's. Per family: NaturalAtari
+    uses `"huber"` (`jaxnat train` sets it unless `--loss` is given): its rewards are clipped
+    to [-1, 1], as Nature DQN's were, and Huber bounds the pull of rare large errors. Every
+    other family (Classify, Localize, gymnax-style vector envs) uses `"mse"`. On returns of
+    hundreds, as CartPole's, TD errors are far beyond delta and Huber becomes an absolute
+    error, which fits the median target: the ~10% of transitions that end an episode never
+    pull Q down, and the greedy policy collapsed (jaxnat on gymnax CartPole-v1 with
+    PureJaxRL's settings: median final return 12 with Huber, 500 with the squared error).
+    Where the errors stay near 1 or below, as in classification (rewards of 1 and -0.1), Huber
+    is half the squared error (exactly, within 1), and Adam's and RMSprop's steps, which do
+    not depend on the gradient's scale, differ little.
+    """
+
     total_timesteps: int = static(1_000_000)
     num_envs: int = static(8)
     num_steps: int = static(4)  # env steps per env per update
@@ -80,6 +99,7 @@ class DQNConfig:
     buffer_size: int = static(100_000)
     n_step: int = static(1)  # returns over this many steps (1: Nature DQN's one-step target)
     optimizer: str = static("rmsprop")
+    loss: str = static("mse")  # of the TD error: "mse" (squared) or "huber" (Nature DQN's, delta 1)
     double_dqn: bool = static(False)
     trunk: str | None = static(None)
     lr: float = 2.5e-4
@@ -181,8 +201,18 @@ def nstep_transition(recent: dict, gamma) -> dict:
             "next_obs": jax.tree.map(pick, recent["next_obs"]), "discount": discount}
 
 
+def td_error_loss(errors, loss: str):
+    """Per-element loss of TD errors: `"mse"` their square, `"huber"` Huber's with delta 1
+    (`e^2 / 2` for `|e| <= 1`, `|e| - 1/2` beyond)."""
+    if loss == "mse":
+        return jnp.square(errors)
+    if loss == "huber":
+        return optax.huber_loss(errors, delta=1.0)
+    raise ValueError(f"DQN loss {loss!r} is not one of {LOSSES}")
+
+
 def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[jax.Array, dict]:
-    """Mean Huber loss over the batch and the action factors; the target is
+    """Mean TD loss (`config.loss`) over the batch and the action factors; the target is
     `reward + discount * mean_f next value_f` (`discount` = gamma^m, 0 at termination)."""
     q, _ = network.apply(params, batch["obs"])
     q_next, _ = network.apply(target_params, batch["next_obs"])
@@ -196,13 +226,15 @@ def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[j
     target = jax.lax.stop_gradient(batch["reward"] + batch["discount"] * next_value)
     taken = [jnp.take_along_axis(qf, batch["action"][:, f : f + 1], -1)[:, 0] for f, qf in enumerate(q)]
     errors = jnp.stack(taken) - target
-    loss = optax.huber_loss(errors, delta=1.0).mean()
+    loss = td_error_loss(errors, config.loss).mean()
     return loss, {"loss": loss, "q_mean": jnp.stack(taken).mean()}
 
 
 def check_config(config: DQNConfig) -> None:
     if config.optimizer not in OPTIMIZERS:
         raise ValueError(f"DQN optimizer {config.optimizer!r} is not one of {OPTIMIZERS}")
+    if config.loss not in LOSSES:
+        raise ValueError(f"DQN loss {config.loss!r} is not one of {LOSSES}")
     if config.buffer_size < config.num_envs:
         raise ValueError(f"buffer_size={config.buffer_size} is smaller than one env step of "
                          f"num_envs={config.num_envs} envs")
