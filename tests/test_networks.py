@@ -146,12 +146,24 @@ def test_mlp_actor_and_critic_are_separate_networks(memory, goal):
     assert any("'critic_goal'" in name for name in critic) == goal
 
 
-
-def test_paper_trunks_stay_shared():
-    """A CNN trunk (the authors' CNNBase) feeds both heads."""
+def test_paper_trunks_stay_shared_and_dqn_has_one_relu_mlp():
+    """A CNN trunk (the authors' CNNBase) feeds both heads; DQN's Q-network on vectors is one
+    ReLU MLP of 120 and 84 units under every head."""
     image = spaces.Box(0, 255, (28, 28, 1), jnp.uint8)
     network = make_actor_critic(image, spaces.Discrete(4), "mnist")
     params = init_params(network, image, jax.random.key(0))
     actor = _moved_by(lambda p: _outputs(network, p, image, 0)[0][0].sum(), params)
     critic = _moved_by(lambda p: _outputs(network, p, image, 0)[1].sum(), params)
     assert {name for name in actor & critic} == {name for name in actor if "PaperCNN_0" in name}
+
+    vector = spaces.Box(-1.0, 1.0, (4,), jnp.float32)
+    q = make_actor_critic(vector, spaces.Discrete(2), "mlp", q_network=True)
+    params = init_params(q, vector, jax.random.key(0))
+    kernels = {jax.tree_util.keystr(path): x.shape for path, x in jax.tree_util.tree_leaves_with_path(params)
+               if "kernel" in jax.tree_util.keystr(path) and "MLP_0" in jax.tree_util.keystr(path)}
+    assert sorted(kernels.values()) == [(4, 120), (120, 84)]
+    assert "'actor'" not in str(params) and "'critic'" not in str(params)
+    x = jnp.array([[-3.0, -3.0, -3.0, -3.0], [3.0, 3.0, 3.0, 3.0]])
+    _, state = q.apply(params, x, capture_intermediates=True)
+    (hidden,) = state["intermediates"]["MLP_0"]["__call__"]
+    assert float(hidden.min()) == 0.0 and float(hidden.max()) > 1.0  # ReLU, not tanh

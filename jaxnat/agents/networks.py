@@ -22,9 +22,10 @@ both heads, as the authors' `CNNBase`; the `mlp` trunk is two networks, an actor
 policy heads and a critic MLP under the value head, as the authors' `MLPBase`, PureJaxRL and
 CleanRL have for vector observations (on one shared MLP the value loss, with targets near 100
 on CartPole, dominates the features the policy reads: PPO with PureJaxRL's CartPole settings
-ended at a median return of 231 instead of 492). With `memory > 0` a GRU over the trunk's features
-(and the previous action and reward) makes the policy recurrent; the heads read features and
-GRU output side by side (`ActorCritic`).
+ended at a median return of 231 instead of 492). DQN's Q-network (`q_network=True`) has one
+MLP for its heads instead, `Q_MLP`. With `memory > 0` a GRU over the trunk's features (and the
+previous action and reward) makes the policy recurrent; the heads read features and GRU output
+side by side (`ActorCritic`).
 The ResNet uses GroupNorm rather than BatchNorm: running batch statistics are mutable state that
 does not fit a pure, vmapped on-policy learner.
 """
@@ -53,6 +54,8 @@ _PAPER_CNNS = {
     "atari": [(32, 8, 4), (64, 4, 2), (32, 3, 1)],
 }
 TRUNKS = (*_PAPER_CNNS, "resnet18", "mlp")
+# The `mlp` trunk of a Q-network (DQN): CleanRL's and PureJaxRL's QNetwork.
+Q_MLP = ((120, 84), "relu")
 DTYPES = ("float32", "bfloat16")
 
 
@@ -125,12 +128,15 @@ class ResNet18(nn.Module):
 
 
 class MLP(nn.Module):
+    sizes: Sequence[int] = (64, 64)
+    activation: str = "tanh"  # or "relu"
     dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x):
-        for _ in range(2):
-            x = nn.tanh(_dense(64, dtype=self.dtype)(x))
+        activation = {"tanh": nn.tanh, "relu": nn.relu}[self.activation]
+        for size in self.sizes:
+            x = activation(_dense(size, dtype=self.dtype)(x))
         return x
 
 
@@ -199,6 +205,7 @@ class ActorCritic(nn.Module):
     num_goals: int = 0  # > 0 for dict observations with an integer "goal"
     dtype: str = "float32"  # the trunk's computation dtype (see the module docstring)
     memory: int = 0  # GRU state size; 0: feed-forward (the paper's agents)
+    q_network: bool = False  # DQN's: the "logits" are Q values, the value head is unused
 
     @nn.compact
     def __call__(self, obs, memory: Memory | None = None):
@@ -207,7 +214,7 @@ class ActorCritic(nn.Module):
                 raise ValueError("a recurrent network (memory > 0) is called as (obs, Memory)")
             time_batch = memory.start.shape
             obs = jax.tree_util.tree_map(lambda x: x.reshape(-1, *x.shape[len(time_batch):]), obs)
-        separate = self.trunk == "mlp"
+        separate = self.trunk == "mlp" and not self.q_network
         if separate:
             features, critic = self._features(obs, "actor"), self._features(obs, "critic")
         else:
@@ -237,7 +244,8 @@ class ActorCritic(nn.Module):
             x = x / 255.0
         x = x.astype(self.dtype)
         if self.trunk == "mlp":
-            features = MLP(dtype=self.dtype, name=named(""))(x)
+            sizes, activation = Q_MLP if self.q_network else ((64, 64), "tanh")
+            features = MLP(sizes, activation, dtype=self.dtype, name=named(""))(x)
         elif self.trunk == "resnet18":
             features = ResNet18(dtype=self.dtype)(x)
         else:
@@ -275,8 +283,9 @@ def default_trunk(observation_space: spaces.Space) -> str:
 
 
 def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None,
-                      dtype: str = "float32", memory: int = 0) -> ActorCritic:
-    """An `ActorCritic` for these spaces; checks that the trunk fits the observation."""
+                      dtype: str = "float32", memory: int = 0, q_network: bool = False) -> ActorCritic:
+    """An `ActorCritic` for these spaces; checks that the trunk fits the observation.
+    `q_network`: DQN's network (the `mlp` trunk is then `Q_MLP`, one MLP for all heads)."""
     trunk = trunk or default_trunk(observation_space)
     if trunk not in TRUNKS:
         raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
@@ -304,7 +313,7 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
     if memory < 0:
         raise ValueError(f"memory is the GRU state size (0: feed-forward), got {memory}")
     return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype,
-                       memory=memory)
+                       memory=memory, q_network=q_network)
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):
