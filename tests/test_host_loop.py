@@ -202,6 +202,8 @@ def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
 
     # What the checkpoint of seed 1 holds is what the resumed run starts from.
     spec = RunSpec.from_json(json.loads((run_dir / "config.json").read_text())["spec"])
+    if algo == "dqn":
+        assert spec.config.loss == "huber"  # Nature DQN's loss is the Atari default
     env = ClipRewardWrapper(jaxnat_make_vec(spec, "train"))
     learner = host.make_learner(algo, spec.config, env, FAST)
     checkpoints = Checkpoints(run_dir / "checkpoints" / "seed_1")

@@ -73,6 +73,11 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
                          "split=test for evaluation")
     with host_errors(args.env_id):
         config = resolve_config(args, observation_space(args.env_id, env_kwargs))
+    if args.algo == "dqn" and args.config.loss is None:
+        # Nature DQN's Huber loss for Atari: its rewards are clipped to [-1, 1] here too, and
+        # Huber bounds the gradient of the rare large TD errors (DQNConfig says why it is not
+        # the general default).
+        config = config.replace(loss="huber")
     eval_episodes = args.eval_episodes
     if eval_episodes > MAX_EVAL_EPISODES:
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
