@@ -262,3 +262,14 @@ def test_progress_without_a_terminal_prints_plain_lines():
     live(1, {"episode_return": 0.5})
     live(1, {"episode_return": 0.5})
     assert "update 1/10" not in quiet.getvalue()
+
+
+def test_dqn_runs_saved_before_the_loss_option_resume_with_huber():
+    from jaxnat.agents import DQNConfig
+    from jaxnat.training import RunSpec
+
+    spec = RunSpec("Classify/Digits-v0", {}, "dqn", DQNConfig(trunk="mnist"), 2, 0, 1, 10)
+    saved = spec.to_json()
+    assert RunSpec.from_json(saved).config.loss == "mse"  # today's default, saved explicitly
+    del saved["config"]["loss"]
+    assert RunSpec.from_json(saved).config.loss == "huber"  # every DQN before the option

@@ -68,6 +68,9 @@ class RunSpec:
         if data["algo"] not in ALGORITHMS:
             raise TrainError(f"config.json names algorithm {data['algo']!r}, which this jaxnat lacks")
         config_cls = ALGORITHMS[data["algo"]].config
+        if data["algo"] == "dqn" and "loss" not in data["config"]:
+            # Written before DQNConfig.loss existed, when every DQN trained with Huber's loss.
+            data = {**data, "config": {**data["config"], "loss": "huber"}}
         return cls(
             env_id=data["env_id"], env_kwargs=dict(data["env_kwargs"]), algo=data["algo"],
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
