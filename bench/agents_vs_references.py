@@ -268,8 +268,8 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
             f"gradient clipping: rejax clips each gradient element to +-{c['max_grad_norm']} "
             f"(optax.clip), jaxnat the global norm to {c['max_grad_norm']}",
             "Adam eps: rejax 1e-8, jaxnat 1e-5",
-            "rejax: separate actor and critic networks, each with its own Adam (vf_coef then only "
-            "scales the critic's gradient)",
+            "optimizers: rejax's actor and critic each have their own Adam (vf_coef then only scales "
+            "the critic's gradient); jaxnat's separate actor and critic MLPs share one",
         ]
         if c.get("normalize_observations"):
             differences.append("rejax normalises observations (running mean/std); jaxnat has no such option")
