@@ -421,6 +421,26 @@ def test_image_folder_mismatched_size_names_file(tmp_path):
         d.load("image_folder", "train", root=tmp_path / "imgs", cache=False)
 
 
+@pytest.mark.parametrize("content", [b"", b"not an image at all"])
+def test_image_folder_undecodable_file_names_it(tmp_path, content):
+    """A zero-byte or non-image file with an image's name: one error naming the file (a
+    zero-byte one made OpenCV's imdecode raise its own assertion, without the name)."""
+    make_image_folder(tmp_path / "imgs", 3)
+    bad = tmp_path / "imgs" / "train" / "dog" / "1.png"
+    bad.write_bytes(content)
+    with pytest.raises(DatasetFormatError, match="cannot decode " + re.escape(str(bad))):
+        d.load("image_folder", "train", root=tmp_path / "imgs", cache=False)
+
+
+@pytest.mark.parametrize("image_size", [0, (0, 5), -3, (4, 2.5)])
+def test_classify_image_size_must_be_positive(tmp_path, image_size):
+    from jaxnat.vision_envs.classify import Classify
+
+    make_image_folder(tmp_path / "imgs", 3)
+    with pytest.raises(ValueError, match="image_size must be a positive int"):
+        Classify("image_folder", root=tmp_path / "imgs", image_size=image_size, w=1)
+
+
 def test_image_folder_layout_errors(tmp_path):
     make_image_folder(tmp_path / "imgs", 1)
     (tmp_path / "imgs" / "test" / "dog").rename(tmp_path / "imgs" / "test" / "bird")

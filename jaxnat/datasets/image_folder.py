@@ -89,7 +89,8 @@ def _read(path: Path) -> np.ndarray:
     """Decode one file to uint8 [H, W, C] with C = 1 (gray) or 3 (RGB)."""
     # IMREAD_ANYCOLOR keeps grayscale files single-channel and always yields 8-bit data;
     # imdecode (not imread) because imread also fails silently on paths it cannot encode.
-    image = cv2.imdecode(np.fromfile(path, dtype=np.uint8), cv2.IMREAD_ANYCOLOR)
+    data = np.fromfile(path, dtype=np.uint8)
+    image = cv2.imdecode(data, cv2.IMREAD_ANYCOLOR) if data.size else None  # (imdecode asserts on empty input)
     if image is None:
         raise DatasetFormatError(f"image_folder: cannot decode {path} as an image; the file is "
                                  "corrupt or not really a PNG/JPEG/BMP; remove or replace it")

@@ -259,5 +259,7 @@ def _resize(images: np.ndarray, image_size) -> np.ndarray:
     import cv2
 
     h, w = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+    if not (isinstance(h, (int, np.integer)) and isinstance(w, (int, np.integer)) and h >= 1 and w >= 1):
+        raise ValueError(f"image_size must be a positive int or (H, W) of positive ints, got {image_size!r}")
     out = np.stack([cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA) for im in images])
     return out.reshape(len(images), h, w, images.shape[-1])
