@@ -666,6 +666,17 @@ def test_download_http_error_leaves_nothing(server, tmp_path):
     assert list(dest.iterdir()) == []
 
 
+def test_download_failure_removes_a_corrupt_existing_file(server, tmp_path):
+    """A damaged file at the target (wrong hash) is not left in place when the new fetch fails:
+    the target is either absent or verified."""
+    dest = tmp_path / "dest"
+    dest.mkdir()
+    (dest / "f.gz").write_bytes(b"damaged")
+    with pytest.raises(OSError, match="404"):
+        d.download("mnist", dest, urls={"f.gz": (server.url("missing.gz"), sha256(b"good"))})
+    assert list(dest.iterdir()) == []
+
+
 def test_download_resumes_a_part_file(server, tmp_path):
     data = bytes(range(256)) * 40
     server.files["f.bin"] = data

@@ -129,6 +129,9 @@ def download(name: str, dest: str | os.PathLike | None = None, *,
         target = dest / file
         fetched = not (target.is_file() and _sha256(target) == remote.sha256)
         if fetched:
+            # A file there with the wrong hash is damaged: it goes first, so a failed fetch
+            # leaves the target absent rather than corrupt.
+            target.unlink(missing_ok=True)
             _fetch(remote, target)
         if file.endswith((".tar.gz", ".tgz")):
             _extract(target, dest, always=fetched)
