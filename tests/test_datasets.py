@@ -549,6 +549,19 @@ def test_cache_invalidated_when_source_changes(data_dir):
     assert_dataset(d.load("mnist", "test"), replaced["test"][0][..., None], replaced["test"][1])
 
 
+def test_cache_keyed_on_content_not_size_and_mtime(data_dir):
+    """New bytes under the old size and modification time (`cp -p`, a re-extracted tarball)
+    still make a new entry."""
+    make_mnist(data_dir / "mnist", gz=False, seed=1)
+    for path in (data_dir / "mnist").iterdir():
+        os.utime(path, ns=(5, 5))
+    d.load("mnist", "test")
+    replaced = make_mnist(data_dir / "mnist", gz=False, seed=2)  # same shapes: same sizes
+    for path in (data_dir / "mnist").iterdir():
+        os.utime(path, ns=(5, 5))
+    assert_dataset(d.load("mnist", "test"), replaced["test"][0][..., None], replaced["test"][1])
+
+
 def test_corrupt_cache_entry_is_ignored_and_rewritten(data_dir, tmp_path):
     written = make_mnist(data_dir / "mnist", gz=True)
     d.load("mnist", "test")

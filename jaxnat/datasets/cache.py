@@ -2,9 +2,10 @@
 
 Entries are `.npz` files (images, labels, class_names; no pickled objects, read with
 allow_pickle=False) under `$JAXNAT_CACHE_DIR`, else `~/.cache/jaxnat/arrays`. An entry's name is
-a hash of the dataset name, the split, `FORMAT_VERSION`, and the resolved path, size and
-modification time of every source file, so replacing or touching a source file, or changing how
-files are decoded (bump `FORMAT_VERSION`), makes a new entry instead of serving stale arrays.
+a hash of the dataset name, the split, `FORMAT_VERSION`, and the resolved path and a hash of the
+contents of every source file, so changing a source file's bytes (even under the same size and
+modification time: `cp -p`, a re-extracted tarball) or how files are decoded (bump
+`FORMAT_VERSION`) makes a new entry instead of serving stale arrays.
 
 Entries are written to a temporary file and renamed into place, so a reader never sees half an
 entry; an entry that fails to load anyway (disk trouble, a killed writer on a filesystem without
@@ -45,11 +46,18 @@ def entry_path(name: str, split: str, files: Iterable[Path], extra: Iterable[str
     sources = []
     for path in files:
         resolved = Path(path).resolve()
-        stat = resolved.stat()
-        sources.append([str(resolved), stat.st_size, stat.st_mtime_ns])
+        sources.append([str(resolved), _content_digest(resolved)])
     key = json.dumps([FORMAT_VERSION, name, split, sources, list(extra)])
     digest = hashlib.sha256(key.encode()).hexdigest()[:24]
     return cache_dir() / f"{name}-{split}-{digest}.npz"
+
+
+def _content_digest(path: Path) -> str:
+    """A hash of the file's bytes (BLAKE2b: fast; reading is cheaper than the decoding it saves).
+    Path, size and modification time are not enough: `cp -p` or a re-extracted tarball gives
+    new bytes under the old size and time."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "blake2b").hexdigest()
 
 
 def read_arrays(path: Path, keys: Iterable[str], build: Callable[..., Any]) -> Any | None:
