@@ -200,3 +200,20 @@ def test_window_bits_equal_packed_window_mask(width):
                 top_left = jnp.array([row, col])
                 want = pack_mask(window_mask(top_left, side, 9, width))
                 np.testing.assert_array_equal(np.asarray(env._window_bits(top_left, side)), np.asarray(want))
+
+
+def test_out_of_range_actions_are_clipped_per_factor(env):
+    """jaxnat's rule for discrete envs (a jitted env cannot raise): each factor is clipped into
+    its range, so move 7 acts as RIGHT, -1 as UP, and label 10 (of 3 classes) as label 2."""
+    params = env.default_params
+    _, state = env.reset(jax.random.key(0), params)
+
+    def outcome(move, label):
+        obs, new, reward, terminated, truncated, _ = env.step(jax.random.key(1), state, jnp.array([move, label]),
+                                                              params)
+        return np.asarray(obs), np.asarray(new.top_left), float(reward), bool(terminated)
+
+    for wild, tame in [((7, 0), (RIGHT, 0)), ((-1, 0), (UP, 0)), ((0, 10), (0, 2)), ((0, -5), (0, 0))]:
+        for a, b in zip(outcome(*wild), outcome(*tame)):
+            np.testing.assert_array_equal(a, b)
+

@@ -10,7 +10,8 @@ class. Semantics: `docs/environments.md` section 1.
   always fully inside the image, top-left in `[0, H-w] x [0, W-w]`) starts at a uniformly
   random position (`start="random"`, the paper) or at top-left `(H//2 - w, W//2 - w)`
   (`start="center"`, the authors' code: `(16-w, 16-w)` on 32x32). The window is revealed.
-- **Action**: `int32[2] = (move, label)`, space `MultiDiscrete([4, num_classes])`.
+- **Action**: `int32[2] = (move, label)`, space `MultiDiscrete([4, num_classes])`; a value
+  outside its range is clipped into it (move 7 is RIGHT, -1 is UP; label 10 of 10 classes is 9).
   `move`: 0 UP, 1 DOWN, 2 LEFT, 3 RIGHT shifts the window by `w` pixels, clamped inside the
   image (UP and LEFT work: the authors' code had them as no-ops). `label`: the guessed class.
 - **Step order**: apply the move, reveal the new window, `t += 1`, then judge the label.
@@ -188,7 +189,9 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         return self.get_obs(state, params), state
 
     def step_env(self, key, state: ClassifyState, action, params: ClassifyParams):
-        move, label = action[0], action[1]
+        # Out-of-range actions are clipped into range per factor (jaxnat's rule for every
+        # discrete env: under jit an env cannot raise).
+        move, label = jnp.clip(action[0], 0, len(MOVES) - 1), jnp.clip(action[1], 0, self.num_classes - 1)
         h, w = self.image_shape[:2]
         side = params.window
         limit = jnp.array([h, w]) - side

@@ -19,7 +19,8 @@ section 2 (the paper's task; where the authors' code differs, this env follows t
   classes, the footprint (a `w` x `w` square, `w=10` by default) centred: top-left
   `((H - w) // 2, (W - w) // 2)`.
 - **Action**: `Discrete(4)`: 0 UP, 1 DOWN, 2 LEFT, 3 RIGHT moves the footprint by `w` pixels,
-  clamped so it stays fully inside the image.
+  clamped so it stays fully inside the image; an action outside 0..3 is clipped into that range
+  (the rule of every discrete jaxnat env: under jit an env cannot raise).
 - **Reward**: `params.success_reward` (1.0) and `terminated` when, after the move, the footprint
   covers at least one pixel of the goal class (a one-pixel overlap counts; a goal pixel that
   only touches the footprint's edge or corner from outside does not), else 0.0. The test reads
@@ -194,7 +195,8 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
     def step_env(self, key, state: LocalizeState, action, params: LocalizeParams):
         side = self.footprint
         limit = jnp.array(self.image_shape) - side
-        top_left = jnp.clip(state.top_left + jnp.asarray(MOVES)[action] * side, 0, limit)
+        move = jnp.clip(action, 0, len(MOVES) - 1)  # out of range: clipped (every discrete env's rule)
+        top_left = jnp.clip(state.top_left + jnp.asarray(MOVES)[move] * side, 0, limit)
         state = state.replace(top_left=top_left)
         under = jax.lax.dynamic_slice(params.class_maps[state.image_index], top_left, (side, side))
         found = jnp.any(under == state.goal)
