@@ -263,6 +263,7 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
             update_epochs=c["num_epochs"], num_minibatches=c["num_minibatches"], anneal_lr=False,
             trunk=trunk, lr=c["learning_rate"], gamma=c["gamma"], gae_lambda=c["gae_lambda"],
             clip_eps=c["clip_eps"], vf_coef=c["vf_coef"], ent_coef=c["ent_coef"], max_grad_norm=c["max_grad_norm"],
+            normalize_observations=bool(c.get("normalize_observations", False)), normalize_rewards=False,
         ), differences)
         differences += [
             f"gradient clipping: rejax clips each gradient element to +-{c['max_grad_norm']} "
@@ -272,10 +273,11 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
             "the critic's gradient); jaxnat's separate actor and critic MLPs share one",
         ]
         if c.get("normalize_observations"):
-            differences.append("rejax normalises observations (running mean/std); jaxnat has no such option")
+            differences.append("observation normalisation: rejax's is not clipped, jaxnat's is clipped to +-10 "
+                               "(baselines' VecNormalize)")
     elif algo == "a2c":
-        config = _apply(A2CConfig, dict(total_timesteps=c["total_timesteps"], trunk=trunk, gamma=c["gamma"]),
-                        differences)
+        config = _apply(A2CConfig, dict(total_timesteps=c["total_timesteps"], trunk=trunk, gamma=c["gamma"],
+                                        normalize_observations=False, normalize_rewards=False), differences)
         config = config.replace(total_timesteps=max(1, c["total_timesteps"] // (config.num_envs * config.num_steps))
                                 * config.num_envs * config.num_steps)
         differences = ["no reference: rejax 0.1.3 has no A2C; jaxnat's A2C defaults, gamma and steps "

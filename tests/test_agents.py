@@ -33,10 +33,12 @@ ALGOS = ["ppo", "a2c"]
 # Over 96 seeds, PPO solved every probe within 25 updates and A2C within 120 (the factored one
 # is the slowest). A2C gets lr 1e-3: its RMSprop at 3e-3 keeps jittering a converged value
 # by up to 0.15.
+# The probes check values in reward units: no normalisation (on by default for vector observations).
+RAW = dict(normalize_observations=False, normalize_rewards=False)
 CONFIGS = {
     "ppo": PPOConfig(total_timesteps=8192, num_envs=4, num_steps=16, update_epochs=2,
-                     num_minibatches=2, trunk="mlp", lr=3e-3),
-    "a2c": A2CConfig(total_timesteps=8192, num_envs=4, num_steps=8, trunk="mlp", lr=1e-3),
+                     num_minibatches=2, trunk="mlp", lr=3e-3, **RAW),
+    "a2c": A2CConfig(total_timesteps=8192, num_envs=4, num_steps=8, trunk="mlp", lr=1e-3, **RAW),
 }
 MAKE = {"ppo": make_ppo, "a2c": make_a2c}
 # Per-probe changes to the traced hyperparameters.

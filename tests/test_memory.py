@@ -21,10 +21,12 @@ from jaxnat.agents.probes import make_probe
 
 _jit = functools.partial(jax.jit, compiler_options={"xla_backend_optimization_level": 0})
 SEEDS = 4
+# The probes check values in reward units: no normalisation (on by default for vector observations).
+RAW = dict(normalize_observations=False, normalize_rewards=False)
 CONFIGS = {
     "ppo": PPOConfig(total_timesteps=8192, num_envs=4, num_steps=16, update_epochs=2,
-                     num_minibatches=2, trunk="mlp", lr=3e-3),
-    "a2c": A2CConfig(total_timesteps=8192, num_envs=4, num_steps=8, trunk="mlp", lr=1e-3),
+                     num_minibatches=2, trunk="mlp", lr=3e-3, **RAW),
+    "a2c": A2CConfig(total_timesteps=8192, num_envs=4, num_steps=8, trunk="mlp", lr=1e-3, **RAW),
 }
 MAKE = {"ppo": make_ppo, "a2c": make_a2c}
 

@@ -41,7 +41,8 @@ STEPS = 500_000
 # coefficient 0.5, max grad norm 0.5, Adam eps 1e-5; tanh 64x64 actor and critic.
 PPO = PPOConfig(total_timesteps=STEPS, num_envs=4, num_steps=128, update_epochs=4, num_minibatches=4,
                 anneal_lr=True, trunk="mlp", lr=2.5e-4, gamma=0.99, gae_lambda=0.95, clip_eps=0.2,
-                vf_coef=0.5, ent_coef=0.01, max_grad_norm=0.5)
+                vf_coef=0.5, ent_coef=0.01, max_grad_norm=0.5,
+                normalize_observations=False, normalize_rewards=False)  # (PureJaxRL normalises neither)
 
 # purejaxrl/dqn.py's: 10 envs, one gradient step per env step of all of them (TRAINING_INTERVAL
 # 10 env steps), batch 128, buffer 10,000, Adam 2.5e-4 (optax's eps 1e-8, no decay, no

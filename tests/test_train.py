@@ -107,9 +107,9 @@ def test_run_and_exact_resume(tmp_path, capsys):
     strip = lambda rows: [{k: v for k, v in r.items() if k not in timing} for r in rows]  # noqa: E731
     assert strip(_lines(resumed / "eval.jsonl")) == strip(_lines(full / "eval.jsonl"))
 
-    # A checkpoint written before RunnerState had its `memory` field (None for a feed-forward
-    # policy) restores into today's runner.
-    fields = [name for name in expected._fields if name != "memory"]
+    # A checkpoint written before RunnerState had its `memory` and `normalizer` fields (None for
+    # a feed-forward policy on images) restores into today's runner.
+    fields = [name for name in expected._fields if name not in ("memory", "normalizer")]
     OldRunnerState = collections.namedtuple("RunnerState", fields)
     old = checkpoints.Checkpoints(tmp_path / "old")
     old.manager.save(4, args=old.ocp.args.Composite(

@@ -25,6 +25,9 @@ class A2CConfig:
     trunk: str | None = static(None)
     dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
     memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
+    # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
+    normalize_observations: bool | None = static(None)
+    normalize_rewards: bool | None = static(None)
     lr: float = 7e-4
     rms_eps: float = 1e-5
     rms_alpha: float = 0.99

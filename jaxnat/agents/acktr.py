@@ -35,6 +35,9 @@ class ACKTRConfig:
     num_steps: int = static(20)
     anneal_lr: bool = static(True)
     trunk: str | None = static(None)
+    # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
+    normalize_observations: bool | None = static(None)
+    normalize_rewards: bool | None = static(None)
     lr: float = 0.25
     momentum: float = 0.9
     kl_clip: float = 0.001

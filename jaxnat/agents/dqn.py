@@ -150,6 +150,11 @@ class DQNRunner(NamedTuple):
     def learner(self) -> DQNState:
         return DQNState(**{name: getattr(self, name) for name in DQNState._fields})
 
+    @property
+    def normalizer(self) -> None:
+        """None: DQN reads raw observations (as `RunnerState.normalizer` when off)."""
+        return None
+
     def with_learner(self, learner: DQNState, **changes) -> DQNRunner:
         """This runner with `learner`'s fields, and `changes` to the others, by name."""
         return self._replace(**learner._asdict(), **changes)

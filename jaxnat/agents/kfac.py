@@ -7,9 +7,11 @@ original ACKTR also shipped its own K-FAC. The pieces here are small so that a f
 can replace `kfac()` without touching the learner.
 
 K-FAC layers are the ones whose parameters are exactly `{"kernel", "bias"}`: `nn.Dense` and
-`ValidConv` (an im2col matmul, so a conv is a dense layer applied at every output pixel). Every
-other parameter (the goal embedding, the ResNet's convolutions and GroupNorms) keeps its plain
-gradient. For a layer with inputs `a` (the im2col patches for a conv, with a trailing 1 for the
+`ValidConv` (an im2col matmul, so a conv is a dense layer applied at every output pixel), and
+those whose parameters are exactly `{"bias"}`: a Gaussian policy's `LogStd`, a layer whose input
+is the constant 1 (so `A = [1]` and `G` is the Fisher of the log-std itself), as the authors'
+K-FAC treats its `AddBias`. Every other parameter (the goal embedding, the ResNet's
+convolutions and GroupNorms) keeps its plain gradient. For a layer with inputs `a` (the im2col patches for a conv, with a trailing 1 for the
 bias) and output gradients `g`, the Fisher block is approximated by `A (x) G`:
 
     A = mean over examples and output pixels of a a^T
@@ -39,12 +41,12 @@ import jax.numpy as jnp
 import optax
 from flax import traverse_util
 
-from jaxnat.agents.networks import ValidConv, im2col_patches
+from jaxnat.agents.networks import LogStd, ValidConv, im2col_patches
 
 __all__ = ["KFACState", "capture", "zero_perturbations", "factor_statistics", "damped_factors",
            "refine_inverse", "natural_gradient", "kfac"]
 
-_LAYERS = (nn.Dense, ValidConv)
+_LAYERS = (nn.Dense, ValidConv, LogStd)
 
 
 def _name(path: tuple[str, ...]) -> str:
@@ -55,7 +57,7 @@ def capture(network: nn.Module, params, obs, perturbations: dict | None = None):
     """Apply `network` and record what K-FAC needs from each Dense and ValidConv layer.
 
     Returns `(network output, inputs, outputs)`: `inputs[layer]` is `[examples, pixels, d_in]`
-    (the im2col patches for a conv; pixels = 1 for a dense layer), `outputs[layer]` the layer's
+    (the im2col patches for a conv; pixels = 1 for a dense layer; d_in = 0 for a `LogStd`), `outputs[layer]` the layer's
     output. `perturbations[layer]`, shaped like the output, is added to it: the gradient of a
     loss w.r.t. a zero perturbation is the gradient w.r.t. the layer's output.
     Layers are named by their module path joined with "/" (their parameters' path).
@@ -73,6 +75,9 @@ def capture(network: nn.Module, params, obs, perturbations: dict | None = None):
             patches = im2col_patches(x, module.kernel, module.kernel, module.stride)
             examples = x.shape[:-3]
             a = patches.reshape(-1, patches.shape[-3] * patches.shape[-2], patches.shape[-1])
+        elif isinstance(module, LogStd):  # no input but the bias's constant 1
+            examples = x.shape[:-1]
+            a = jnp.zeros((math.prod(examples), 1, 0), x.dtype)
         else:
             examples = x.shape[:-1]
             a = x.reshape(-1, 1, x.shape[-1])
@@ -159,16 +164,21 @@ class KFACState(NamedTuple):
     inverses: dict  # {layer: (A^-1, G^-1)} of the damped factors, refined every update
 
 
-def _layers(params) -> dict[str, tuple[tuple, tuple]]:
-    """`{layer: (kernel key, bias key)}` in the flattened params, for `{"kernel", "bias"}` modules.
-    The layer name drops the leading "params" collection (as module paths do)."""
+def _layers(params) -> dict[str, tuple[tuple | None, tuple]]:
+    """`{layer: (kernel key, bias key)}` in the flattened params, for `{"kernel", "bias"}` modules,
+    and `{layer: (None, bias key)}` for `{"bias"}` ones (`LogStd`). The layer name drops the
+    leading "params" collection (as module paths do)."""
     flat = traverse_util.flatten_dict(params)
     layers = {}
     for key in flat:
-        if key[-1] == "kernel" and key[:-1] + ("bias",) in flat:
-            siblings = {k[-1] for k in flat if k[:-1] == key[:-1]}
-            if siblings == {"kernel", "bias"}:
-                layers[_name(key[1:-1])] = (key, key[:-1] + ("bias",))
+        if key[-1] != "bias":
+            continue
+        siblings = {k[-1] for k in flat if k[:-1] == key[:-1]}
+        kernel = key[:-1] + ("kernel",)
+        if siblings == {"kernel", "bias"}:
+            layers[_name(key[1:-1])] = (kernel, key)
+        elif siblings == {"bias"}:
+            layers[_name(key[1:-1])] = (None, key)
     return layers
 
 
@@ -190,9 +200,10 @@ def kfac(learning_rate: Callable[[jax.Array], jax.Array] | float, *, damping, st
     def init(params) -> KFACState:
         flat = traverse_util.flatten_dict(params)
         factors = {}
-        for name, (kernel, _) in _layers(params).items():
-            shape, dtype = flat[kernel].shape, flat[kernel].dtype
-            factors[name] = (jnp.eye(math.prod(shape[:-1]) + 1, dtype=dtype), jnp.eye(shape[-1], dtype=dtype))
+        for name, (kernel, bias) in _layers(params).items():
+            inputs = 0 if kernel is None else math.prod(flat[kernel].shape[:-1])
+            dtype = flat[bias].dtype
+            factors[name] = (jnp.eye(inputs + 1, dtype=dtype), jnp.eye(flat[bias].shape[-1], dtype=dtype))
         return KFACState(jnp.zeros((), jnp.int32), factors, factors)
 
     def update(grads, state: KFACState, params=None, *, statistics: dict, **_) -> tuple[Any, KFACState]:
@@ -200,8 +211,8 @@ def kfac(learning_rate: Callable[[jax.Array], jax.Array] | float, *, damping, st
         if set(statistics) != set(state.factors):
             raise ValueError(
                 f"K-FAC: statistics for layers {sorted(statistics)} but the parameters have "
-                f"Dense/conv layers {sorted(state.factors)}; every module with exactly a kernel and "
-                f"a bias must be an nn.Dense or a ValidConv (see jaxnat.agents.kfac)."
+                f"K-FAC layers {sorted(state.factors)}; every module with exactly a kernel and a bias "
+                f"must be an nn.Dense or a ValidConv, and one with only a bias a LogStd (see jaxnat.agents.kfac)."
             )
         first = state.count == 0
         key = jax.random.fold_in(jax.random.key(0x4B464143), state.count)
@@ -214,10 +225,11 @@ def kfac(learning_rate: Callable[[jax.Array], jax.Array] | float, *, damping, st
                                    zip(damped_factors(*factors[name], damping), state.inverses[name], keys))
         flat = dict(traverse_util.flatten_dict(grads))
         for name, (kernel_key, bias_key) in _layers(grads).items():
-            kernel, bias = flat[kernel_key], flat[bias_key]
-            matrix = jnp.concatenate([kernel.reshape(-1, kernel.shape[-1]), bias[None]], axis=0)
-            natural = natural_gradient(*inverses[name], matrix)
-            flat[kernel_key] = natural[:-1].reshape(kernel.shape)
+            bias = flat[bias_key]
+            rows = [] if kernel_key is None else [flat[kernel_key].reshape(-1, bias.shape[-1])]
+            natural = natural_gradient(*inverses[name], jnp.concatenate([*rows, bias[None]], axis=0))
+            if kernel_key is not None:
+                flat[kernel_key] = natural[:-1].reshape(flat[kernel_key].shape)
             flat[bias_key] = natural[-1]
         natural = traverse_util.unflatten_dict(flat)
         lr = schedule(state.count)

@@ -17,10 +17,12 @@ trunk (flax's convention: parameters stay float32): `"bfloat16"` runs its convol
 layer on a GPU's bf16 tensor cores; the heads (logits, value) always compute in float32, so
 log-probabilities and value targets keep full precision. Dict observations (`{"pixels", "goal"}`)
 embed the integer goal and concatenate it to the trunk's features. Heads: one categorical per
-action factor (e.g. move and label) and a scalar value. The convolutional trunks are shared by
-both heads, as the authors' `CNNBase`; the `mlp` trunk is two networks, an actor MLP under the
-policy heads and a critic MLP under the value head, as the authors' `MLPBase`, PureJaxRL and
-CleanRL have for vector observations (on one shared MLP the value loss, with targets near 100
+action factor (e.g. move and label) for Discrete and MultiDiscrete actions, or for a `Box` a
+diagonal Gaussian (`distributions.Gaussian`): a linear mean and a learned, state-independent
+log-std initialised at 0 (the authors' `DiagGaussian`, CleanRL, Brax); and a scalar value.
+The convolutional trunks are shared by both heads, as the authors' `CNNBase`; the `mlp` trunk
+is two networks, an actor MLP under the policy heads and a critic MLP under the value head, as
+the authors' `MLPBase`, PureJaxRL and CleanRL have for vector observations (on one shared MLP the value loss, with targets near 100
 on CartPole, dominates the features the policy reads: PPO with PureJaxRL's CartPole settings
 ended at a median return of 231 instead of 492). DQN's Q-network (`q_network=True`) has one
 MLP for its heads instead, `Q_MLP`. With `memory > 0` a GRU over the trunk's features (and the
@@ -42,9 +44,10 @@ import numpy as np
 
 from jaxnat import spaces
 from jaxnat.agents.conv import conv2d, im2col_patches
+from jaxnat.agents.distributions import Gaussian
 
-__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "Memory", "initial_memory", "one_step_sequence", "make_actor_critic", "default_trunk",
-           "action_dims", "init_params", "im2col_patches"]
+__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "LogStd", "Memory", "initial_memory", "one_step_sequence", "make_actor_critic", "default_trunk",
+           "action_dims", "action_size", "is_box", "init_params", "im2col_patches"]
 
 # (features, kernel, stride) per conv layer.
 _PAPER_CNNS = {
@@ -140,6 +143,16 @@ class MLP(nn.Module):
         return x
 
 
+class LogStd(nn.Module):
+    """A Gaussian policy's learned, state-independent log-std, broadcast to the mean's shape
+    `[..., D]`: a bias with no kernel (its parameter is named `bias`), so K-FAC treats it as a
+    layer whose input is the constant 1, as the authors' `AddBias` (`jaxnat.agents.kfac`)."""
+
+    @nn.compact
+    def __call__(self, mean):
+        return jnp.broadcast_to(self.param("bias", nn.initializers.zeros, mean.shape[-1:]), mean.shape)
+
+
 class Memory(NamedTuple):
     """What a recurrent policy reads beside the observation, per env (leading axes `[T, B]` in
     a call on a sequence, except `hidden`, which is the state before its first step, `[B, H]`).
@@ -150,15 +163,17 @@ class Memory(NamedTuple):
     """
 
     hidden: jax.Array  # [B, H] float32: the GRU state
-    prev_action: jax.Array  # int32 [..., F]
+    prev_action: jax.Array  # int32 [..., F] (float32 [..., D] for a Box)
     prev_reward: jax.Array  # float32 [...]
     start: jax.Array  # bool [...]: the first step of an episode
 
 
 def initial_memory(network: ActorCritic, batch: int) -> Memory:
     """The memory of `batch` envs before their first step (`network.memory > 0`)."""
+    previous = ((batch, network.action_size), jnp.float32) if network.action_size else \
+        ((batch, len(network.action_dims)), jnp.int32)
     return Memory(hidden=jnp.zeros((batch, network.memory), jnp.float32),
-                  prev_action=jnp.zeros((batch, len(network.action_dims)), jnp.int32),
+                  prev_action=jnp.zeros(*previous),
                   prev_reward=jnp.zeros((batch,), jnp.float32),
                   start=jnp.ones((batch,), bool))
 
@@ -183,7 +198,8 @@ class _ResettingGRU(nn.Module):
 
 
 class ActorCritic(nn.Module):
-    """`(obs) -> (tuple of logits, one per action factor; value)`.
+    """`(obs) -> (policy, value)`: the policy is a tuple of logits, one per action factor, or
+    with `action_size > 0` (a Box of that many dimensions) a `Gaussian(mean, log_std)`.
 
     A convolutional trunk is shared by the heads; the `mlp` trunk is two MLPs with disjoint
     parameters, `actor` under the logits and `critic` under the value (a Dict observation's goal
@@ -200,12 +216,13 @@ class ActorCritic(nn.Module):
     reward; the heads read the features and the GRU's output side by side.
     """
 
-    action_dims: Sequence[int]
+    action_dims: Sequence[int]  # categories per factor; () with a Box
     trunk: str = "mnist"
     num_goals: int = 0  # > 0 for dict observations with an integer "goal"
     dtype: str = "float32"  # the trunk's computation dtype (see the module docstring)
     memory: int = 0  # GRU state size; 0: feed-forward (the paper's agents)
     q_network: bool = False  # DQN's: the "logits" are Q values, the value head is unused
+    action_size: int = 0  # > 0: a Box of this many dimensions, a Gaussian policy
 
     @nn.compact
     def __call__(self, obs, memory: Memory | None = None):
@@ -222,17 +239,22 @@ class ActorCritic(nn.Module):
         if self.memory:
             features, critic = (f.reshape(*time_batch, -1) for f in (features, critic))
             keep = ~memory.start[..., None]
-            previous = [jax.nn.one_hot(memory.prev_action[..., i], n) * keep for i, n in enumerate(self.action_dims)]
+            previous = ([memory.prev_action * keep] if self.action_size else
+                        [jax.nn.one_hot(memory.prev_action[..., i], n) * keep for i, n in enumerate(self.action_dims)])
             x = jnp.concatenate([features, *previous, (memory.prev_reward[..., None] * keep)], axis=-1)
             gru = nn.scan(_ResettingGRU, variable_broadcast="params", split_rngs={"params": False})
             hidden, outputs = gru(self.memory, name="memory")(memory.hidden, (x, memory.start))
             features = jnp.concatenate([features, outputs], axis=-1)
             critic = jnp.concatenate([critic, jax.lax.stop_gradient(outputs)], axis=-1) if separate else features
-        logits = tuple(_dense(n, 0.01)(features) for n in self.action_dims)
+        if self.action_size:
+            mean = _dense(self.action_size, 0.01, name="mean")(features)
+            policy = Gaussian(mean, LogStd(name="log_std")(mean))
+        else:
+            policy = tuple(_dense(n, 0.01)(features) for n in self.action_dims)
         value = _dense(1, 1.0)(critic)[..., 0]
         if self.memory:
-            return logits, value, hidden
-        return logits, value
+            return policy, value, hidden
+        return policy, value
 
     def _features(self, obs, branch: str | None = None):
         """The trunk's features (with the goal's embedding); `branch` names the modules of one
@@ -257,17 +279,32 @@ class ActorCritic(nn.Module):
         return features
 
 
+def is_box(action_space) -> bool:
+    """Whether the env takes continuous actions (a `Box`, jaxnat's or gymnax's: duck-typed)."""
+    return hasattr(action_space, "low") and hasattr(action_space, "high")
+
+
 def action_dims(action_space) -> tuple[int, ...]:
-    """Category counts per factor: Discrete(n) -> (n,), MultiDiscrete([a, b]) -> (a, b).
-    Duck-typed (`nvec` or `n`), so gymnax's spaces work too."""
+    """Category counts per factor: Discrete(n) -> (n,), MultiDiscrete([a, b]) -> (a, b); a Box
+    -> () (see `action_size`). Duck-typed (`nvec`, `n`, `low`/`high`), so gymnax's spaces work too."""
     if hasattr(action_space, "nvec"):
         return tuple(int(n) for n in action_space.nvec)
     if hasattr(action_space, "n") and not hasattr(action_space, "spaces"):
         return (int(action_space.n),)
-    raise TypeError(
-        f"The agents handle Discrete and MultiDiscrete actions; this env's space is "
-        f"{action_space}. Continuous (Box) actions are not supported yet."
-    )
+    if is_box(action_space):
+        return ()
+    raise TypeError(f"The agents handle Discrete, MultiDiscrete and Box actions; this env's space is "
+                    f"{action_space}")
+
+
+def action_size(action_space) -> int:
+    """A Box's dimension count (the Gaussian policy's size); 0 for discrete spaces."""
+    if not is_box(action_space):
+        return 0
+    shape = tuple(np.shape(action_space.low)) or tuple(getattr(action_space, "shape", ()))
+    if len(shape) != 1:
+        raise ValueError(f"The agents take Box actions of one dimension [D]; this env's are shaped {shape}")
+    return int(shape[0])
 
 
 def default_trunk(observation_space: spaces.Space) -> str:
@@ -285,7 +322,8 @@ def default_trunk(observation_space: spaces.Space) -> str:
 def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None,
                       dtype: str = "float32", memory: int = 0, q_network: bool = False) -> ActorCritic:
     """An `ActorCritic` for these spaces; checks that the trunk fits the observation.
-    `q_network`: DQN's network (the `mlp` trunk is then `Q_MLP`, one MLP for all heads)."""
+    `q_network`: DQN's network (the `mlp` trunk is then `Q_MLP`, one MLP for all heads), which
+    needs discrete actions."""
     trunk = trunk or default_trunk(observation_space)
     if trunk not in TRUNKS:
         raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
@@ -312,8 +350,11 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
         raise ValueError(f"trunk='mlp' needs vector observations; these are {pixels.shape}")
     if memory < 0:
         raise ValueError(f"memory is the GRU state size (0: feed-forward), got {memory}")
+    if q_network and is_box(action_space):
+        raise ValueError(f"DQN takes Discrete or MultiDiscrete actions, not {action_space}; "
+                         f"train continuous actions with ppo, a2c or acktr")
     return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype,
-                       memory=memory, q_network=q_network)
+                       memory=memory, q_network=q_network, action_size=action_size(action_space))
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):

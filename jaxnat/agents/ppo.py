@@ -39,6 +39,9 @@ class PPOConfig:
     trunk: str | None = static(None)  # None: the paper's trunk for the observation size
     dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
     memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
+    # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
+    normalize_observations: bool | None = static(None)
+    normalize_rewards: bool | None = static(None)
     # Traced: may be vmapped.
     lr: float = 2.5e-4
     gamma: float = 0.99
@@ -92,7 +95,12 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         ).mean()
         entropy = distributions.entropy(logits).mean()
         loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
-        return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy}
+        # How far the policy moved from the one that collected the data (0 on the first
+        # minibatch of the first epoch): CleanRL's `approx_kl` (k3 estimator) and clip fraction.
+        log_ratio = log_prob - old_log_prob
+        return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy,
+                      "approx_kl": jnp.mean(ratio - 1.0 - log_ratio),
+                      "clip_fraction": jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps)}
 
     def minibatch_step(train_state, minibatch):
         grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params, *minibatch)

@@ -12,10 +12,13 @@ observations (use `trunk="mlp"`). If an agent fails a probe, the broken piece is
 | `EndlessProbe`        | never   | `V = 1 / (1 - gamma)` despite time limit | truncation treated as a stop |
 | `CostlyStartProbe`    | never   | as above, first step differs             | bootstrap from the reset obs |
 | `RecallProbe`         | 2 steps | step-2 action from the step-1 cue        | memory (needs `memory > 0`)  |
+| `TargetProbe`         | 1 step  | `mean pi([t]) = t`, a Box action         | Gaussian policy broken       |
+| `OpenLoopProbe`       | 1 step  | one action `0.5` whatever noise is seen  | open-loop control from noise |
 
 All are jaxnat `Environment`s with `get_obs`; wrap them in `AutoResetWrapper` (or use
 `make_probe`) before giving them to a learner. Optimal returns: 1.0 per episode for the
-one- and two-step probes; `EndlessProbe` earns 1.0 per step.
+one- and two-step discrete probes; `EndlessProbe` earns 1.0 per step; the continuous ones
+(`Box(-1, 1, (1,))` actions) pay `-(action - target)^2` after clipping to the bounds, 0 at best.
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ __all__ = [
     "EndlessProbe",
     "CostlyStartProbe",
     "RecallProbe",
+    "TargetProbe",
+    "OpenLoopProbe",
     "PROBES",
     "make_probe",
 ]
@@ -234,6 +239,54 @@ class RecallProbe(TwoStepProbe):
         return obs, state, reward, ~first, {}
 
 
+class TargetProbe(_Probe):
+    """Observation `[t]`, a target drawn uniformly from [-0.8, 0.8]; `Box(-1, 1, (1,))`
+    actions; reward `-(a - t)^2` with `a` the action clipped to the bounds; one-step episodes.
+    The Gaussian policy's mean must follow the observation (`mean = t`); a policy that ignores
+    it scores `-var(t) = -0.213` at best."""
+
+    def action_space(self, params) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (1,), jnp.float32)
+
+    def _initial_state(self, key):
+        # The target in thousandths, held in the int32 cue.
+        return _state(0, jnp.stack([jax.random.randint(key, (), -800, 801), 0]))
+
+    def get_obs(self, state, params):
+        return (state.cue[:1] / 1000.0).astype(jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        action = jnp.clip(jnp.reshape(action, (1,)), -1.0, 1.0)
+        reward = -jnp.sum((action - state.cue[:1] / 1000.0) ** 2).astype(jnp.float32)
+        return self.get_obs(state, params), state, reward, jnp.bool_(True), {}
+
+
+class OpenLoopProbe(_Probe):
+    """The paper's noise control in miniature: the observation is 4 floats of fresh N(0, 1)
+    noise (it says nothing); `Box(-1, 1, (1,))` actions; reward `-(a - 0.5)^2` with `a` the
+    clipped action; one-step episodes. The optimum is open loop (always 0.5, return 0), and a
+    learner must find it from noise: the policy has to learn to ignore its inputs."""
+
+    obs_size = 4
+
+    def action_space(self, params) -> spaces.Box:
+        return spaces.Box(-1.0, 1.0, (1,), jnp.float32)
+
+    def _initial_state(self, key):
+        # The noise's key, as int32 bits in the cue (fresh each episode).
+        return _state(0, jax.random.randint(key, (2,), jnp.iinfo(jnp.int32).min, jnp.iinfo(jnp.int32).max))
+
+    def get_obs(self, state, params):
+        key = jax.random.key(jax.lax.bitcast_convert_type(state.cue, jnp.uint32)[0])
+        key = jax.random.fold_in(key, jax.lax.bitcast_convert_type(state.cue[1], jnp.uint32))
+        return jax.random.normal(key, (self.obs_size,), jnp.float32)
+
+    def step_env(self, key, state, action, params):
+        action = jnp.clip(jnp.reshape(action, (1,)), -1.0, 1.0)
+        reward = -jnp.sum((action - 0.5) ** 2).astype(jnp.float32)
+        return self.get_obs(state, params), state, reward, jnp.bool_(True), {}
+
+
 PROBES = {
     "constant_reward": ConstantRewardProbe,
     "sign": SignProbe,
@@ -242,6 +295,8 @@ PROBES = {
     "endless": EndlessProbe,
     "costly_start": CostlyStartProbe,
     "recall": RecallProbe,
+    "target": TargetProbe,
+    "open_loop": OpenLoopProbe,
 }
 
 

@@ -34,8 +34,8 @@ import optax
 from flax import struct
 from flax.training.train_state import TrainState
 
-from jaxnat.agents import distributions
-from jaxnat.agents.networks import Memory, init_params, initial_memory, make_actor_critic, one_step_sequence
+from jaxnat.agents import distributions, normalize
+from jaxnat.agents.networks import Memory, init_params, initial_memory, is_box, make_actor_critic, one_step_sequence
 from jaxnat.wrappers import LogWrapper
 
 __all__ = [
@@ -94,6 +94,7 @@ class RunnerState(NamedTuple):
     key: jax.Array
     update: jax.Array  # updates done so far (int32)
     memory: Any = None  # recurrent policies: each env's `Memory` before its next step
+    normalizer: Any = None  # `normalize.Normalizer` when observations or rewards are normalised
 
 
 class UpdateRule(NamedTuple):
@@ -118,19 +119,22 @@ class Learner(NamedTuple):
     train: Callable
     network: Any
     num_updates: int
+    # On-policy learners: `(runner, config) -> (runner, Transition)`, one rollout as an update
+    # collects it (what the update trains on; for inspection and tests).
+    rollout: Callable | None = None
 
 
 def gae(transitions: Transition, gamma, gae_lambda) -> tuple[jax.Array, jax.Array]:
     """Advantages and value targets over a `[T, ...]` rollout (time-major)."""
 
-    def backward(carry, t: Transition):
-        delta = t.reward + gamma * t.next_value - t.value
-        advantage = delta + gamma * gae_lambda * (1.0 - t.done) * carry
+    def backward(carry, t):
+        reward, next_value, value, done = t
+        delta = reward + gamma * next_value - value
+        advantage = delta + gamma * gae_lambda * (1.0 - done) * carry
         return advantage, advantage
 
-    _, advantages = jax.lax.scan(
-        backward, jnp.zeros_like(transitions.value[0]), transitions, reverse=True
-    )
+    steps = (transitions.reward, transitions.next_value, transitions.value, transitions.done)
+    _, advantages = jax.lax.scan(backward, jnp.zeros_like(transitions.value[0]), steps, reverse=True)
     return advantages, advantages + transitions.value
 
 
@@ -170,11 +174,6 @@ def count_updates(config) -> int:
             f"(num_envs * num_steps = {config.num_envs * config.num_steps})"
         )
     return total_updates
-
-
-def is_box(action_space) -> bool:
-    """Whether the env takes continuous actions (a `Box`, jaxnat's or gymnax's)."""
-    return hasattr(action_space, "low") and hasattr(action_space, "high")
 
 
 def is_scalar_action(action_space) -> bool:
@@ -302,6 +301,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)
     network = make_actor_critic(observation_space, action_space, config.trunk, **rule.network_options(config))
+    normalizing = normalize.switches(config, observation_space)
     reset, step = vector_env(env)
 
     def init(key, config=config) -> RunnerState:
@@ -309,41 +309,51 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
         train_state = rule.train_state(config, network, observation_space, total_updates, key_net)
         obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
         memory = initial_memory(network, config.num_envs) if network.memory else None
-        return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory)
+        normalizer = normalize.init_normalizer(*normalizing, observation_space, config.num_envs)
+        return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory, normalizer)
 
     def policy(carry, obs, key, t):
-        params, memory = carry
+        params, memory, normalizer = carry
+        normalizer = normalize.observe(normalizer, obs)
+        obs = normalize.normalize(normalizer, obs)
         logits, value, hidden = act(network, params, obs, memory)
         action = distributions.sample(key, logits)
-        return action, (distributions.log_prob(logits, action), value, hidden)
+        return action, (obs, distributions.log_prob(logits, action), value, hidden, normalizer)
 
-    def observe(carry, s: EnvStep, aux, t):
-        params, memory = carry
-        log_prob, value, hidden = aux
-        # The value of the final observation, as if the episode went on (it bootstraps a
-        # truncated step): a recurrent policy reads it after this step's memory.
-        following = None if memory is None else Memory(hidden, s.action, s.reward.astype(jnp.float32),
-                                                       jnp.zeros_like(s.done))
-        _, final_value, _ = act(network, params, s.final_obs, following)
-        transition = Transition(s.obs, s.action, log_prob, value, s.reward, s.done.astype(jnp.float32),
-                                bootstrap(final_value, s.terminated), step_info(s.info, s.terminated),
-                                None if memory is None else memory._replace(hidden=None))
-        next_memory = None if memory is None else following._replace(start=s.done)
-        return (params, next_memory), transition
+    def rollout(runner: RunnerState, config):
+        """`config.num_steps` steps of every env: `(runner after them, Transition [T, N, ...])`
+        (parameters and update count unchanged)."""
+
+        def observe(carry, s: EnvStep, aux, t):
+            params, memory, _ = carry
+            obs, log_prob, value, hidden, normalizer = aux
+            # The value of the final observation, as if the episode went on (it bootstraps a
+            # truncated step): a recurrent policy reads it after this step's memory.
+            following = None if memory is None else Memory(hidden, s.action, s.reward.astype(jnp.float32),
+                                                           jnp.zeros_like(s.done))
+            _, final_value, _ = act(network, params, normalize.normalize(normalizer, s.final_obs), following)
+            normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma)
+            transition = Transition(obs, s.action, log_prob, value, reward, s.done.astype(jnp.float32),
+                                    bootstrap(final_value, s.terminated), step_info(s.info, s.terminated),
+                                    None if memory is None else memory._replace(hidden=None))
+            next_memory = None if memory is None else following._replace(start=s.done)
+            return (params, next_memory, normalizer), transition
+
+        ((_, memory, normalizer), env_state, obs, key), transitions = scan_steps(
+            step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
+            (runner.train_state.params, runner.memory, runner.normalizer), runner.env_state, runner.obs, runner.key)
+        if runner.memory is not None:  # the state before the rollout's first step (`replay`)
+            transitions = transitions._replace(memory=transitions.memory._replace(hidden=runner.memory.hidden[None]))
+        return runner._replace(env_state=env_state, obs=obs, key=key, memory=memory, normalizer=normalizer), transitions
 
     def update(runner: RunnerState, config):
-        first_memory = runner.memory
-        ((_, memory), env_state, obs, key), transitions = scan_steps(
-            step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
-            (runner.train_state.params, runner.memory), runner.env_state, runner.obs, runner.key)
+        runner, transitions = rollout(runner, config)
         advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
-        if first_memory is not None:  # (after gae, which scans every field over time)
-            transitions = transitions._replace(memory=transitions.memory._replace(hidden=first_memory.hidden[None]))
-        key, key_update = jax.random.split(key)
+        key, key_update = jax.random.split(runner.key)
         train_state, losses = rule.update_step(
             config, network, runner.train_state, transitions, advantages, targets, key_update
         )
-        runner = RunnerState(train_state, env_state, obs, key, runner.update + 1, memory)
+        runner = runner._replace(train_state=train_state, key=key, update=runner.update + 1)
         return runner, {**episode_metrics(transitions.info), **losses}
 
     def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
@@ -353,7 +363,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
     def train(key, config=config):
         return run(init(key, config), config)
 
-    return Learner(init, run, train, network, total_updates)
+    return Learner(init, run, train, network, total_updates, rollout)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -469,6 +479,9 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     options = rule.network_options(config)
     num_updates = check_host_batch(config, env, options.get("memory", 0))
     observation_space = env.single_observation_space
+    if config.normalize_observations or config.normalize_rewards:  # (None, the default, is off here)
+        raise ValueError("normalize_observations and normalize_rewards apply to jitted envs; a host-batched "
+                         "env (Natural Atari) trains on raw frames and clipped rewards: leave them off")
     network = make_actor_critic(observation_space, env.single_action_space, config.trunk, **options)
     jit = host_jit(compiler_options)
 
@@ -586,22 +599,25 @@ def _first_episodes(env, env_params, num_episodes: int, max_steps: int | None):
 
 
 def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps: int | None = None):
-    """`evaluate(network_params, key) -> dict of scalars`; pure and jittable.
+    """`evaluate(network_params, key, normalizer=None) -> dict of scalars`; pure and jittable.
 
         evaluate = make_evaluate(learner.network, test_env, test_params, num_episodes=1000)
-        scores = jax.jit(jax.vmap(evaluate))(runner.train_state.params, keys)   # per seed
+        scores = jax.jit(jax.vmap(evaluate))(runner.train_state.params, keys, runner.normalizer)
 
     Each of `num_episodes` envs (built with `autoreset=False`) plays its first episode to the
     end (at most `max_steps` steps, default the env's time limit); the result holds the mean
     return, the fraction of episodes that terminated (for classification: were classified
     correctly), the mean length and the fraction unfinished, for the greedy policy (most likely
-    action per factor) and for actions sampled from the policy.
+    action per factor, or a Gaussian's mean) and for actions sampled from the policy. A learner
+    that normalises observations passes its `normalizer` (`RunnerState.normalizer`), which is
+    read, never updated: the policy sees what it was trained on.
     """
     play = _first_episodes(env, env_params, num_episodes, max_steps)
 
-    def evaluate(network_params, key):
+    def evaluate(network_params, key, normalizer: normalize.Normalizer | None = None):
         def policy(greedy):
             def choose_action(obs, key, memory):
+                obs = normalize.normalize(normalizer, obs)
                 logits, _, hidden = act(network, network_params, obs, memory)
                 return choose(logits, key, greedy), hidden
             return choose_action

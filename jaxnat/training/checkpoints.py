@@ -17,8 +17,14 @@ def _is_key(x) -> bool:
     return isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
+def _is_empty(x) -> bool:
+    return 0 in getattr(x, "shape", ())
+
+
 def to_saveable(tree):
-    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+    """Keys as their data; zero-size arrays (an MJX state's unused fields, e.g. `act` of a model
+    without activations), which orbax cannot save, as None (restored as zeros from the target)."""
+    return jax.tree.map(lambda x: None if _is_empty(x) else jax.random.key_data(x) if _is_key(x) else x, tree)
 
 
 def _stored_fields(runner):
@@ -61,12 +67,14 @@ class Checkpoints:
         restored = self.manager.restore(step, args=ocp.args.Composite(
             state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
         target_leaves, treedef = jax.tree.flatten(fields)
-        leaves = jax.tree.leaves(restored.state)
-        if len(leaves) != len(target_leaves):
+        stored = iter(jax.tree.leaves(restored.state))
+        expected = sum(not _is_empty(ref) for ref in target_leaves)
+        if len(jax.tree.leaves(restored.state)) != expected:
             raise TrainError(f"checkpoint {step} does not match this run's state "
-                             f"({len(leaves)} arrays, expected {len(target_leaves)})")
-        leaves = [jax.random.wrap_key_data(leaf, impl=jax.random.key_impl(ref)) if _is_key(ref)
-                  else jnp.asarray(leaf) for ref, leaf in zip(target_leaves, leaves)]
+                             f"({len(jax.tree.leaves(restored.state))} arrays, expected {expected})")
+        leaves = [jnp.zeros(ref.shape, ref.dtype) if _is_empty(ref)
+                  else jax.random.wrap_key_data(next(stored), impl=jax.random.key_impl(ref)) if _is_key(ref)
+                  else jnp.asarray(next(stored)) for ref in target_leaves]
         state = jax.tree.unflatten(treedef, leaves)
         return (target._replace(**state) if hasattr(target, "_asdict") else state), dict(restored.meta)
 

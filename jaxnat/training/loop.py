@@ -12,7 +12,7 @@ from pathlib import Path
 
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
-from jaxnat.training.programs import accepts, compiled_program, make_envs
+from jaxnat.training.programs import compiled_program, make_envs, split_argument
 from jaxnat.training.rundir import (TrainResult, args_json, check_counts, new_run_dir, open_resumed, versions,
                                     with_eval_every)
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
@@ -33,8 +33,9 @@ def _setup(args: TrainArgs, console):
     spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
     env, params, *_ = make_envs(spec)
     try:
-        spec = dataclasses.replace(spec, config=resolve_config(args, env.observation_space(params)))
-    except TypeError as err:
+        config = resolve_config(args, env.observation_space(params), env.action_space(params))
+        spec = dataclasses.replace(spec, config=config)
+    except (TypeError, ValueError) as err:
         raise TrainError(str(err)) from None
     return with_eval_every(spec, args), new_run_dir(args), None
 
@@ -46,9 +47,9 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
     table.add_column(style="dim")
     table.add_column()
     table.add_row("env kwargs", json.dumps(spec.env_kwargs) if spec.env_kwargs else "—")
-    table.add_row("evaluation", f"{spec.eval_episodes} episodes per seed on "
-                  f"{'split=test' if accepts(spec.env_id, 'split') else 'the training env (no test split)'}, "
-                  f"every {spec.eval_every} updates")
+    argument = split_argument(spec.env_id, spec.env_kwargs)
+    split = f"{argument}=test" if argument else "the training env (no test split)"
+    table.add_row("evaluation", f"{spec.eval_episodes} episodes per seed on {split}, every {spec.eval_every} updates")
     table.add_row("seeds", f"{spec.seed_values}")
     table.add_row("updates", f"{spec.num_updates} x {spec.steps_per_update} env steps per seed")
     static = {f.name for f in dataclasses.fields(spec.config) if not f.metadata.get("pytree_node", True)}

@@ -40,17 +40,29 @@ def accepts(env_id: str, name: str) -> bool:
         return False
 
 
+def split_argument(env_id: str, env_kwargs: dict) -> str | None:
+    """The env's constructor argument that picks disjoint train and test data: `split` (vision
+    envs), `video_split` (PixelMuJoCo with `floor="video"`: held-out videos), else None."""
+    if accepts(env_id, "split"):
+        return "split"
+    if accepts(env_id, "video_split") and env_kwargs.get("floor") == "video":
+        return "video_split"
+    return None
+
+
 def make_envs(spec: RunSpec):
     """(train env, params, test env, params, whether the test env is the test split)."""
     kwargs = dict(spec.env_kwargs)
-    if "split" in kwargs:
-        raise TrainError("env kwarg 'split' is set by jaxnat train: split=train for training and "
-                         "split=test for evaluation")
+    for name in ("split", "video_split"):
+        if name in kwargs:
+            raise TrainError(f"env kwarg {name!r} is set by jaxnat train: {name}=train for training and "
+                             f"{name}=test for evaluation")
     try:
-        has_split = accepts(spec.env_id, "split")
-        split = {"split": "train"} if has_split else {}
+        argument = split_argument(spec.env_id, kwargs)
+        has_split = argument is not None
+        split = {argument: "train"} if has_split else {}
         env, params = jaxnat.make(spec.env_id, **split, **kwargs)
-        test_split = {"split": "test"} if has_split else {}
+        test_split = {argument: "test"} if has_split else {}
         test_env, test_params = jaxnat.make(spec.env_id, autoreset=False, **test_split, **kwargs)
     except UnknownEnvError as err:
         raise TrainError(str(err)) from None
@@ -102,8 +114,8 @@ class DeviceBackend:
         init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
         self.runner_shape = jax.eval_shape(init, keys)
         self.compiled_init = self._compile(init, keys)
-        self.compiled_evaluate = self._compile(jax.jit(jax.vmap(evaluate)),
-                                               self.runner_shape.train_state.params, keys)
+        self.compiled_evaluate = self._compile(jax.jit(jax.vmap(evaluate)), self.runner_shape.train_state.params,
+                                               keys, self.runner_shape.normalizer)
         self._chunks: dict[int, Any] = {}
         self.groups = [spec.seed_values]
 
@@ -150,7 +162,7 @@ class DeviceBackend:
             set_progress_sink(None)
 
     def evaluate(self, group, state) -> dict:
-        return jax.device_get(self.compiled_evaluate(state.train_state.params, self.eval_keys()))
+        return jax.device_get(self.compiled_evaluate(state.train_state.params, self.eval_keys(), state.normalizer))
 
     def chance(self) -> dict:
         """The uniform random policy's test scores, over the seeds' evaluation keys."""

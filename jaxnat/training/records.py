@@ -92,6 +92,13 @@ def nanmean(x, axis):
     return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
+def terminated_label(env_id: str) -> str:
+    """What the fraction of terminated episodes means, as displayed: "accuracy" where termination
+    is success (Classify: the right label; Localize: the target found), else "terminated" (a
+    MuJoCo robot that fell, an Atari game over). The summary's keys keep the name "accuracy"."""
+    return "accuracy" if env_id.split("/")[0] in ("Classify", "Localize") else "terminated"
+
+
 def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None) -> None:
     """Return and accuracy against env steps: train, test greedy and test sampled (mean ± std
     over seeds), and the uniform random policy's test scores (`chance`) as a dashed line."""
@@ -125,7 +132,8 @@ def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None
         if chance is not None and chance.get(score) is not None:
             ax.axhline(chance[score], color="0.4", linestyle="--", linewidth=1,
                        label="test split, uniform random policy")
-    labels = (("Episode return", "return"), ("Accuracy (fraction of episodes terminated)", "accuracy"))
+    label = terminated_label(spec.env_id)
+    labels = (("Episode return", "return"), (f"{label.capitalize()} (fraction of episodes terminated)", label))
     for ax, (title, ylabel) in zip(axes, labels):
         ax.set_title(title)
         ax.set_xlabel("env steps per seed")
@@ -179,9 +187,10 @@ def print_summary(console, summary: dict) -> None:
     table.add_column("metric")
     table.add_column("mean", justify="right")
     table.add_column("± std", justify="right")
-    labels = {"train_return": "train return (last chunk)", "train_accuracy": "train accuracy (last chunk)",
-              "test_greedy_return": "test greedy return", "test_greedy_accuracy": "test greedy accuracy",
-              "test_sampled_return": "test sampled return", "test_sampled_accuracy": "test sampled accuracy"}
+    term = terminated_label(summary["env_id"])
+    labels = {"train_return": "train return (last chunk)", "train_accuracy": f"train {term} (last chunk)",
+              "test_greedy_return": "test greedy return", "test_greedy_accuracy": f"test greedy {term}",
+              "test_sampled_return": "test sampled return", "test_sampled_accuracy": f"test sampled {term}"}
 
     def fmt(x, pattern):
         return "—" if x is None else format(x, pattern)
@@ -194,7 +203,7 @@ def print_summary(console, summary: dict) -> None:
     if chance:
         table.add_row("chance: uniform random policy, test return", fmt(chance.get("return"), "+.4f"), "")
         if chance.get("terminated_fraction") is not None:
-            table.add_row("chance: uniform random policy, test accuracy", fmt(chance["terminated_fraction"], ".1%"), "")
+            table.add_row(f"chance: uniform random policy, test {term}", fmt(chance["terminated_fraction"], ".1%"), "")
     sps = summary["steps_per_second"]
     table.add_row("env steps/s (all seeds, over chunks)", fmt(sps["mean"], ",.0f"), fmt(sps["std"], ",.0f"))
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s", "")

@@ -7,7 +7,7 @@ import math
 from typing import Any
 
 
-from jaxnat.agents import ALGORITHMS
+from jaxnat.agents import ALGORITHMS, defaults, normalize
 from jaxnat.agents.networks import default_trunk
 from jaxnat.training.args import CORE_CONFIG_FIELDS, TrainArgs, TrainError
 
@@ -71,6 +71,10 @@ class RunSpec:
         if data["algo"] == "dqn" and "loss" not in data["config"]:
             # Written before DQNConfig.loss existed, when every DQN trained with Huber's loss.
             data = {**data, "config": {**data["config"], "loss": "huber"}}
+        if data["algo"] != "dqn" and "normalize_observations" not in data["config"]:
+            # Written before observation and reward normalisation existed: the run had neither.
+            data = {**data, "config": {**data["config"], "normalize_observations": False,
+                                       "normalize_rewards": False}}
         return cls(
             env_id=data["env_id"], env_kwargs=dict(data["env_kwargs"]), algo=data["algo"],
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
@@ -87,11 +91,12 @@ def check_algo(algo: str) -> None:
         raise TrainError(f"unknown algorithm {algo!r}{hint}; choose one of: {', '.join(ALGORITHMS)}")
 
 
-def resolve_config(args: TrainArgs, observation_space):
-    """The algorithm's config with every override applied and the trunk resolved."""
+def resolve_config(args: TrainArgs, observation_space, action_space=None):
+    """The algorithm's config: the env family's defaults (`agents.defaults`: MuJoCo settings for
+    Box actions on state vectors), every override applied, the trunk and normalisation resolved."""
     config_cls = ALGORITHMS[args.algo].config
     names = {f.name for f in dataclasses.fields(config_cls)}
-    values = {}
+    values = {} if action_space is None else defaults.family_defaults(args.algo, observation_space, action_space)
     for field in dataclasses.fields(args.config):
         value = getattr(args.config, field.name)
         if value is None:
@@ -107,6 +112,9 @@ def resolve_config(args: TrainArgs, observation_space):
     config = config_cls(**values)
     if config.trunk is None:
         config = config.replace(trunk=default_trunk(observation_space))
+    if "normalize_observations" in names:  # saved resolved, as the trunk
+        observations, rewards = normalize.switches(config, observation_space)
+        config = config.replace(normalize_observations=observations, normalize_rewards=rewards)
     return config
 
 

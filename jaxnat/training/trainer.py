@@ -29,7 +29,7 @@ from jaxnat.training.args import TrainError
 from jaxnat.training.checkpoints import Checkpoints
 from jaxnat.training.progress import Progress
 from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
-                                     run_summary, write_jsonl)
+                                     run_summary, terminated_label, write_jsonl)
 from jaxnat.training.spec import RunSpec
 
 __all__ = ["Backend", "run_training"]
@@ -80,7 +80,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
     if chance is not None:
         accuracy = chance.get("terminated_fraction")
         console.print(f"chance (uniform random policy on the test split): return {chance['return']:+.3f}"
-                      + ("" if accuracy is None else f" · accuracy {accuracy:.1%}"))
+                      + ("" if accuracy is None else f" · {terminated_label(spec.env_id)} {accuracy:.1%}"))
     prior_wall, chunks_done, interrupted, stopped = 0.0, 0, False, False
     num_chunks = -(-spec.num_updates // spec.eval_every)
     state = None
@@ -161,7 +161,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                         progress.sync(update, None if scores is None else f"{mean_std(scores['greedy_return'])[0]:+.3f}")
                         console.print(f"{label}chunk {chunk_index}/{num_chunks} · update {update}/{spec.num_updates}"
                                       f" · {update * spec.steps_per_update:,} env steps/seed · "
-                                      f"{_train_field(metrics)}{_scores_field(scores)} · "
+                                      f"{_train_field(metrics)}{_scores_field(scores, terminated_label(spec.env_id))} · "
                                       f"{n * spec.steps_per_update * len(group) / seconds:,.0f} steps/s")
                 if stopped:
                     break
@@ -208,12 +208,13 @@ def _train_field(metrics: dict) -> str:
     return "no episode ended yet" if np.isnan(mean) else f"train return {mean:+.3f} ± {std:.3f}"
 
 
-def _scores_field(scores: dict | None) -> str:
+def _scores_field(scores: dict | None, label: str) -> str:
+    """The test scores of a progress line; `label`: `records.terminated_label`."""
     if scores is None:
         return ""
     greedy, greedy_std = mean_std(scores["greedy_return"])
     sampled, _ = mean_std(scores["sampled_return"])
     accuracy = ""
     if "greedy_terminated_fraction" in scores:
-        accuracy = f" (accuracy {mean_std(scores['greedy_terminated_fraction'])[0]:.1%})"
+        accuracy = f" ({label} {mean_std(scores['greedy_terminated_fraction'])[0]:.1%})"
     return f" · test greedy {greedy:+.3f} ± {greedy_std:.3f}{accuracy} · sampled {sampled:+.3f}"
