@@ -76,7 +76,7 @@ class TrainArgs:
     total_timesteps: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Env steps per seed (unset: the algorithm's default, 1e6)."""
     num_envs: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
-    """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16, acktr 32, dqn 8)."""
+    """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16, acktr 32, dqn 8; ppo 1 for Box actions on state vectors, as the authors' MuJoCo setting)."""
     trunk: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(TRUNKS) + "}",
                                                   help_behavior_hint="")] = None
     """Network trunk (unset: the paper's trunk for the observation size)."""
