@@ -436,16 +436,6 @@ def random_return(env_id, seeds, episodes) -> float:
     return float(np.mean(jax.device_get(run(jax.random.split(jax.random.key(2), seeds)))))
 
 
-def mean_ci(x: np.ndarray) -> tuple[float, float]:
-    """Mean and the half-width of its 95% t-interval (NaN for one value)."""
-    from scipy import stats
-
-    n = len(x)
-    if n < 2:
-        return float(np.mean(x)), float("nan")
-    return float(np.mean(x)), float(stats.t.ppf(0.975, n - 1) * np.std(x, ddof=1) / math.sqrt(n))
-
-
 def versions() -> dict:
     out = {}
     for name in ("flax", "optax", "gymnax", "rejax", "chex", "distrax", "scipy"):
@@ -519,8 +509,8 @@ def main(argv=None):
             if theirs:
                 print(f"  rejax:  return {theirs['returns'].mean():.1f}, train {theirs['train_s']:.1f} s "
                       f"(+ compile {theirs['compile_s']:.1f} s)", flush=True)
-            j_mean, j_half = mean_ci(ours["returns"])
-            r_mean, r_half = mean_ci(theirs["returns"]) if theirs else (None, None)
+            j_mean, j_half = common.mean_ci(ours["returns"])
+            r_mean, r_half = common.mean_ci(theirs["returns"]) if theirs else (None, None)
             row = {
                 "env": env_id, "algo": algo, "steps": config.total_timesteps,
                 "jaxnat_return": j_mean, "jaxnat_ci": j_half, "jaxnat_returns": ours["returns"].tolist(),

@@ -20,6 +20,7 @@ import time
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 
@@ -54,6 +55,22 @@ def machine() -> dict:
         "numpy": numpy.__version__,
         "jaxnat": jaxnat.__version__,
     }
+
+
+def t_half_width(std: float, n: int) -> float:
+    """Half-width of the 95% Student's t interval of a mean over `n` values with sample std `std`."""
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, n - 1) * std / np.sqrt(n)) if n >= 2 else float("nan")
+
+
+def mean_ci(values) -> tuple[float, float]:
+    """Mean of the finite values and the half-width of its 95% t-interval (NaN for one value)."""
+    values = np.asarray(values, np.float64)
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        return float("nan"), float("nan")
+    return float(values.mean()), t_half_width(float(values.std(ddof=1)) if len(values) > 1 else 0.0, len(values))
 
 
 def median_seconds(fn, repeats: int = 5) -> float:

@@ -50,18 +50,6 @@ OBSERVATIONS = {  # name -> PixelMuJoCo kwargs
 }
 
 
-def confidence(values) -> tuple[float, float]:
-    """(mean, half-width of the 95% CI over the values, Student's t)."""
-    from scipy import stats
-
-    values = np.asarray(values, np.float64)
-    values = values[np.isfinite(values)]
-    if len(values) < 2:
-        return float(np.mean(values)) if len(values) else float("nan"), float("nan")
-    half = stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / np.sqrt(len(values))
-    return float(values.mean()), float(half)
-
-
 def final_training_return(metrics, fraction: float) -> np.ndarray:
     """Per seed: the mean episode return over the last `fraction` of the updates in which an
     episode ended (with many envs started together and a fixed time limit, as HalfCheetah and
@@ -104,8 +92,8 @@ def state_bench(args) -> None:
         evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, args.eval_episodes)))
         scores = jax.device_get(evaluate(runner.train_state.params,
                                          jax.random.split(jax.random.key(1), args.seeds), runner.normalizer))
-        train_mean, train_ci = confidence(final_training_return(metrics, 0.05))
-        sampled_mean, sampled_ci = confidence(scores["sampled_return"])
+        train_mean, train_ci = common.mean_ci(final_training_return(metrics, 0.05))
+        sampled_mean, sampled_ci = common.mean_ci(scores["sampled_return"])
         row = {"robot": robot, "seeds": args.seeds, "steps_per_seed": learner.num_updates * config.num_envs
                * config.num_steps, "split": f"{config.num_envs}x{config.num_steps}",
                "train_return": train_mean, "train_ci": train_ci, "eval_sampled": sampled_mean,
@@ -114,9 +102,7 @@ def state_bench(args) -> None:
                "steps_per_s": args.seeds * learner.num_updates * config.num_envs * config.num_steps / train_s}
         if robot in CLEANRL:
             mean, std, n = CLEANRL[robot]
-            from scipy import stats
-
-            half = stats.t.ppf(0.975, n - 1) * std / np.sqrt(n)
+            half = common.t_half_width(std, n)
             row.update(cleanrl=mean, cleanrl_ci=half, ratio=train_mean / mean,
                        verdict="above" if train_mean > mean + half else
                        "within" if train_mean >= mean - half else "below")
@@ -217,7 +203,7 @@ def open_loop_bench(args) -> None:
                 config = algorithm.config(**overrides)
                 runner, metrics, learner, compile_s, train_s = train_seeds(env, params, config, algorithm.make,
                                                                            args.seeds)
-                mean, half = confidence(final_training_return(metrics, 0.1))
+                mean, half = common.mean_ci(final_training_return(metrics, 0.1))
                 steps = config.num_envs * config.num_steps
                 row = {"robot": robot, "algo": algo, "observation": name, "seeds": args.seeds,
                        "steps_per_seed": learner.num_updates * steps, "final_return": mean, "ci": half,
