@@ -15,6 +15,7 @@ import sys
 # name -> (module with `main(argv) -> int | None`, one-line description)
 COMMANDS = {
     "train": ("jaxnat.train", "train PPO, A2C, ACKTR or DQN over several seeds; metrics, curves, checkpoints"),
+    "reproduce": ("jaxnat.reproduce.command", "run the paper's experiments (a grid of train runs) and write a findings report"),
     "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),
 }
 

@@ -120,3 +120,41 @@ def new_run_dir(args: TrainArgs) -> Path:
 def args_json(args: TrainArgs) -> dict:
     data = dataclasses.asdict(args)
     return json.loads(json.dumps(data, default=str))
+
+
+@dataclasses.dataclass
+class RunRecord:
+    """What a run directory holds, read back: `config.json`, the metric rows, `summary.json`."""
+
+    run_dir: Path
+    config: dict
+    metrics: list[dict]  # metrics.jsonl: one row per (update, seed)
+    evals: list[dict]  # eval.jsonl: one row per (evaluation, seed)
+    summary: dict | None  # None until the run has written one
+
+
+def run_status(run_dir) -> str:
+    """`"new"` (no run there), `"finished"` (its summary says complete) or `"partial"`."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.json").is_file():
+        return "new"
+    try:
+        summary = json.loads((run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return "partial"
+    return "finished" if isinstance(summary, dict) and summary.get("complete") else "partial"
+
+
+def read_run(run_dir) -> RunRecord:
+    """The run in `run_dir` (raises `TrainError` when there is none or its files are damaged)."""
+    from jaxnat.training.records import read_jsonl
+
+    run_dir = Path(run_dir)
+    try:
+        config = json.loads((run_dir / "config.json").read_text())
+        summary_path = run_dir / "summary.json"
+        summary = json.loads(summary_path.read_text()) if summary_path.is_file() else None
+        return RunRecord(run_dir, config, read_jsonl(run_dir / "metrics.jsonl"), read_jsonl(run_dir / "eval.jsonl"),
+                         summary)
+    except (OSError, ValueError) as err:
+        raise TrainError(f"cannot read the run in {run_dir}: {err}") from None

@@ -1,0 +1,23 @@
+"""`jaxnat reproduce` (also `python -m jaxnat.reproduce`): the experiments of Zhang, Wu and
+Pineau (2018) as a grid of training runs, and a findings report.
+
+    jaxnat reproduce --profile smoke                  # every cell type, tiny budgets (CPU, minutes)
+    jaxnat reproduce --profile quick --out runs/repro  # every finding, reduced budgets (one GPU)
+    jaxnat reproduce --profile paper --only atari      # the paper's budgets, piecewise
+
+Each cell is a `jaxnat train` run (seeds vmapped, or the host loop for Natural Atari) written to
+`<out>/<cell>/` in the same run-directory format, its log in `<out>/logs/<cell>.log`, its wall
+time in `<out>/timings.jsonl`. Rerunning the same command skips finished cells and resumes an
+interrupted one from its checkpoint. The report, `<out>/report.md` with one PNG per paper figure,
+is built from the cells' own files.
+
+Modules: `grid` (profiles and cells), `command` (the command line and the loop over cells),
+`report` (curves, tables, figures), `findings` (the paper's claims and their verdicts),
+`stats` (bootstrap intervals).
+"""
+
+from jaxnat.reproduce.command import ReproduceArgs, ReproduceError, main, make_plan, reproduce
+from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, Cell, Profile, build_grid
+
+__all__ = ["ReproduceArgs", "ReproduceError", "main", "make_plan", "reproduce", "EXPERIMENTS", "PROFILES", "Cell",
+           "Profile", "build_grid"]

@@ -1,0 +1,189 @@
+"""The paper's claims, each in its own words, and how a reproduction judges it.
+
+A claim is judged on the finished cells it needs, by their final training returns (the
+paper's figures plot training returns; `report.CellResult.final_train`): "reproduced" when
+it holds in every comparison it makes, "not reproduced" when one fails (the numbers say which),
+"not run" when its cells are missing. An ordering ("worst", "harder", "lower") is judged by the
+means over seeds; the one claim of equality ("as good a policy") by the interval: the noise
+policy's mean at or above the lower bound of the pixel policy's 95% interval.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+__all__ = ["Finding", "Verdict", "FINDINGS"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Verdict:
+    verdict: str  # "reproduced", "not reproduced", "not run"
+    numbers: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Finding:
+    claim: str  # the paper's words
+    experiment: str  # the --only name whose cells it needs
+    rule: Callable  # results -> Verdict
+
+    def judge(self, results) -> Verdict:
+        return self.rule(results)
+
+
+def _select(results, experiment: str, figure: str | None = None, **labels):
+    return [r for r in results if r.cell.experiment == experiment and (figure is None or r.cell.figure == figure)
+            and all(r.cell.labels.get(k) == v for k, v in labels.items())]
+
+
+def _fmt(interval) -> str:
+    return f"{interval.mean:.3g}"
+
+
+def _not_run(what: str) -> Verdict:
+    return Verdict("not run", f"no finished cells for {what}")
+
+
+def _verdict(held: int, total: int, numbers: list[str]) -> Verdict:
+    word = "reproduced" if held == total else "not reproduced"
+    return Verdict(word, f"{held} of {total}: " + "; ".join(numbers))
+
+
+def _close_to_one(results) -> Verdict:
+    cells = [r for r in _select(results, "classify", dataset="mnist") if r.cell.algo in ("ppo", "acktr")
+             and r.cell.figure.startswith("classify-")]
+    if not cells:
+        return _not_run("PPO/ACKTR on MNIST")
+    numbers = [f"{r.cell.algo.upper()} {r.cell.labels['trunk']} {_fmt(r.final_train)}" for r in cells]
+    return _verdict(sum(r.final_train.mean >= 0.9 for r in cells), len(cells), numbers + ["(close to 1: >= 0.9)"])
+
+
+def _a2c_worst(results) -> Verdict:
+    panels: dict = {}
+    for r in results:
+        if r.cell.experiment == "classify" and r.cell.figure.startswith("classify-"):
+            panels.setdefault((r.cell.labels["dataset"], r.cell.labels["trunk"]), {})[r.cell.algo] = r
+    panels = {k: v for k, v in panels.items() if "a2c" in v and len(v) >= 2}
+    if not panels:
+        return _not_run("A2C beside PPO or ACKTR")
+    held, numbers = 0, []
+    for (dataset, trunk), algos in panels.items():
+        others = max(r.final_train.mean for algo, r in algos.items() if algo != "a2c")
+        a2c = algos["a2c"].final_train.mean
+        held += a2c < others
+        numbers.append(f"{dataset} {trunk}: A2C {a2c:.3g} vs best other {others:.3g}")
+    return _verdict(held, len(panels), numbers)
+
+
+def _cifar_harder(results) -> Verdict:
+    pairs = []
+    for r in _select(results, "classify", dataset="mnist"):
+        if not r.cell.figure.startswith("classify-"):
+            continue
+        for dataset in ("cifar10", "cifar100"):
+            for other in _select(results, "classify", r.cell.figure, dataset=dataset):
+                if other.cell.algo == r.cell.algo:
+                    pairs.append((r, other))
+    if not pairs:
+        return _not_run("MNIST beside CIFAR")
+    numbers = [f"{a.cell.algo.upper()} {a.cell.labels['trunk']}: MNIST {_fmt(a.final_train)} vs "
+               f"{b.cell.labels['dataset']} {_fmt(b.final_train)}" for a, b in pairs]
+    return _verdict(sum(b.final_train.mean < a.final_train.mean for a, b in pairs), len(pairs), numbers)
+
+
+def _smaller_m_easier(results) -> Verdict:
+    cells = sorted([r for r in _select(results, "classify", "sweep", w=5)], key=lambda r: r.cell.labels["M"])
+    if len(cells) < 2:
+        return _not_run("the M sweep")
+    means = [r.final_train.mean for r in cells]
+    numbers = [f"M={r.cell.labels['M']} {_fmt(r.final_train)}" for r in cells]
+    pairs = len(cells) - 1
+    return _verdict(sum(a > b for a, b in zip(means, means[1:])), pairs, numbers)
+
+
+def _small_window_later(results) -> Verdict:
+    cells = {r.cell.labels["w"]: r for r in _select(results, "classify", "sweep", M=20)}
+    if 2 not in cells or len(cells) < 2:
+        return _not_run("the window sweep")
+    larger = [w for w in cells if w > 2]
+    early = all(cells[w].early_train().mean > cells[2].early_train().mean for w in larger)
+    late = all(cells[2].final_train.mean >= cells[w].final_train.mean for w in larger)
+    numbers = [f"w={w}: first 20% {cells[w].early_train().mean:.3g}, final {_fmt(cells[w].final_train)}"
+               for w in sorted(cells)]
+    return _verdict(int(early) + int(late), 2, numbers)
+
+
+def _resnet_worse_localize(results) -> Verdict:
+    pairs = []
+    for r in _select(results, "localize", "localize-cnn"):
+        for other in _select(results, "localize", "localize-resnet18", dataset=r.cell.labels["dataset"]):
+            if other.cell.algo == r.cell.algo:
+                pairs.append((r, other))
+    if not pairs:
+        return _not_run("localisation with both trunks")
+    numbers = [f"{a.cell.labels['dataset']} {a.cell.algo.upper()}: CNN {_fmt(a.final_train)} vs ResNet-18 "
+               f"{_fmt(b.final_train)}" for a, b in pairs]
+    return _verdict(sum(b.final_train.mean < a.final_train.mean for a, b in pairs), len(pairs), numbers)
+
+
+def _video_lowers_atari(results) -> Verdict:
+    pairs = []
+    for r in _select(results, "atari", background="none"):
+        for other in _select(results, "atari", game=r.cell.labels["game"], background="video"):
+            if other.cell.algo == r.cell.algo:
+                pairs.append((r, other))
+    if not pairs:
+        return _not_run("Atari with and without video")
+    numbers = [f"{a.cell.labels['game']} {a.cell.algo.upper()}: none {_fmt(a.final_train)} vs video "
+               f"{_fmt(b.final_train)}" for a, b in pairs]
+    return _verdict(sum(b.final_train.mean < a.final_train.mean for a, b in pairs), len(pairs), numbers)
+
+
+def _noise_as_good(results) -> Verdict:
+    pairs = []
+    for r in _select(results, "mujoco", observation="checker"):
+        for other in _select(results, "mujoco", robot=r.cell.labels["robot"], observation="noise"):
+            if other.cell.algo == r.cell.algo:
+                pairs.append((r, other))
+    if not pairs:
+        return _not_run("PixelMuJoCo from pixels and from noise")
+    held = [b.final_train.mean >= a.final_train.low for a, b in pairs]
+    numbers = [f"{a.cell.labels['robot']} {a.cell.algo.upper()}: pixels {a.final_train} vs noise {_fmt(b.final_train)}"
+               f" ({'within or above' if ok else 'below'} the pixels' CI)" for (a, b), ok in zip(pairs, held)]
+    return _verdict(sum(held), len(pairs), numbers)
+
+
+def _noise_control(results) -> Verdict:
+    pairs = []
+    for noise in [r for r in results if r.cell.figure == "noise-control"]:
+        for real in results:
+            if (real.cell.experiment == noise.cell.experiment and real.cell.figure != "noise-control"
+                    and real.cell.algo == noise.cell.algo and real.cell.labels.get("trunk") == "cnn"
+                    and real.cell.labels.get("dataset") == noise.cell.labels["dataset"]):
+                pairs.append((real, noise))
+    if not pairs:
+        return _not_run("the vision noise control")
+    held = [b.final_train.mean < a.final_train.low for a, b in pairs]
+    numbers = [f"{a.cell.experiment} {a.cell.labels['dataset']}: real {a.final_train} vs noise {_fmt(b.final_train)}"
+               for a, b in pairs]
+    return _verdict(sum(held), len(pairs), numbers)
+
+
+FINDINGS = (
+    Finding("PPO and ACKTR are able to achieve average reward close to 1 on MNIST", "classify", _close_to_one),
+    Finding("A2C consistently performs worst across all datasets and trunk models", "classify", _a2c_worst),
+    Finding("Performance is worse on CIFAR10 and CIFAR100 [than MNIST]", "classify", _cifar_harder),
+    Finding("Performance increases with fewer number of steps [M]", "classify", _smaller_m_easier),
+    Finding("Initially, a larger window size performs better, [...] as training continues the smaller window w=2 "
+            "dominates", "classify", _small_window_later),
+    Finding("a small drop in performance when moving from the 3-layer CNN trunk to ResNet-18 [localisation]",
+            "localize", _resnet_worse_localize),
+    Finding("worst performance with video (Natural) [Atari: natural video backgrounds lower the scores]", "atari",
+            _video_lowers_atari),
+    Finding("Even in the case where there is no information returned in the observation [...] PPO and A2C are able "
+            "to learn as good a policy as when actual state information is provided [PixelMuJoCo, pure noise]",
+            "mujoco", _noise_as_good),
+    Finding("(not in the paper; jaxnat's control) the vision tasks are not learned from pure noise: the real "
+            "observation's policy beats the noise policy beyond its 95% interval", "classify", _noise_control),
+)

@@ -1,0 +1,297 @@
+"""The report of `jaxnat reproduce`: `<out>/report.md` and one PNG per paper figure, built only
+from the cells' own run directories (`config.json`, `metrics.jsonl`, `eval.jsonl`,
+`summary.json`, read through `jaxnat.training.read_run`) and `timings.jsonl`.
+
+Per cell: the training curve (each seed's episode return, binned over env steps; the mean over
+seeds with a 95% bootstrap band), the final training return (each seed's mean over the last 10%
+of its updates in which an episode ended: the paper's figures plot training returns), and the
+final test-split returns of the greedy and the sampled policy (the last evaluation), each with a
+95% bootstrap interval over seeds. Findings: `findings.py`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from jaxnat.reproduce.findings import FINDINGS, Verdict
+from jaxnat.reproduce.grid import DATASET_NAMES, ROBOTS, Cell
+from jaxnat.reproduce.stats import Interval, binned_curve, bootstrap_band, bootstrap_ci
+
+__all__ = ["CellResult", "load_result", "write_report", "FIGURES"]
+
+FINAL_FRACTION = 0.1  # the final training return averages the last 10% of a seed's updates with episodes
+
+# figure file stem -> (title, cells' figure tag, panel label key, curve label key)
+FIGURES = {
+    "classify-cnn": ("Image classification, 3-layer CNN", "classify-cnn", "dataset", "algo"),
+    "classify-resnet18": ("Image classification, ResNet-18", "classify-resnet18", "dataset", "algo"),
+    "sweep": ("CIFAR-10 with PPO: window w at M=20 (left), steps M at w=5 (right)", "sweep", "sweep", "value"),
+    "localize": ("Object localisation: 3-layer CNN and ResNet-18", None, "panel", "algo"),
+    "atari": ("Natural Atari: background none / noise / video", "atari", "game", "background"),
+    "mujoco": ("PixelMuJoCo: checker floor / video floor / pure noise", "mujoco", "robot", "observation"),
+    "noise-control": ("The noise control on the vision tasks (not in the paper)", "noise-control", "dataset", "observation"),
+}
+
+
+@dataclasses.dataclass
+class CellResult:
+    """What the report reads from one finished (or partial) cell."""
+
+    cell: Cell
+    complete: bool
+    seeds: int
+    steps: np.ndarray  # env steps per seed at each update
+    train: np.ndarray  # [updates, seeds] mean return of the episodes that ended in the update
+    eval_steps: np.ndarray  # env steps per seed at each evaluation
+    greedy: np.ndarray  # [evaluations, seeds] test-split return of the greedy policy
+    sampled: np.ndarray  # [evaluations, seeds]
+    chance: float | None  # the uniform random policy's test return
+    wall_time_s: float
+
+    @property
+    def final_train(self) -> Interval:
+        finals = []
+        for column in self.train.T:
+            ended = column[np.isfinite(column)]
+            count = max(1, int(round(len(ended) * FINAL_FRACTION)))
+            finals.append(ended[-count:].mean() if len(ended) else np.nan)
+        return bootstrap_ci(finals)
+
+    def early_train(self, fraction: float = 0.2) -> Interval:
+        """The mean training return over the first `fraction` of the steps."""
+        if self.steps.size == 0:
+            return bootstrap_ci([])
+        rows = self.steps <= self.steps.max() * fraction
+        with np.errstate(invalid="ignore"):
+            means = [np.nanmean(c[rows]) if np.isfinite(c[rows]).any() else np.nan for c in self.train.T]
+        return bootstrap_ci(means)
+
+    @property
+    def final_greedy(self) -> Interval:
+        return bootstrap_ci(self.greedy[-1] if len(self.greedy) else [])
+
+    @property
+    def final_sampled(self) -> Interval:
+        return bootstrap_ci(self.sampled[-1] if len(self.sampled) else [])
+
+
+def load_result(cell: Cell, run_dir: Path) -> CellResult:
+    from jaxnat.training import read_run
+
+    record = read_run(run_dir)
+    seed_values = record.config["spec"]["seed_values"]
+    index = {seed: i for i, seed in enumerate(seed_values)}
+
+    def table(rows, key):
+        points = sorted({r["env_steps"] for r in rows})
+        where = {s: i for i, s in enumerate(points)}
+        values = np.full((len(points), len(seed_values)), np.nan)
+        for r in rows:
+            value = r.get(key)
+            if value is not None:
+                values[where[r["env_steps"]], index[r["seed"]]] = value
+        return np.array(points, np.float64), values
+
+    steps, train = table(record.metrics, "episode_return")
+    eval_steps, greedy = table(record.evals, "greedy_return")
+    _, sampled = table(record.evals, "sampled_return")
+    summary = record.summary or {}
+    chance = (summary.get("chance") or {}).get("return")
+    return CellResult(cell, bool(summary.get("complete")), len(seed_values), steps, train, eval_steps, greedy, sampled,
+                      chance, float(summary.get("wall_time_s") or 0.0))
+
+
+def _dataset_title(cell: Cell) -> str:
+    """The paper's dataset name, and the env that stood in for it when the data was missing."""
+    name = DATASET_NAMES[cell.labels["dataset"]]
+    return f"{name} ({cell.env_id.split('/')[1].removesuffix('-v0')} stands in)" if cell.note else name
+
+
+def _panels(figure: str, results: list[CellResult]) -> dict[str, list[tuple[str, CellResult]]]:
+    """panel title -> [(curve label, result)] for one figure."""
+    _, tag, panel_key, curve_key = FIGURES[figure]
+    panels: dict[str, list[tuple[str, CellResult]]] = {}
+    for r in results:
+        cell = r.cell
+        if figure == "localize":
+            if cell.experiment != "localize" or cell.figure == "noise-control":
+                continue
+            title = f"{_dataset_title(cell)}, {cell.labels['trunk']}"
+            panels.setdefault(title, []).append((cell.algo.upper(), r))
+            continue
+        if cell.figure != tag:
+            continue
+        if figure == "sweep":
+            w, m = cell.labels["w"], cell.labels["M"]
+            if m == 20:
+                panels.setdefault("window w (M=20)", []).append((f"w={w}", r))
+            if w == 5:
+                panels.setdefault("steps per episode M (w=5)", []).append((f"M={m}", r))
+            continue
+        if figure == "noise-control":
+            title = f"{cell.experiment}: {_dataset_title(cell)}, PPO"
+            real = [o for o in results if o.cell.experiment == cell.experiment and o.cell.figure != tag
+                    and o.cell.algo == cell.algo and o.cell.labels.get("dataset") == cell.labels["dataset"]
+                    and o.cell.labels.get("trunk") == "cnn"]
+            panels.setdefault(title, []).extend([("real observation", o) for o in real] + [("pure noise", r)])
+            continue
+        title = _dataset_title(cell) if panel_key == "dataset" else cell.labels.get(panel_key)
+        label = cell.algo.upper() if curve_key == "algo" else f"{cell.labels[curve_key]} · {cell.algo.upper()}"
+        panels.setdefault(str(title), []).append((label, r))
+    if figure == "mujoco":
+        panels = dict(sorted(panels.items(), key=lambda kv: ROBOTS.index(kv[0]) if kv[0] in ROBOTS else 99))
+    return panels
+
+
+def plot_figure(path: Path, title: str, panels: dict) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    n = len(panels)
+    columns = min(n, 4)
+    rows = -(-n // columns)
+    fig = Figure(figsize=(4.2 * columns, 3.4 * rows + 0.6), constrained_layout=True)
+    FigureCanvasAgg(fig)
+    axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
+    for ax, (panel, curves) in zip(axes, panels.items()):
+        for i, (label, r) in enumerate(curves):
+            color = f"C{i % 10}"
+            x, per_seed = binned_curve(r.steps, r.train)
+            if len(x):
+                mean, low, high = bootstrap_band(per_seed)
+                ax.plot(x, mean, color=color, label=f"{label} (train)")
+                ax.fill_between(x, low, high, color=color, alpha=0.2, linewidth=0)
+            if len(r.eval_steps):
+                mean, low, high = bootstrap_band(r.sampled)
+                ax.errorbar(r.eval_steps, mean, yerr=[mean - low, high - mean], color=color, linestyle="--",
+                            marker="o", markersize=3, linewidth=1, capsize=2, label=f"{label} (test, sampled)")
+        chance = [r.chance for _, r in curves if r.chance is not None]
+        if chance:
+            ax.axhline(float(np.mean(chance)), color="0.4", linestyle=":", linewidth=1, label="random policy (test)")
+        ax.set_title(panel)
+        ax.set_xlabel("env steps per seed")
+        ax.set_ylabel("episode return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="x-small", loc="best")
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    fig.suptitle(f"{title} (mean over seeds, 95% bootstrap band)")
+    fig.savefig(path, dpi=100)
+
+
+def _versions() -> dict:
+    import jax
+
+    import jaxnat
+
+    return {"jaxnat": jaxnat.__version__, "jax": jax.__version__, "python": platform.python_version(),
+            "device": str(jax.devices()[0].device_kind), "backend": jax.default_backend()}
+
+
+def _timings(out: Path) -> list[dict]:
+    path = out / "timings.jsonl"
+    if not path.is_file():
+        return []
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    # Per cell, the sessions since its last fresh start (a cell deleted and rerun starts over).
+    kept: dict[str, list[dict]] = {}
+    for row in rows:
+        kept[row["cell"]] = [row] if not row.get("resumed") else [*kept.get(row["cell"], []), row]
+    return [row for cell_rows in kept.values() for row in cell_rows]
+
+
+def write_report(plan, outcomes: dict[str, str]) -> Path:
+    """Write `<out>/report.md` and its figures for the cells of `plan`; returns the report's path."""
+    from jaxnat.training import TrainError, run_status
+
+    out: Path = plan.out
+    results: list[CellResult] = []
+    missing: dict[str, str] = {}
+    for cell in plan.cells:
+        if cell.skip:
+            missing[cell.name] = f"not run: {cell.skip}"
+            continue
+        status = run_status(out / cell.name)
+        if status == "new":
+            missing[cell.name] = outcomes.get(cell.name, "not run yet").replace("failed:", "not run (failed):")
+            continue
+        try:
+            result = load_result(cell, out / cell.name)
+        except TrainError as err:
+            missing[cell.name] = f"not run: {err}"
+            continue
+        if not result.complete:
+            missing[cell.name] = "incomplete (interrupted; rerun the command to finish it)"
+        results.append(result)
+    finished = [r for r in results if r.complete]
+
+    lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
+    versions = _versions()
+    timings = _timings(out)
+    lines += [f"- Written {datetime.datetime.now().isoformat(timespec='seconds')} by `jaxnat reproduce --profile "
+              f"{plan.profile.name} --only {','.join(plan.only)} --seeds {plan.seeds}`.",
+              f"- Profile: {plan.profile.description}.",
+              f"- Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}.",
+              f"- Cells: {len(plan.cells)} in the grid, {len(finished)} finished, {len(missing)} not finished or not run.",
+              ""]
+    if timings:
+        by_experiment: dict[str, float] = {}
+        for t in timings:
+            by_experiment[t["experiment"]] = by_experiment.get(t["experiment"], 0.0) + t["seconds"]
+        total = sum(by_experiment.values())
+        lines += ["## Wall time", "", "| experiment | seconds (training sessions, resumed ones included) |", "|---|---|"]
+        lines += [f"| {k} | {v:.0f} |" for k, v in by_experiment.items()] + [f"| total | {total:.0f} |", ""]
+
+    notes = sorted({(c.name, c.note) for c in plan.cells if c.note})
+    departures = {k: {**v, **plan.profile.env_kwargs.get(k, {})} for k, v in plan.profile.overrides.items() if v}
+    departures.update({k: v for k, v in plan.profile.env_kwargs.items() if k not in departures})
+    if notes or departures:
+        lines += ["## Departures from the paper", ""]
+        lines += [f"- `{name}`: {note}" for name, note in notes]
+        lines += [f"- {experiment}: settings {json.dumps(v)} instead of the paper's (profile `{plan.profile.name}`)"
+                  for experiment, v in departures.items()]
+        lines += [""]
+
+    lines += ["## Findings", "", "| the paper's claim | verdict | numbers |", "|---|---|---|"]
+    for finding in FINDINGS:
+        if finding.experiment not in plan.only:
+            verdict = Verdict("not run", f"--only leaves out {finding.experiment}")
+        else:
+            verdict = finding.judge(finished)
+        lines.append(f"| {finding.claim} | **{verdict.verdict}** | {verdict.numbers} |")
+    lines += [""]
+
+    lines += ["## Figures", ""]
+    for stem, (title, *_rest) in FIGURES.items():
+        panels = _panels(stem, results)
+        if not panels:
+            continue
+        plot_figure(out / f"{stem}.png", title, panels)
+        lines += [f"### {title}", "", f"![{title}]({stem}.png)", ""]
+
+    lines += ["## Final returns (mean [95% bootstrap CI] over seeds)", "",
+              "| cell | env | seeds | env steps/seed | train (last 10%) | test greedy | test sampled | random policy (test) |",
+              "|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        chance = "—" if r.chance is None else f"{r.chance:.3g}"
+        steps = int(r.steps.max()) if r.steps.size else 0
+        mark = "" if r.complete else " (incomplete)"
+        lines.append(f"| `{r.cell.name}`{mark} | {r.cell.env_id} {_kwargs(r.cell.env_kwargs)} | {r.seeds} | {steps:,} | "
+                     f"{r.final_train} | {r.final_greedy} | {r.final_sampled} | {chance} |")
+    lines += [""]
+    if missing:
+        lines += ["## Cells not finished or not run", "", "| cell | why |", "|---|---|"]
+        lines += [f"| `{name}` | {why} |" for name, why in missing.items()] + [""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _kwargs(kwargs: dict) -> str:
+    return " ".join(f"{k}={v}" for k, v in kwargs.items())
