@@ -175,11 +175,16 @@ def run_cells(plan: Plan, console) -> dict:
 def _check_same_run(cell: Cell, plan: Plan, config: dict) -> None:
     """A cell folder written with other seeds or budgets is not silently mixed into this grid."""
     spec = config.get("spec", {})
-    saved = (spec.get("env_id"), spec.get("algo"), spec.get("seeds"), spec.get("config", {}).get("total_timesteps"))
-    wanted = (cell.env_id, cell.algo, plan.seeds, cell.budget.total_timesteps)
+    from jaxnat.training import parse_env_kwargs
+
+    saved = (spec.get("env_id"), spec.get("env_kwargs"), spec.get("algo"), spec.get("seeds"),
+             spec.get("config", {}).get("total_timesteps"))
+    wanted = (cell.env_id, parse_env_kwargs({k: str(v) for k, v in cell.env_kwargs.items()}), cell.algo, plan.seeds,
+              cell.budget.total_timesteps)
     if saved != wanted:
-        raise ReproduceError(f"{plan.out / cell.name} holds a run with other settings (env, algo, seeds, steps "
-                             f"{saved}, this grid wants {wanted}); use another --out or the same --profile and --seeds")
+        raise ReproduceError(f"{plan.out / cell.name} holds a run with other settings (env, kwargs, algo, seeds, "
+                             f"steps {saved}; this grid wants {wanted}); use another --out, or the same --profile "
+                             "and --seeds")
 
 
 def _duration(seconds: float) -> str:
