@@ -110,7 +110,7 @@ PROFILES: dict[str, Profile] = {
         # are judged by the paper profile).
         subsets={"datasets": ("mnist", "cifar10"), "trunks": ("cnn",), "localize": ("clutter",),
                  "games": ("Breakout",), "atari_algos": ("ppo",),
-                 "robots": ("HalfCheetah", "Hopper"), "mujoco_algos": ("ppo",)},
+                 "robots": ("HalfCheetah",), "observations": ("checker", "noise"), "mujoco_algos": ("ppo",)},
         # More envs per update than the paper's 8 (same 128 steps): PixelMuJoCo's physics is
         # latency-bound at a few dozen envs.
         overrides={"mujoco": {"num_envs": 64}},
