@@ -163,7 +163,8 @@ def run_cells(plan: Plan, console) -> dict:
             with timings_path.open("a") as f:
                 f.write(json.dumps({"cell": cell.name, "experiment": cell.experiment, "seconds": seconds,
                                     "estimate": estimates[cell.name], "resumed": resume,
-                                    "outcome": outcomes[cell.name].split(":")[0], "platform": platform,
+                                    "outcome": outcomes[cell.name].split(":")[0], "message": outcomes[cell.name],
+                                    "platform": platform,
                                     "date": datetime.datetime.now().isoformat(timespec="seconds")}) + "\n")
             progress.update(task, advance=estimates[cell.name], cells=f"{index + 1}/{len(todo)}")
             if not live:

@@ -69,10 +69,10 @@ def _a2c_worst(results) -> Verdict:
         return _not_run("A2C beside PPO or ACKTR")
     held, numbers = 0, []
     for (dataset, trunk), algos in panels.items():
-        others = max(r.final_train.mean for algo, r in algos.items() if algo != "a2c")
+        others = min(r.final_train.mean for algo, r in algos.items() if algo != "a2c")
         a2c = algos["a2c"].final_train.mean
         held += a2c < others
-        numbers.append(f"{dataset} {trunk}: A2C {a2c:.3g} vs best other {others:.3g}")
+        numbers.append(f"{dataset} {trunk}: A2C {a2c:.3g} vs the next lowest {others:.3g}")
     return _verdict(held, len(panels), numbers)
 
 

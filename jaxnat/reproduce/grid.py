@@ -59,8 +59,7 @@ class Budget:
     """Env steps per seed and evaluation effort of one experiment's cells."""
 
     total_timesteps: int
-    evaluations: int = 4  # test-split evaluations over a run (device runs; host runs score once at the end)
-    eval_episodes: int = 100
+    eval_episodes: int = 100  # test episodes per seed per evaluation (about 20 over a run; host runs: once at the end)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,7 +86,7 @@ PROFILES: dict[str, Profile] = {
         name="smoke",
         description="every cell type end to end with tiny budgets, on a CPU in minutes (CI runs it)",
         seeds=2,
-        budgets={e: Budget(total_timesteps=32, evaluations=2, eval_episodes=4) for e in EXPERIMENTS},
+        budgets={e: Budget(total_timesteps=32, eval_episodes=4) for e in EXPERIMENTS},
         subsets={"datasets": ("mnist",), "algos": ("ppo",), "trunks": ("cnn",), "sweep": ((2, 20),),
                  "localize": ("clutter",), "games": ("Breakout",), "backgrounds": ("video",),
                  "atari_algos": ("ppo",), "robots": ("Swimmer",), "observations": ("noise",),
@@ -102,10 +101,10 @@ PROFILES: dict[str, Profile] = {
         name="quick",
         description="every finding with reduced budgets; sized for about 20 minutes on one H200",
         seeds=5,
-        budgets={"classify": Budget(150_000, evaluations=5, eval_episodes=200),
-                 "localize": Budget(100_000, evaluations=4, eval_episodes=100),
+        budgets={"classify": Budget(150_000, eval_episodes=200),
+                 "localize": Budget(100_000, eval_episodes=100),
                  "atari": Budget(20_000, eval_episodes=2),
-                 "mujoco": Budget(100_000, evaluations=4, eval_episodes=5)},
+                 "mujoco": Budget(100_000, eval_episodes=5)},
         # The 3-layer CNN only: a ResNet-18 cell takes minutes even at this budget (its claims
         # are judged by the paper profile).
         subsets={"datasets": ("mnist", "cifar10"), "trunks": ("cnn",), "localize": ("clutter",),
@@ -122,10 +121,10 @@ PROFILES: dict[str, Profile] = {
         name="paper",
         description="the paper's budgets (10M env steps per cell); run piecewise with --only, resumable",
         seeds=5,
-        budgets={"classify": Budget(10_000_000, evaluations=20, eval_episodes=1000),
-                 "localize": Budget(10_000_000, evaluations=20, eval_episodes=1000),
+        budgets={"classify": Budget(10_000_000, eval_episodes=1000),
+                 "localize": Budget(10_000_000, eval_episodes=1000),
                  "atari": Budget(2_500_000, eval_episodes=10),  # 10M frames at frame skip 4
-                 "mujoco": Budget(10_000_000, evaluations=20, eval_episodes=10)},
+                 "mujoco": Budget(10_000_000, eval_episodes=10)},
     ),
 }
 

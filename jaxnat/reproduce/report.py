@@ -194,6 +194,12 @@ def _versions() -> dict:
             "device": str(jax.devices()[0].device_kind), "backend": jax.default_backend()}
 
 
+def _run_versions(run_dir: Path) -> dict:
+    from jaxnat.training import read_run
+
+    return read_run(run_dir).config.get("versions") or _versions()
+
+
 def _timings(out: Path) -> list[dict]:
     path = out / "timings.jsonl"
     if not path.is_file():
@@ -211,6 +217,9 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     from jaxnat.training import TrainError, run_status
 
     out: Path = plan.out
+    timings = _timings(out)
+    failures = {t["cell"]: t.get("message", "failed") for t in timings if t.get("outcome") == "failed"}
+    outcomes = {**failures, **outcomes}
     results: list[CellResult] = []
     missing: dict[str, str] = {}
     for cell in plan.cells:
@@ -232,12 +241,12 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     finished = [r for r in results if r.complete]
 
     lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
-    versions = _versions()
-    timings = _timings(out)
+    saved = [r.cell.name for r in results]
+    versions = _run_versions(out / saved[0]) if saved else _versions()
     lines += [f"- Written {datetime.datetime.now().isoformat(timespec='seconds')} by `jaxnat reproduce --profile "
               f"{plan.profile.name} --only {','.join(plan.only)} --seeds {plan.seeds}`.",
               f"- Profile: {plan.profile.description}.",
-              f"- Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}.",
+              f"- Versions and device of the runs: {', '.join(f'{k} {v}' for k, v in versions.items())}.",
               f"- Cells: {len(plan.cells)} in the grid, {len(finished)} finished, {len(missing)} not finished or not run.",
               ""]
     if timings:

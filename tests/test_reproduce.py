@@ -1,0 +1,153 @@
+"""`jaxnat reproduce`: the smoke profile end to end, skipping finished cells on a rerun, resuming
+a killed cell, the bootstrap interval on hand-made data, the findings' verdicts, and one-line
+errors for bad arguments."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxnat.reproduce import command, findings, grid, stats
+from jaxnat.reproduce.report import CellResult
+from jaxnat.training import read_run
+
+pytestmark = pytest.mark.xdist_group("reproduce")
+
+
+def _report_body(path):
+    """The report without its 'Written <time>' line."""
+    return [line for line in path.read_text().splitlines() if not line.startswith("- Written")]
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    out = tmp_path_factory.mktemp("smoke")
+    assert command.main(["--profile", "smoke", "--out", str(out)]) == 0
+    return out
+
+
+def test_smoke_profile_writes_every_cell_figure_and_table(smoke):
+    plan = command.make_plan(command.ReproduceArgs(profile="smoke", out=smoke))
+    assert {c.experiment for c in plan.cells} == set(grid.EXPERIMENTS)
+    report = (smoke / "report.md").read_text()
+    for cell in plan.cells:
+        assert not cell.skip, cell.skip
+        assert (smoke / cell.name / "summary.json").is_file()
+        assert f"`{cell.name}`" in report
+    for figure in ("classify-cnn", "sweep", "localize", "atari", "mujoco", "noise-control"):
+        assert (smoke / f"{figure}.png").stat().st_size > 0
+        assert f"({figure}.png)" in report
+    assert report.count("| **") == len(findings.FINDINGS)
+    # The table's numbers are the runs' own: the sampled test return of the last evaluation.
+    cell = plan.cells[0]
+    record = read_run(smoke / cell.name)
+    last = max(r["update"] for r in record.evals)
+    sampled = [r["sampled_return"] for r in record.evals if r["update"] == last]
+    row = next(line for line in report.splitlines() if line.startswith(f"| `{cell.name}`"))
+    assert str(stats.bootstrap_ci(sampled)) == row.split(" | ")[6]
+
+
+def test_rerun_skips_finished_cells_and_gives_the_same_report(smoke):
+    before = _report_body(smoke / "report.md")
+    timings = (smoke / "timings.jsonl").read_text()
+    assert command.main(["--profile", "smoke", "--out", str(smoke)]) == 0
+    assert (smoke / "timings.jsonl").read_text() == timings  # nothing trained
+    assert _report_body(smoke / "report.md") == before
+
+
+def test_a_killed_cell_resumes_to_the_uninterrupted_result(smoke, tmp_path):
+    from jaxnat import train
+
+    plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="classify", out=tmp_path))
+    cell = plan.cells[0]
+    fast = {"xla_backend_optimization_level": 0}
+    assert train.main(cell.train_argv(plan.seeds, tmp_path / cell.name), compiler_options=fast,
+                      stop_after_chunks=1) == 0
+    assert command.main(["--profile", "smoke", "--only", "classify", "--out", str(tmp_path), "--report-only"]) == 0
+    assert "incomplete (interrupted" in (tmp_path / "report.md").read_text()
+    assert command.main(["--profile", "smoke", "--only", "classify", "--out", str(tmp_path)]) == 0
+    rows = [json.loads(line) for line in (tmp_path / "timings.jsonl").read_text().splitlines()]
+    assert rows[0]["cell"] == cell.name and rows[0]["resumed"] and rows[0]["outcome"] == "finished"
+
+    def scores(directory):
+        return [{k: v for k, v in r.items() if k not in ("chunk_seconds", "steps_per_second")}
+                for r in read_run(directory / cell.name).evals]
+
+    assert scores(tmp_path) == scores(smoke)
+
+
+def test_bootstrap_interval_on_hand_made_values():
+    equal = stats.bootstrap_ci([2.0, 2.0, 2.0])
+    assert (equal.mean, equal.low, equal.high, equal.n) == (2.0, 2.0, 2.0, 3)
+    values = [0.0, 1.0, 2.0, 3.0, 10.0]
+    interval = stats.bootstrap_ci(values)
+    assert interval.mean == pytest.approx(3.2) and interval.n == 5
+    # The exact bootstrap distribution of the mean of 5 draws: its 2.5% and 97.5% quantiles.
+    draws = np.array(np.meshgrid(*[values] * 5)).reshape(5, -1).mean(axis=0)
+    low, high = np.percentile(draws, [2.5, 97.5])
+    assert interval.low == pytest.approx(low, abs=0.25) and interval.high == pytest.approx(high, abs=0.25)
+    assert stats.bootstrap_ci(values) == interval  # a fixed generator: the same report every time
+    assert stats.bootstrap_ci([np.nan, 1.0]).n == 1
+    assert np.isnan(stats.bootstrap_ci([np.nan]).mean)
+
+
+def test_binned_curve_means_each_seed_within_each_bin():
+    steps = np.array([1.0, 2.0, 3.0, 4.0])
+    per_seed = np.array([[1.0, np.nan], [3.0, 5.0], [np.nan, 7.0], [8.0, 9.0]])
+    centres, values = stats.binned_curve(steps, per_seed, bins=2)
+    np.testing.assert_allclose(centres, [1.5, 3.5])
+    np.testing.assert_allclose(values, [[2.0, 5.0], [8.0, 8.0]])
+
+
+def _result(experiment, figure, algo, returns, **labels):
+    cell = grid.Cell(f"{experiment}-{algo}-{labels}", experiment, figure, "X/Y-v0", {}, algo, None,
+                     grid.Budget(10), {}, labels)
+    train = np.tile(np.asarray(returns, np.float64), (10, 1))
+    empty = np.zeros((0, len(returns)))
+    return CellResult(cell, True, len(returns), np.arange(1.0, 11.0), train, np.zeros(0), empty, empty, None, 1.0)
+
+
+def test_findings_judge_hand_made_results():
+    classify = [_result("classify", "classify-cnn", algo, [r] * 3, dataset=d, trunk="cnn")
+                for d, scores in (("mnist", {"ppo": 0.95, "a2c": 0.5, "acktr": 0.97}),
+                                  ("cifar10", {"ppo": 0.4, "a2c": 0.2, "acktr": 0.6}))
+                for algo, r in scores.items()]
+    verdicts = {f.rule.__name__: f.judge(classify).verdict for f in findings.FINDINGS}
+    assert verdicts["_close_to_one"] == "reproduced"
+    assert verdicts["_a2c_worst"] == "reproduced"
+    assert verdicts["_cifar_harder"] == "reproduced"
+    assert verdicts["_noise_as_good"] == "not run"
+    worse = [r for r in classify if r.cell.algo != "acktr"]
+    worse.append(_result("classify", "classify-cnn", "acktr", [0.1] * 3, dataset="mnist", trunk="cnn"))
+    assert next(f for f in findings.FINDINGS if f.rule.__name__ == "_a2c_worst").judge(worse).verdict == \
+        "not reproduced"
+    pixels = _result("mujoco", "mujoco", "ppo", [100.0, 110.0, 120.0], robot="Hopper", observation="checker")
+    for noise, verdict in ((105.0, "reproduced"), (50.0, "not reproduced")):
+        results = [pixels, _result("mujoco", "mujoco", "ppo", [noise] * 3, robot="Hopper", observation="noise")]
+        assert next(f for f in findings.FINDINGS if f.rule.__name__ == "_noise_as_good").judge(results).verdict == verdict
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--profile", "smok"], "unknown --profile 'smok' (did you mean 'smoke'?)"),
+    (["--only", "classify,atary"], "unknown --only name 'atary' (did you mean 'atari'?)"),
+    (["--seeds", "0"], "--seeds must be at least 1"),
+])
+def test_bad_arguments_get_one_line_and_write_nothing(argv, message, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert command.main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("jaxnat reproduce: error: ") and message in err and "\n" not in err
+    assert not (out / "report.md").exists()
+
+
+def test_unwritable_out_is_refused(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert command.main(["--profile", "smoke", "--out", str(blocker / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "is not writable" in err and "\n" not in err
+
+
+def test_a_folder_of_other_settings_is_refused(smoke, tmp_path, capsys):
+    assert command.main(["--profile", "smoke", "--out", str(smoke), "--seeds", "3", "--only", "classify"]) == 2
+    assert "holds a run with other settings" in capsys.readouterr().err
