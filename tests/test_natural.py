@@ -526,6 +526,49 @@ def test_traced_and_table_noise_agree_in_law():
         assert abs(low - law[1:11].sum()) < 5 * np.sqrt(law[1:11].sum() / n)
 
 
+def test_named_noise_laws():
+    """"authors": the public repository's clip(N(0, 1) * 50, 0) truncated (half the pixels
+    black); "centred": N(127.5, 50) rounded, symmetric in [0, 255]; the default is the
+    authors'."""
+    assert natural.DEFAULT_NOISE == "authors"
+    authors, centred = natural.NOISE_LAWS["authors"], natural.NOISE_LAWS["centred"]
+    np.testing.assert_allclose(authors.probabilities(), exact_noise_law(50.0, 0.0), atol=1e-15)
+    assert abs(authors.probabilities()[0] - 0.508) < 1e-3  # P(50 z < 1)
+    mean, std = authors.moments()
+    assert abs(mean - (50 / np.sqrt(2 * np.pi) - 0.5)) < 0.3 and 28 < std < 30
+    p = centred.probabilities()
+    np.testing.assert_allclose(p, p[::-1], atol=1e-12)  # symmetric about 127.5
+    assert centred.moments()[0] == pytest.approx(127.5) and 49 < centred.moments()[1] < 50
+    assert natural.noise_law("centred") is centred and natural.noise_law(authors) is authors
+    with pytest.raises(ValueError, match="noise must be one of"):
+        natural.noise_law("uniform")
+
+
+def test_every_family_defaults_to_one_noise_law():
+    """Each family's noise control takes `DEFAULT_NOISE` when not told otherwise (the tests of
+    each family check that the draws follow it)."""
+    import inspect
+
+    from jaxnat.wrappers import NoiseObservationWrapper
+
+    defaults = {"NoiseObservationWrapper": inspect.signature(NoiseObservationWrapper).parameters["noise"].default}
+    try:
+        from jaxnat.mjx_pixel.floor import floor_rgb
+        from jaxnat.mjx_pixel.pixel import PixelMuJoCo
+
+        defaults["PixelMuJoCo"] = inspect.signature(PixelMuJoCo).parameters["noise"].default
+        assert inspect.signature(floor_rgb).parameters["noise"].default is None  # DEFAULT_NOISE
+    except ImportError:  # the mujoco extra
+        pass
+    from jaxnat.atari.backgrounds import make_background
+    from jaxnat.atari.env import NaturalAtariVecEnv
+
+    defaults["NaturalAtariVecEnv"] = inspect.signature(NaturalAtariVecEnv).parameters["noise"].default
+    defaults["make_background"] = inspect.signature(make_background).parameters["noise"].default
+    assert make_background("noise", 1, (4, 4)).law == natural.noise_law()
+    assert set(defaults.values()) == {natural.DEFAULT_NOISE}, defaults
+
+
 def test_constant_color():
     np.testing.assert_array_equal(natural.constant_color((2, 3, 3), (10, 20, 300)),
                                   np.broadcast_to([10, 20, 255], (2, 3, 3)))

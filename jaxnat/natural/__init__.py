@@ -20,8 +20,9 @@
   disk by content, shape and colour mode; `max_frames` bounds memory.
 - Sampling (`sampler.py`): `VideoCursor` with `cursor_reset` / `cursor_step` / `cursor_frame`
   (jit, vmap) and `HostVideoSampler` for batched host envs.
-- Noise (`noise.py`): `gaussian_noise` (N(0,1)*50 clipped at 0, the paper repository's law) and
-  `constant_color`, each with a NumPy twin.
+- Noise (`noise.py`): the noise controls' named laws (`NOISE_LAWS`: `"authors"`, N(0,1)*50
+  clipped at 0, the paper repository's law and `DEFAULT_NOISE`; `"centred"`, N(127.5, 50)
+  rounded), `gaussian_noise` and `constant_color`, each with a NumPy twin.
 """
 
 from jaxnat.natural.bank import (
@@ -33,11 +34,15 @@ from jaxnat.natural.bank import (
 )
 from jaxnat.natural.decode import VideoDecodeWarning
 from jaxnat.natural.noise import (
+    DEFAULT_NOISE,
+    NOISE_LAWS,
     NOISE_SCALE,
+    NoiseLaw,
     constant_color,
     constant_color_np,
     gaussian_noise,
     gaussian_noise_np,
+    noise_law,
 )
 from jaxnat.natural.sampler import (
     HostVideoSampler,
@@ -65,6 +70,10 @@ __all__ = [
     "cursor_index",
     "HostVideoSampler",
     "NOISE_SCALE",
+    "NoiseLaw",
+    "NOISE_LAWS",
+    "DEFAULT_NOISE",
+    "noise_law",
     "gaussian_noise",
     "gaussian_noise_np",
     "constant_color",
