@@ -283,6 +283,73 @@ def test_max_frames_keeps_short_videos_whole_and_cuts_long_ones(videos):
     assert load(videos[:3], max_frames=100).num_frames == 12
 
 
+def write_scene(path: Path, seed: int, num_frames: int, *, codec: str = "FFV1",
+                brighten: int = 0) -> Path:
+    """A textured clip: a smooth random picture (from `seed`) panning right 2 px a frame.
+    The same seed with another codec, brightness or length is the same footage re-encoded,
+    slightly altered or truncated."""
+    rng = np.random.default_rng(seed)
+    world = cv2.resize(rng.uniform(0, 255, (6, 12, 3)).astype(np.float32), (128, 48),
+                       interpolation=cv2.INTER_CUBIC)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), 10, (64, 48))
+    assert writer.isOpened()
+    for f in range(num_frames):
+        frame = np.clip(world[:, 2 * f:2 * f + 64] + brighten, 0, 255).astype(np.uint8)
+        writer.write(frame)
+    writer.release()
+    return path
+
+
+def test_near_duplicate_videos_stay_on_one_side(tmp_path):
+    folder = tmp_path / "footage"
+    original = write_scene(folder / "scene.avi", 7, 24)
+    # Re-encoded lossily, a little brighter, and cut short: other bytes, the same footage.
+    copy = write_scene(folder / "scene_copy.avi", 7, 15, codec="MJPG", brighten=4)
+    others = [write_scene(folder / f"other{s}.avi", s, 20) for s in (1, 2, 3)]
+    while True:  # unrelated clips until one hashes after both copies (train keeps a file)
+        ranked = sorted([original, copy, *others], key=digest)
+        # A test fraction whose content-hash cut falls between the two copies (as it may in
+        # any real folder): the later copy is the first train file.
+        first, later = sorted((ranked.index(original), ranked.index(copy)))
+        if later < len(ranked) - 1:
+            break
+        others.append(write_scene(folder / f"other{len(others) + 1}.avi", len(others) + 1, 20))
+    fraction = later / len(ranked)
+    today = {p.name: "test" if i < later else "train" for i, p in enumerate(ranked)}
+    assert today[original.name] != today[copy.name]
+    banks = {}
+    for split in ("train", "test"):
+        with pytest.warns(natural.NearDuplicateWarning,
+                          match=r"kept together in the 'test' split: .*scene.*scene"):
+            banks[split] = load(folder, split=split, test_fraction=fraction, shape=(12, 16))
+    sides = {name: split for split, bank in banks.items() for name in bank.names}
+    assert sides[original.name] == sides[copy.name] == today[ranked[first].name] == "test"
+    for p in others:  # unrelated footage keeps today's side
+        assert sides[p.name] == today[p.name]
+    # Without near-duplicates nothing is said and nothing moves.
+    copy.unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", natural.NearDuplicateWarning)
+        test = load(folder, split="test", test_fraction=0.4, shape=(12, 16))
+    assert test.names == tuple(p.name for p in sorted([original, *others], key=digest)[:2])
+
+
+@needs_opencv_doc
+def test_opencv_doc_megamind_copies_stay_on_one_side():
+    folder = REAL_DOC_DIRS[0]
+    if not (folder / "Megamind_bugy.avi").is_file():
+        pytest.skip("opencv-doc without Megamind_bugy.avi")
+    files = sources.resolve(folder, sources.VIDEO_EXTENSIONS)
+    with pytest.warns(natural.NearDuplicateWarning, match="Megamind.avi.*Megamind_bugy.avi"):
+        test = [p.name for p, _ in sources.split_files(files, "test", 0.4)]
+    with pytest.warns(natural.NearDuplicateWarning):
+        train = [p.name for p, _ in sources.split_files(files, "train", 0.4)]
+    assert ("Megamind.avi" in test) == ("Megamind_bugy.avi" in test)
+    assert ("Megamind.avi" in train) == ("Megamind_bugy.avi" in train)
+    assert not set(test) & set(train)
+
+
 # ----------------------------------------------------------------------------- cache
 
 

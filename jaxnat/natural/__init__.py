@@ -12,8 +12,9 @@
 
 - Sources (`sources.py`): None = the natural videos (or photos) of Debian's `opencv-doc`, else a
   file, a directory, a glob, or a list of these (e.g. a Kinetics download).
-- Split: by whole files, by content hash, disjoint by construction; `split="all"` uses every
-  file for both, as the paper did.
+- Split: by whole files, by content hash, disjoint by construction; near-duplicate files (the
+  same footage under different bytes, `near_duplicates.py`) kept on one side with a
+  `NearDuplicateWarning`; `split="all"` uses every file for both, as the paper did.
 - Decoding (`decode.py`): OpenCV, PyAV where OpenCV fails; gzipped files handled; frames resized
   to (H, W), RGB or grayscale.
 - `FrameBank` (`bank.py`): uint8 [N, H, W, C] with per-video `starts` and `lengths`; cached on
@@ -33,6 +34,7 @@ from jaxnat.natural.bank import (
     load_videos,
 )
 from jaxnat.natural.decode import VideoDecodeWarning
+from jaxnat.natural.near_duplicates import NearDuplicateWarning
 from jaxnat.natural.noise import (
     DEFAULT_NOISE,
     NOISE_LAWS,
@@ -63,6 +65,7 @@ __all__ = [
     "DEFAULT_SHAPE",
     "DEFAULT_TEST_FRACTION",
     "VideoDecodeWarning",
+    "NearDuplicateWarning",
     "VideoCursor",
     "cursor_reset",
     "cursor_step",
