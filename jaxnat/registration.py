@@ -158,7 +158,7 @@ def _check_param_types(env_id: str, params, values: dict) -> None:
             raise TypeError(f"{env_id}: {name}={value!r} must be a whole number")
 
 
-def make(id: str, *, autoreset: bool = True, observation_noise: bool = False, **kwargs: Any):
+def make(id: str, *, autoreset: bool = True, observation_noise: bool | str = False, **kwargs: Any):
     """Build a registered env: `env, params = jaxnat.make("Classify/MNIST-v0", w=5)`.
 
     Args:
@@ -169,6 +169,8 @@ def make(id: str, *, autoreset: bool = True, observation_noise: bool = False, **
         observation_noise: the paper's noise control: every observation (the final one in
             `info` too) replaced by Gaussian noise of the same shape and dtype
             (`NoiseObservationWrapper`, composed inside the autoreset so no real frame leaks).
+            True: the default pixel-noise law (`jaxnat.natural.DEFAULT_NOISE`, the authors');
+            a name in `jaxnat.natural.NOISE_LAWS` (`"authors"`, `"centred"`): that law.
         **kwargs: constructor arguments (static: dataset, split, shapes) or params fields
             (traced: window size, time limit, rewards), by name.
 
@@ -195,7 +197,8 @@ def make(id: str, *, autoreset: bool = True, observation_noise: bool = False, **
     if observation_noise:
         from jaxnat.wrappers import NoiseObservationWrapper
 
-        env = NoiseObservationWrapper(env)
+        env = (NoiseObservationWrapper(env, noise=observation_noise)
+               if isinstance(observation_noise, str) else NoiseObservationWrapper(env))
     if autoreset:
         from jaxnat.wrappers import AutoResetWrapper
 

@@ -1,5 +1,6 @@
 """`check_env`: the contract every jaxnat env keeps, as one reusable check; `check_determinism`:
-same key, same trajectory, bit for bit (on the GPU too).
+same key, same trajectory, bit for bit (on the GPU too); `check_noise_law`: draws of a noise
+control follow a pixel-noise law.
 
 Each env's tests call it; it also runs over every registered env whose data is present.
 It raises `AssertionError` with a message naming the broken contract.
@@ -17,7 +18,7 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.core import Environment
 
-__all__ = ["check_env", "check_determinism", "DeterminismReport"]
+__all__ = ["check_env", "check_determinism", "DeterminismReport", "check_noise_law"]
 
 
 def check_env(env: Environment, params=None, *, num_steps: int = 30, num_envs: int = 4, seed: int = 0):
@@ -251,3 +252,36 @@ def _first_env(a, b) -> int:
         if rows.any():
             return int(np.argmax(rows))
     return 0
+
+
+def check_noise_law(values, probabilities, what: str = "noise", sigmas: float = 6.0) -> None:
+    """Assert that i.i.d. integer draws `values` follow the law `probabilities` (P(value = k),
+    k = 0 ... 255): no value outside the law's support, each clip bound (0, 255) reached
+    whenever the law gives it more than 20 expected draws and hit as often as the law says, and
+    the sample mean and standard deviation equal the law's. Every tolerance is `sigmas`
+    standard errors for this sample size (the std's by the delta method, from the law's fourth
+    central moment), so a right law fails about never and a wrong one fails on a big sample."""
+    values = np.asarray(values).ravel().astype(np.float64)
+    p = np.asarray(probabilities, np.float64)
+    n, k = values.size, np.arange(256.0)
+    support = np.flatnonzero(p > 0)
+    lo, hi = values.min(), values.max()
+    assert lo >= support[0] and hi <= support[-1], (
+        f"{what}: values in [{lo:g}, {hi:g}], outside the law's [{support[0]}, {support[-1]}]")
+    for bound in (0, 255):
+        expected = p[bound]
+        freq = float(np.mean(values == bound))
+        if expected * n > 20:
+            assert freq > 0, f"{what}: the clip bound {bound} is never reached"
+        tol = sigmas * np.sqrt(max(expected * (1 - expected), 1.0 / n) / n)
+        assert abs(freq - expected) <= tol, (
+            f"{what}: P(value = {bound}) is {freq:.5f}, the law's {expected:.5f} (tolerance {tol:.5f})")
+    mean = float(p @ k)
+    var = float(p @ (k - mean) ** 2)
+    mu4 = float(p @ (k - mean) ** 4)
+    tol_mean = sigmas * np.sqrt(var / n)
+    assert abs(values.mean() - mean) <= tol_mean, (
+        f"{what}: mean {values.mean():.3f}, the law's {mean:.3f} (tolerance {tol_mean:.3f})")
+    tol_std = sigmas * np.sqrt(max(mu4 - var**2, 0.0) / (4 * var * n))
+    assert abs(values.std() - np.sqrt(var)) <= tol_std, (
+        f"{what}: std {values.std():.3f}, the law's {np.sqrt(var):.3f} (tolerance {tol_std:.3f})")

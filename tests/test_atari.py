@@ -282,6 +282,30 @@ def test_noise_replaces_exactly_the_black_pixels(pool):
         b, *_ = noisy.step(actions)
 
 
+@pytest.mark.parametrize("noise", [None, "centred"])
+def test_noise_background_follows_the_named_law(noise):
+    """The background's gray levels are those of RGB noise of the named pixel-noise law; None
+    (no `noise=`) is `DEFAULT_NOISE`, the law of every family's noise control."""
+    from jaxnat.natural import DEFAULT_NOISE, noise_law
+    from jaxnat.testing import check_noise_law
+
+    kwargs = dict(sticky_actions=0.0, obs_size=(210, 160), stack=1, num_threads=1)
+    plain = NaturalAtariVecEnv("Breakout", 2, **kwargs)
+    noisy = NaturalAtariVecEnv("Breakout", 2, background="noise", **kwargs,
+                               **({} if noise is None else {"noise": noise}))
+    a, _ = plain.reset(seed=0)
+    b, _ = noisy.reset(seed=0)
+    draws = []
+    for t in range(8):
+        draws.append(b[a[..., 0] == 0])
+        actions = np.full(2, t % 4)
+        a, *_ = plain.step(actions)
+        b, *_ = noisy.step(actions)
+    law = noise_law(DEFAULT_NOISE if noise is None else noise)
+    check_noise_law(np.concatenate(draws), GrayNoiseSampler.law_probabilities(law.scale, law.mean),
+                    f"NaturalAtari background='noise', noise={noise!r}")
+
+
 # -- video backgrounds ---------------------------------------------------------------------
 def _write_video(path: Path, video: int, num_frames: int) -> Path:
     """Uniform gray frames of level 20 + 40 * video + 2 * frame, lossless (FFV1)."""

@@ -283,6 +283,73 @@ def test_max_frames_keeps_short_videos_whole_and_cuts_long_ones(videos):
     assert load(videos[:3], max_frames=100).num_frames == 12
 
 
+def write_scene(path: Path, seed: int, num_frames: int, *, codec: str = "FFV1",
+                brighten: int = 0) -> Path:
+    """A textured clip: a smooth random picture (from `seed`) panning right 2 px a frame.
+    The same seed with another codec, brightness or length is the same footage re-encoded,
+    slightly altered or truncated."""
+    rng = np.random.default_rng(seed)
+    world = cv2.resize(rng.uniform(0, 255, (6, 12, 3)).astype(np.float32), (128, 48),
+                       interpolation=cv2.INTER_CUBIC)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), 10, (64, 48))
+    assert writer.isOpened()
+    for f in range(num_frames):
+        frame = np.clip(world[:, 2 * f:2 * f + 64] + brighten, 0, 255).astype(np.uint8)
+        writer.write(frame)
+    writer.release()
+    return path
+
+
+def test_near_duplicate_videos_stay_on_one_side(tmp_path):
+    folder = tmp_path / "footage"
+    original = write_scene(folder / "scene.avi", 7, 24)
+    # Re-encoded lossily, a little brighter, and cut short: other bytes, the same footage.
+    copy = write_scene(folder / "scene_copy.avi", 7, 15, codec="MJPG", brighten=4)
+    others = [write_scene(folder / f"other{s}.avi", s, 20) for s in (1, 2, 3)]
+    while True:  # unrelated clips until one hashes after both copies (train keeps a file)
+        ranked = sorted([original, copy, *others], key=digest)
+        # A test fraction whose content-hash cut falls between the two copies (as it may in
+        # any real folder): the later copy is the first train file.
+        first, later = sorted((ranked.index(original), ranked.index(copy)))
+        if later < len(ranked) - 1:
+            break
+        others.append(write_scene(folder / f"other{len(others) + 1}.avi", len(others) + 1, 20))
+    fraction = later / len(ranked)
+    today = {p.name: "test" if i < later else "train" for i, p in enumerate(ranked)}
+    assert today[original.name] != today[copy.name]
+    banks = {}
+    for split in ("train", "test"):
+        with pytest.warns(natural.NearDuplicateWarning,
+                          match=r"kept together in the 'test' split: .*scene.*scene"):
+            banks[split] = load(folder, split=split, test_fraction=fraction, shape=(12, 16))
+    sides = {name: split for split, bank in banks.items() for name in bank.names}
+    assert sides[original.name] == sides[copy.name] == today[ranked[first].name] == "test"
+    for p in others:  # unrelated footage keeps today's side
+        assert sides[p.name] == today[p.name]
+    # Without near-duplicates nothing is said and nothing moves.
+    copy.unlink()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", natural.NearDuplicateWarning)
+        test = load(folder, split="test", test_fraction=0.4, shape=(12, 16))
+    assert test.names == tuple(p.name for p in sorted([original, *others], key=digest)[:2])
+
+
+@needs_opencv_doc
+def test_opencv_doc_megamind_copies_stay_on_one_side():
+    folder = REAL_DOC_DIRS[0]
+    if not (folder / "Megamind_bugy.avi").is_file():
+        pytest.skip("opencv-doc without Megamind_bugy.avi")
+    files = sources.resolve(folder, sources.VIDEO_EXTENSIONS)
+    with pytest.warns(natural.NearDuplicateWarning, match="Megamind.avi.*Megamind_bugy.avi"):
+        test = [p.name for p, _ in sources.split_files(files, "test", 0.4)]
+    with pytest.warns(natural.NearDuplicateWarning):
+        train = [p.name for p, _ in sources.split_files(files, "train", 0.4)]
+    assert ("Megamind.avi" in test) == ("Megamind_bugy.avi" in test)
+    assert ("Megamind.avi" in train) == ("Megamind_bugy.avi" in train)
+    assert not set(test) & set(train)
+
+
 # ----------------------------------------------------------------------------- cache
 
 
@@ -524,6 +591,49 @@ def test_traced_and_table_noise_agree_in_law():
         assert abs(counts[0] / n - law[0]) < 5 * np.sqrt(law[0] / n)
         low = counts[1:11].sum() / n
         assert abs(low - law[1:11].sum()) < 5 * np.sqrt(law[1:11].sum() / n)
+
+
+def test_named_noise_laws():
+    """"authors": the public repository's clip(N(0, 1) * 50, 0) truncated (half the pixels
+    black); "centred": N(127.5, 50) rounded, symmetric in [0, 255]; the default is the
+    authors'."""
+    assert natural.DEFAULT_NOISE == "authors"
+    authors, centred = natural.NOISE_LAWS["authors"], natural.NOISE_LAWS["centred"]
+    np.testing.assert_allclose(authors.probabilities(), exact_noise_law(50.0, 0.0), atol=1e-15)
+    assert abs(authors.probabilities()[0] - 0.508) < 1e-3  # P(50 z < 1)
+    mean, std = authors.moments()
+    assert abs(mean - (50 / np.sqrt(2 * np.pi) - 0.5)) < 0.3 and 28 < std < 30
+    p = centred.probabilities()
+    np.testing.assert_allclose(p, p[::-1], atol=1e-12)  # symmetric about 127.5
+    assert centred.moments()[0] == pytest.approx(127.5) and 49 < centred.moments()[1] < 50
+    assert natural.noise_law("centred") is centred and natural.noise_law(authors) is authors
+    with pytest.raises(ValueError, match="noise must be one of"):
+        natural.noise_law("uniform")
+
+
+def test_every_family_defaults_to_one_noise_law():
+    """Each family's noise control takes `DEFAULT_NOISE` when not told otherwise (the tests of
+    each family check that the draws follow it)."""
+    import inspect
+
+    from jaxnat.wrappers import NoiseObservationWrapper
+
+    defaults = {"NoiseObservationWrapper": inspect.signature(NoiseObservationWrapper).parameters["noise"].default}
+    try:
+        from jaxnat.mjx_pixel.floor import floor_rgb
+        from jaxnat.mjx_pixel.pixel import PixelMuJoCo
+
+        defaults["PixelMuJoCo"] = inspect.signature(PixelMuJoCo).parameters["noise"].default
+        assert inspect.signature(floor_rgb).parameters["noise"].default is None  # DEFAULT_NOISE
+    except ImportError:  # the mujoco extra
+        pass
+    from jaxnat.atari.backgrounds import make_background
+    from jaxnat.atari.env import NaturalAtariVecEnv
+
+    defaults["NaturalAtariVecEnv"] = inspect.signature(NaturalAtariVecEnv).parameters["noise"].default
+    defaults["make_background"] = inspect.signature(make_background).parameters["noise"].default
+    assert make_background("noise", 1, (4, 4)).law == natural.noise_law()
+    assert set(defaults.values()) == {natural.DEFAULT_NOISE}, defaults
 
 
 def test_constant_color():

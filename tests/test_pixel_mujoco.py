@@ -221,34 +221,48 @@ def test_video_advances_one_frame_per_agent_step_and_splits_are_disjoint(video_e
     assert train_names and test_names and not train_names & test_names
 
 
-def noise_law_checks(values):
-    """N(0, 1) * 50 clipped at 0, truncated to uint8: half zeros, mean 50 / sqrt(2 pi) - ~0.5."""
-    values = np.asarray(values, np.float64).ravel()
-    assert abs((values == 0).mean() - 0.5) < 0.03
-    assert abs(values.mean() - (50 / np.sqrt(2 * np.pi) - 0.5)) < 1.5
-    assert values.max() > 100
+def noise_law_checks(values, noise=None):
+    """The draws follow the named pixel-noise law; None (no `noise=`) is `DEFAULT_NOISE`, the
+    law of every family's noise control (N(0, 1) * 50 clipped at 0, truncated to uint8)."""
+    from jaxnat.natural import DEFAULT_NOISE, noise_law
+    from jaxnat.testing import check_noise_law
+
+    law = noise_law(DEFAULT_NOISE if noise is None else noise)
+    check_noise_law(values, law.probabilities(), f"PixelMuJoCo noise={noise!r}")
 
 
-def test_noise_observation_is_fresh_gaussian_noise(physics):
-    env = make_env(physics, observation="noise")
+def law_kwargs(noise):
+    return {} if noise is None else {"noise": noise}
+
+
+@pytest.mark.parametrize("noise", [None, "centred"])
+def test_noise_observation_is_fresh_gaussian_noise(physics, noise):
+    env = make_env(physics, observation="noise", **law_kwargs(noise))
     params = env.default_params
     obs, state = env.reset(jax.random.key(0), params)
     assert obs.shape == (SIZE, SIZE, 4) and obs.dtype == jnp.uint8
-    obs2, state, *_ = jax.jit(env.step)(jax.random.key(1), state, jnp.zeros(6), params)
-    noise_law_checks(np.concatenate([np.asarray(obs).ravel(), np.asarray(obs2).ravel()]))
-    assert (np.asarray(obs) != np.asarray(obs2)).mean() > 0.4, "noise must be redrawn every step"
+    step = jax.jit(env.step)
+    draws = [np.asarray(obs)]
+    for t in range(1, 33):
+        obs2, state, *_ = step(jax.random.key(t), state, jnp.zeros(6), params)
+        draws.append(np.asarray(obs2))
+    noise_law_checks(np.stack(draws), noise)
+    obs, obs2 = draws[-2], draws[-1]
+    assert (obs != obs2).mean() > 0.4, "noise must be redrawn every step"
     # Consecutive stacked frames are independent too (not a shifted stack).
-    assert (np.asarray(obs2[..., :3]) != np.asarray(obs[..., 1:])).mean() > 0.4
+    assert (obs2[..., :3] != obs[..., 1:]).mean() > 0.4
 
 
-def test_noise_floor_follows_the_noise_law(checker):
+@pytest.mark.parametrize("noise", [None, "centred"])
+def test_noise_floor_follows_the_noise_law(checker, noise):
     env, params, reset, _ = checker
     _, state = reset(jax.random.key(3), params)
-    noise_env = make_env(env.physics, floor="noise")
+    noise_env = make_env(env.physics, floor="noise", **law_kwargs(noise))
     floor = floor_mask(env, state.physics)
-    frames = [np.asarray(noise_env.render(jax.random.key(k), state.physics, params))[..., 0][floor]
-              for k in range(4)]
-    noise_law_checks(np.concatenate(frames))
+    render = jax.jit(noise_env.render)
+    frames = [np.asarray(render(jax.random.key(k), state.physics, params))[..., 0][floor]
+              for k in range(64)]
+    noise_law_checks(np.concatenate(frames), noise)
     assert (frames[0] != frames[1]).mean() > 0.4
 
 

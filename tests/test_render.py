@@ -240,6 +240,44 @@ def test_any_size_rgb_and_grayscale(cheetah):
         Renderer(table, 0, 50)
 
 
+def skybox_texels(model):
+    """uint8 [2, 3]: the skybox texture's texels straight up and straight down, read from the
+    compiled texture (six square faces, the third up and the fourth down)."""
+    tex = int(np.flatnonzero(np.asarray(model.tex_type) == mujoco.mjtTexture.mjTEXTURE_SKYBOX)[0])
+    w, c, adr = int(model.tex_width[tex]), int(model.tex_nchannel[tex]), int(model.tex_adr[tex])
+    faces = np.asarray(model.tex_data[adr:adr + 6 * w * w * c]).reshape(6, w, w, c)
+    return faces[[2, 3], w // 2, w // 2, :3]
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_sky_is_the_models_own_skybox(robot):
+    """The sky runs from the skybox's zenith colour in the top row to its nadir colour in the
+    bottom row: white to black for Ant, HalfCheetah and Swimmer, blue-grey to black for
+    Hopper (as before, to within the one level MuJoCo's 8-bit texture takes off)."""
+    model = gym_model(robot)
+    table = GeomTable.from_model(model)
+    zenith, nadir = skybox_texels(model).astype(int)
+    camera = TrackingCamera.from_model(model)
+    renderer = Renderer(table, 24, 24, fovy=camera.fovy, shadows=False)
+    sky = np.stack([np.asarray(c)[:, 0] for c in renderer._sky()], -1) * 255  # [H, 3]
+    np.testing.assert_allclose(sky[0], zenith, atol=1)
+    np.testing.assert_allclose(sky[-1], nadir, atol=1)
+    # In a rendered frame, every sky pixel shows its row's colour (Swimmer's camera looks
+    # down at the floor and sees no sky; the others see it in the top row).
+    data = posed(model, 0, scale=0.0)
+    pos, mat = camera.pose(data)
+    frame = np.asarray(renderer.render(pos, mat, data.geom_xpos, data.geom_xmat)).astype(int)
+    is_sky = np.asarray(renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat).geom) < 0
+    assert robot == "swimmer" or is_sky[0].any(), f"{robot}: the top row shows no sky"
+    rows = np.nonzero(is_sky)[0]
+    np.testing.assert_allclose(frame[is_sky], sky[rows], atol=1)
+    if robot == "hopper":  # Hopper's MJCF declares rgb1=".4 .5 .6" rgb2="0 0 0"
+        np.testing.assert_allclose(sky / 255, np.linspace([0.4, 0.5, 0.6], [0.0, 0.0, 0.0], 24),
+                                   atol=1 / 255)
+    else:  # Gymnasium's white-to-black skybox, not Hopper's
+        assert zenith.min() >= 250 and nadir.max() <= 2
+
+
 def test_vmap_gives_each_env_its_own_frame_deterministically(cheetah):
     """One compiled batched render: permuting the batch permutes the frames (no cross-talk),
     the same input gives the same bytes, and each frame is the unbatched render's."""

@@ -103,15 +103,22 @@ def test_frame_stack(env):
     check_env(wrapped, params, num_steps=8)
 
 
-def test_noise_observation_replaces_pixels(env):
-    wrapped = NoiseObservationWrapper(env)
+@pytest.mark.parametrize("noise", [None, "authors", "centred"])
+def test_noise_observation_replaces_pixels(env, noise):
+    """The pixels follow the named law; None (no `noise=`) is `DEFAULT_NOISE`, the law of
+    every family's noise control."""
+    from jaxnat.natural import DEFAULT_NOISE, noise_law
+    from jaxnat.testing import check_noise_law
+
+    wrapped = NoiseObservationWrapper(env) if noise is None else NoiseObservationWrapper(env, noise=noise)
     params = env.default_params
     obs, state = wrapped.reset(jax.random.key(0), params)
     real, _ = env.reset(jax.random.split(jax.random.key(0))[0], params)
     assert obs.shape == real.shape and obs.dtype == jnp.uint8
     assert not np.array_equal(np.asarray(obs), np.asarray(real))
-    big = VmapWrapper(wrapped, 64).reset(jax.random.key(1), params)[0].astype(jnp.float32)
-    assert abs(float(big.mean()) - 127.5) < 3 and abs(float(big.std()) - 50) < 3
+    big = np.asarray(VmapWrapper(wrapped, 512).reset(jax.random.key(1), params)[0])
+    law = noise_law(DEFAULT_NOISE if noise is None else noise)
+    check_noise_law(big, law.probabilities(), f"NoiseObservationWrapper(noise={noise!r})")
     obs2, *_ = wrapped.step(jax.random.key(2), state, wrong(state), params)
     assert not np.array_equal(np.asarray(obs), np.asarray(obs2)), "fresh noise every step"
     check_env(wrapped, params, num_steps=5)
@@ -181,5 +188,10 @@ def test_make_observation_noise_composes_inside_the_autoreset():
         pytest.skip("Classify/Digits-v0 data not installed")
     assert isinstance(env, AutoResetWrapper) and isinstance(env._env, NoiseObservationWrapper)
     assert int(params.max_steps_in_episode) == 3
+    from jaxnat.natural import DEFAULT_NOISE, NOISE_LAWS
+
+    assert env._env.law is NOISE_LAWS[DEFAULT_NOISE]
+    centred, _ = jaxnat.make("Classify/Digits-v0", observation_noise="centred")
+    assert centred._env.law is NOISE_LAWS["centred"]
     with pytest.raises(TypeError, match="background='noise'"):
         jaxnat.make_vec("NaturalAtari/Pong-v0", 2, observation_noise=True)

@@ -22,9 +22,12 @@ frames) and split into train and test by whole files.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from jaxnat.atari.compositor import GrayNoiseSampler, grayscale
+from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
 
 __all__ = ["BACKGROUNDS", "make_background"]
 
@@ -52,7 +55,8 @@ class NoBackground:
 
 
 class NoiseBackground(NoBackground):
-    """Fresh i.i.d. `clip(N(0,1) * scale, 0)` per pixel and channel, every step, drawn directly
+    """Fresh i.i.d. noise per pixel and channel from a pixel-noise law (`law`, a
+    `jaxnat.natural.NoiseLaw`; the default `clip(N(0,1) * 50, 0)`), every step, drawn directly
     as its gray level (`GrayNoiseSampler`: the same law as graying RGB noise). Env `i` draws
     from its own generator (seeded from `seed` and `i`), once per step and once per `reset()`,
     so a seed gives one sequence however the batch is chunked.
@@ -62,10 +66,12 @@ class NoiseBackground(NoBackground):
     emulates: on the `runner`'s pool threads, one chunk of envs each, or on the calling thread
     without a pool; `frames` waits for them."""
 
-    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, scale: float = 50.0,
+    def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, law=DEFAULT_NOISE,
                  runner=None):
         self.buffer = np.empty((num_envs, *shape), np.uint8)
-        self._sampler = GrayNoiseSampler(scale=scale)  # each env draws from its own generator
+        self.law = noise_law(law)
+        # each env draws from its own generator
+        self._sampler = GrayNoiseSampler(scale=self.law.scale, mean=self.law.mean)
         self._runner = runner
         self._drawing = []  # futures of the draws started by advance()
         self.seed(seed)
@@ -137,15 +143,21 @@ def make_background(
     split: str = "train",
     sources=None,
     seed: int = 0,
-    noise_scale: float = 50.0,
+    noise=DEFAULT_NOISE,
+    noise_scale: float | None = None,
     runner=None,
 ):
     """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
-    `runner`: a `ChunkRunner` whose pool threads draw the noise while ALE emulates."""
+    `noise`: the pixel-noise law of "noise" (a name in `jaxnat.natural.NOISE_LAWS` or a
+    `NoiseLaw`), `noise_scale` its scale when not None; `runner`: a `ChunkRunner` whose pool
+    threads draw the noise while ALE emulates."""
     if kind == "none":
         return NoBackground()
     if kind == "noise":
-        return NoiseBackground(num_envs, shape, seed, noise_scale, runner)
+        law = noise_law(noise)
+        if noise_scale is not None:
+            law = dataclasses.replace(law, scale=float(noise_scale))
+        return NoiseBackground(num_envs, shape, seed, law, runner)
     if kind in ("video", "image"):
         from jaxnat import natural
 

@@ -224,8 +224,9 @@ class FrameStack:
 
 class GrayNoiseSampler:
     """Fresh i.i.d. gray levels of RGB noise pixels, fast: the gray level (ALE's law) of a pixel
-    whose three channels are i.i.d. `uint8(clip(N(0, 1) * scale, 0, 255))` (the paper
-    repository's noise, `jaxnat.natural.gaussian_noise_np`).
+    whose three channels are i.i.d. `uint8(clip(mean + N(0, 1) * scale, 0, 255))`
+    (`jaxnat.natural.NoiseLaw`; mean 0 and scale 50 are the paper repository's noise, the
+    default law `jaxnat.natural.gaussian_noise_np` draws).
 
     Compositing RGB noise and then turning it gray gives exactly these values, so drawing the
     gray level directly is the same in law at a third of the random numbers and no RGB pass.
@@ -234,22 +235,24 @@ class GrayNoiseSampler:
     is the exact law (the tests compare both samplers with it).
     """
 
-    def __init__(self, rng: np.random.Generator | None = None, scale: float = 50.0):
+    def __init__(self, rng: np.random.Generator | None = None, scale: float = 50.0,
+                 mean: float = 0.0):
         self.rng = rng  # the default generator of `sample`; None: every call passes its own
-        cdf = np.cumsum(self.law_probabilities(float(scale)))
+        cdf = np.cumsum(self.law_probabilities(float(scale), float(mean)))
         u = (np.arange(65536) + 0.5) / 65536
         self._table = np.minimum(np.searchsorted(cdf, u), 255).astype(np.uint8)
 
     @staticmethod
-    def channel_probabilities(scale: float = 50.0) -> np.ndarray:
-        """P(value = k), k = 0..255, of one channel, `uint8(clip(N(0,1) * scale, 0, 255))`."""
-        phi = np.array([0.5 * (1 + math.erf(k / scale / math.sqrt(2))) for k in range(1, 256)])
+    def channel_probabilities(scale: float = 50.0, mean: float = 0.0) -> np.ndarray:
+        """P(value = k), k = 0..255, of one channel, `uint8(clip(mean + N(0,1) * scale, 0, 255))`."""
+        phi = np.array([0.5 * (1 + math.erf((k - mean) / scale / math.sqrt(2)))
+                        for k in range(1, 256)])
         return np.diff(np.concatenate([[0.0], phi, [1.0]]))
 
     @classmethod
-    def law_probabilities(cls, scale: float = 50.0) -> np.ndarray:
+    def law_probabilities(cls, scale: float = 50.0, mean: float = 0.0) -> np.ndarray:
         """P(gray level = k), k = 0..255, for three independent channels."""
-        channel = cls.channel_probabilities(scale)
+        channel = cls.channel_probabilities(scale, mean)
         levels = np.arange(256, dtype=np.float64)
         g_b = levels[:, None] * 0.5870 + levels[None, :] * 0.1140  # G and B contributions
         p_gb = (channel[:, None] * channel[None, :]).ravel()

@@ -18,6 +18,7 @@ from jaxnat.atari.backgrounds import BACKGROUNDS, make_background
 from jaxnat.atari.chunks import ChunkRunner, default_threads
 from jaxnat.atari.compositor import FrameStack, composite_and_resize, composite_gray
 from jaxnat.atari.games import rom_id, rom_path
+from jaxnat.natural.noise import DEFAULT_NOISE
 
 __all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
 
@@ -49,7 +50,9 @@ class NaturalAtariVecEnv:
     Then on the host, whole-batch calls (jaxnat.atari.compositor; compositing and resizing are
     one fused pass of jaxnat.atari.area's kernel, bit-identical to OpenCV's): pixels whose
     three channels are all 0 take this step's background frame (`background`: "none" black,
-    "noise" i.i.d. `clip(N(0,1)*50, 0)` per pixel and channel each step, "video" consecutive
+    "noise" i.i.d. noise per pixel and channel each step from the pixel-noise law `noise`
+    (`jaxnat.natural.NOISE_LAWS`; default `clip(N(0,1)*50, 0)`, the authors'; `noise_scale`
+    replaces its scale when not None), "video" consecutive
     frames of a random natural video, one per agent step, a new video at a random offset at every
     reset, "image" a random still photo per episode); then ALE's grayscale, INTER_AREA resize to
     `obs_size`, and a stack of the last `stack` frames, channels-last, oldest first (zeros before
@@ -114,7 +117,8 @@ class NaturalAtariVecEnv:
         host_threads: int = 0,
         host_pass: str = "auto",
         autoreset_mode: str = "same_step",
-        noise_scale: float = 50.0,
+        noise: str = DEFAULT_NOISE,
+        noise_scale: float | None = None,
         seed: int = 0,
     ):
         if background not in BACKGROUNDS:
@@ -184,7 +188,7 @@ class NaturalAtariVecEnv:
         self._runner = ChunkRunner(self.num_envs, max(1, chunks))
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
-            seed=self._seed, noise_scale=noise_scale, runner=self._runner,
+            seed=self._seed, noise=noise, noise_scale=noise_scale, runner=self._runner,
         )
         self._stack = FrameStack(stack)
         self.step_timings = {"steps": 0, "ale_s": 0.0, "ahead_s": 0.0, "host_s": 0.0}

@@ -9,8 +9,9 @@ textures, and only those pixels change between modes (the renderer lights them a
 - `"video"`: the current frame of a natural video, laid on the floor in world x-y (one copy
   every `tile` metres, repeating), so it stays put under the moving camera and the robot
   walks over it;
-- `"noise"`: fresh i.i.d. Gaussian noise per floor pixel (N(0, 1) * 50 clipped at 0, the
-  paper repository's law), redrawn every frame.
+- `"noise"`: fresh i.i.d. Gaussian noise per floor pixel, redrawn every frame, from the
+  pixel-noise law `noise` (`jaxnat.natural.NOISE_LAWS`; by default N(0, 1) * 50 clipped at 0,
+  the paper repository's law).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ def texture_at(texture, xy, tile, index=None) -> jax.Array:
 
 
 def floor_rgb(mode: str, table, xy, *, frame=None, frame_index=None, tile=None, key=None,
-              channels: int = 3) -> jax.Array:
+              channels: int = 3, noise=None) -> jax.Array:
     """float32 `[..., 3]` in [0, 1]: the floor's colour at world points `xy [..., 2]`.
 
     Args:
@@ -52,6 +53,8 @@ def floor_rgb(mode: str, table, xy, *, frame=None, frame_index=None, tile=None, 
         key: a PRNG key, for "noise".
         channels: 1 draws one noise value per pixel (gray: the law survives the grayscale
             conversion exactly), 3 one per colour channel.
+        noise: the law of "noise", a name in `jaxnat.natural.NOISE_LAWS` or a `NoiseLaw`
+            (None: `DEFAULT_NOISE`).
     """
     if mode == "checker":
         if table.floor_texture is None:
@@ -65,9 +68,10 @@ def floor_rgb(mode: str, table, xy, *, frame=None, frame_index=None, tile=None, 
     if mode == "noise":
         if key is None:
             raise ValueError('floor="noise" needs a PRNG key')
-        from jaxnat.natural import gaussian_noise
+        from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
 
-        return _unit_rgb(gaussian_noise(key, xy.shape[:-1] + (channels,)))
+        law = noise_law(DEFAULT_NOISE if noise is None else noise)
+        return _unit_rgb(law.sample(key, xy.shape[:-1] + (channels,)))
     raise ValueError(f"floor must be one of {FLOOR_MODES}, got {mode!r}")
 
 

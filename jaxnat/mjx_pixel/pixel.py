@@ -14,14 +14,15 @@ Semantics: `docs/environments.md` section 4.
     last repeat (frames inside a skip are never rendered). At reset the stack holds copies of
     the first frame. Frames come from `render.Renderer` (pure JAX ray casting, 84x84 by
     default) through the model's `track` camera (`camera.TrackingCamera`).
-  - `"noise"`: uint8 of the same shape, every value i.i.d. N(0, 1) * 50 clipped at 0 (the
+  - `"noise"`: uint8 of the same shape, every value i.i.d. from the pixel-noise law `noise=`
+    (default `jaxnat.natural.DEFAULT_NOISE`: N(0, 1) * 50 clipped at 0, the authors' law) (the
     paper's open-loop test), fresh each step; nothing is rendered.
   - `"state"`: the physics env's float32 observation after the last repeat (no stacking).
 - **Floor** (`floor=`, pixels only): the pixels whose nearest hit is the floor plane take
   `"checker"` (the model's checker), `"video"` (the current frame of a natural video laid on
   the floor in world x-y, `video_tile` metres per copy; the video advances one frame per agent
   step; `video_split` "train"/"test" picks disjoint videos) or `"noise"` (fresh Gaussian
-  noise each frame). See `floor.py`.
+  noise each frame, the same law `noise=`). See `floor.py`.
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
   default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
@@ -56,6 +57,7 @@ from jaxnat.core import Environment, EnvParams, EnvState
 from jaxnat.mjx_pixel.camera import TrackingCamera
 from jaxnat.mjx_pixel.floor import FLOOR_MODES, floor_rgb
 from jaxnat.mjx_pixel.render import GeomTable, Renderer
+from jaxnat.natural.noise import DEFAULT_NOISE, NoiseLaw, noise_law
 
 __all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "PHYSICS", "OBSERVATIONS"]
 
@@ -94,6 +96,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         robot: "ant", "half_cheetah", "hopper" or "swimmer" (ignored when `physics` is given).
         observation: "pixels", "noise" or "state".
         floor: "checker", "video" or "noise".
+        noise: the pixel-noise law of observation="noise" and floor="noise": a name in
+            `jaxnat.natural.NOISE_LAWS` (`"authors"`, the default, or `"centred"`) or a
+            `NoiseLaw`.
         frame_skip: physics-env steps per agent step (4).
         frame_stack: frames per observation (4).
         height, width: frame size in pixels (84x84).
@@ -129,6 +134,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         video_max_frames: int | None = None,
         physics: Environment | None = None,
         render_kernel: str = "auto",
+        noise: str | NoiseLaw = DEFAULT_NOISE,
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -145,6 +151,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.physics = physics
         self.observation = observation
         self.floor = floor
+        self.noise = noise_law(noise)
         self.frame_skip, self.frame_stack = int(frame_skip), int(frame_stack)
         self.camera = TrackingCamera.from_model(physics.model)
         self.table = GeomTable.from_model(physics.model)
@@ -182,9 +189,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             stack = jnp.concatenate([state.history, state.latest], axis=-1)
             return jnp.where(state.fresh, jnp.tile(state.latest, self.frame_stack), stack)
         if self.observation == "noise":
-            from jaxnat.natural import gaussian_noise
-
-            return gaussian_noise(_noise_key(state), self.observation_space(params).shape)
+            return self.noise.sample(_noise_key(state), self.observation_space(params).shape)
         return state.latest
 
     def observe(self, state: PixelState, params: PixelParams):
@@ -210,7 +215,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         def floor(xy):
             return floor_rgb(self.floor, self.table, xy, frame=frames, frame_index=frame_index,
                              tile=(params.video_tile, params.video_tile), key=key,
-                             channels=self.renderer.channels)
+                             channels=self.renderer.channels, noise=self.noise)
 
         return self.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor)
 

@@ -44,6 +44,8 @@ PLANE, HFIELD, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX, MESH = range(8)
 _SUPPORTED = {PLANE: "plane", SPHERE: "sphere", CAPSULE: "capsule", ELLIPSOID: "ellipsoid",
               CYLINDER: "cylinder", BOX: "box"}
 _MISS = jnp.inf
+# The sky of a model without a skybox: Hopper's skybox colours, as declared in its MJCF.
+DEFAULT_SKY = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0))
 # `Renderer.render`'s ops carry this name in a compiled program's metadata (tests count renders).
 RENDER_SCOPE = "jaxnat_render"
 KERNELS = ("xla", "pallas", "auto")
@@ -70,6 +72,8 @@ class GeomTable:
             role), multiplied by the floor's rgba, in [0, 1].
         floor_tile: float32 [2]: world metres (x, y) one copy of the floor texture covers.
         cast_shadows: bool [G]: whether a geom is tested for shadows (planes never are).
+        sky: float32 [2, 3] or None: the model's skybox colours in [0, 1], zenith and nadir
+            (`_skybox_colours`), the renderer's sky gradient; None when it has no skybox.
     """
 
     geom_ids: np.ndarray
@@ -85,6 +89,7 @@ class GeomTable:
     floor_texture: np.ndarray | None
     floor_tile: np.ndarray
     cast_shadows: np.ndarray
+    sky: np.ndarray | None = None
 
     @property
     def num_geoms(self) -> int:
@@ -126,6 +131,7 @@ class GeomTable:
             floor_texture=texture,
             floor_tile=tile,
             cast_shadows=types != PLANE,
+            sky=_skybox_colours(model),
         )
 
 
@@ -141,6 +147,34 @@ def _lights(model) -> dict:
         "diffuse": np.asarray(model.light_diffuse, np.float32).reshape(n, 3),
         "ambient": np.asarray(model.light_ambient, np.float32).reshape(n, 3).sum(0),
     }
+
+
+_SKYBOX = 2  # mujoco.mjtTexture.mjTEXTURE_SKYBOX
+
+
+def _skybox_colours(model) -> np.ndarray | None:
+    """float32 [2, 3]: the colours of the model's skybox straight up and straight down, as its
+    texture stores them, or None without a skybox.
+
+    MuJoCo compiles a skybox, builtin gradients included, into six square faces stacked
+    vertically; the third faces up and the fourth down (a `gradient` skybox has `rgb1` at the
+    third face's centre and `rgb2` at the fourth's). MuJoCo renders those 8-bit texels, so
+    they are the colours to draw (a gradient's texels sit up to one level below its `rgb1`:
+    Hopper's 0.4 0.5 0.6 is stored as 101 127 152)."""
+    skyboxes = np.flatnonzero(np.asarray(model.tex_type) == _SKYBOX)
+    if not len(skyboxes):
+        return None
+    texid = int(skyboxes[0])
+    h, w, c = (int(model.tex_height[texid]), int(model.tex_width[texid]),
+               int(model.tex_nchannel[texid]))
+    if h != 6 * w:  # not six faces (a skybox from one image file): no zenith to read
+        return None
+    adr = int(model.tex_adr[texid])
+    faces = np.asarray(model.tex_data[adr : adr + h * w * c]).reshape(6, w, w, c)
+    centre = slice((w - 1) // 2, w // 2 + 1)  # the middle texel, or the middle 2x2 block
+    colours = faces[2:4, centre, centre].reshape(2, -1, c).mean(axis=1) / 255.0
+    rgb = colours[:, :3] if c >= 3 else np.repeat(colours[:, :1], 3, axis=1)
+    return rgb.astype(np.float32)
 
 
 def _floor_texture(model, geom: int):
@@ -377,8 +411,11 @@ class Renderer:
         grayscale: uint8 `[H, W, 1]` (luminance, ITU-R 601 weights as OpenCV) instead of RGB.
         shadows: hard shadows from the model's first light (one more ray per pixel and geom:
             about twice the work, and a longer compile).
-        sky: rgb of pixels that hit nothing, top and horizon (a vertical gradient, as
-            Gymnasium's skybox).
+        sky: rgb in [0, 1] of pixels that hit nothing at the top and the bottom of the frame
+            (a vertical gradient between them). None (the default): the model's skybox,
+            its colours straight up and straight down (`GeomTable.sky`; Gymnasium's Hopper
+            blue-grey to black, Ant, HalfCheetah and Swimmer white to black); without a
+            skybox, `DEFAULT_SKY`.
         kernel: "auto" (the default: Pallas when JAX's default backend is a GPU, else XLA),
             "xla" (plain JAX, any backend) or "pallas" (the nearest-hit search as one Pallas
             kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU). Both render the same
@@ -399,7 +436,7 @@ class Renderer:
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
                  grayscale: bool = False, shadows: bool = False,
-                 sky: tuple = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0)), kernel: str = "auto"):
+                 sky: tuple | None = None, kernel: str = "auto"):
         if height < 1 or width < 1:
             raise ValueError(f"image size must be positive, got {height}x{width}")
         if kernel not in KERNELS:
@@ -410,6 +447,8 @@ class Renderer:
         self.fovy = float(fovy)
         self.grayscale = bool(grayscale)
         self.shadows = bool(shadows) and len(table.light_dirs) > 0
+        if sky is None:
+            sky = table.sky if table.sky is not None else DEFAULT_SKY
         self.sky = np.asarray(sky, np.float32)
         # Camera-frame ray directions, unit, [H, W, 3], row 0 at the top.
         tan_half = math.tan(math.radians(self.fovy) / 2)
@@ -646,7 +685,8 @@ class Renderer:
         return self._to_uint8(colour)
 
     def _sky(self):
-        """Per channel, `[H, 1]` host constants: the sky's vertical gradient."""
+        """Per channel, `[H, 1]` host constants: the sky's vertical gradient, from the top
+        colour in row 0 to the bottom colour in the last row."""
         top, horizon = self.sky
         rows = np.linspace(1.0, 0.0, self.height, dtype=np.float32)[:, None]
         return [horizon[c] + (top[c] - horizon[c]) * rows for c in range(3)]

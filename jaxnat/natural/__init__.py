@@ -12,16 +12,18 @@
 
 - Sources (`sources.py`): None = the natural videos (or photos) of Debian's `opencv-doc`, else a
   file, a directory, a glob, or a list of these (e.g. a Kinetics download).
-- Split: by whole files, by content hash, disjoint by construction; `split="all"` uses every
-  file for both, as the paper did.
+- Split: by whole files, by content hash, disjoint by construction; near-duplicate files (the
+  same footage under different bytes, `near_duplicates.py`) kept on one side with a
+  `NearDuplicateWarning`; `split="all"` uses every file for both, as the paper did.
 - Decoding (`decode.py`): OpenCV, PyAV where OpenCV fails; gzipped files handled; frames resized
   to (H, W), RGB or grayscale.
 - `FrameBank` (`bank.py`): uint8 [N, H, W, C] with per-video `starts` and `lengths`; cached on
   disk by content, shape and colour mode; `max_frames` bounds memory.
 - Sampling (`sampler.py`): `VideoCursor` with `cursor_reset` / `cursor_step` / `cursor_frame`
   (jit, vmap) and `HostVideoSampler` for batched host envs.
-- Noise (`noise.py`): `gaussian_noise` (N(0,1)*50 clipped at 0, the paper repository's law) and
-  `constant_color`, each with a NumPy twin.
+- Noise (`noise.py`): the noise controls' named laws (`NOISE_LAWS`: `"authors"`, N(0,1)*50
+  clipped at 0, the paper repository's law and `DEFAULT_NOISE`; `"centred"`, N(127.5, 50)
+  rounded), `gaussian_noise` and `constant_color`, each with a NumPy twin.
 """
 
 from jaxnat.natural.bank import (
@@ -32,12 +34,17 @@ from jaxnat.natural.bank import (
     load_videos,
 )
 from jaxnat.natural.decode import VideoDecodeWarning
+from jaxnat.natural.near_duplicates import NearDuplicateWarning
 from jaxnat.natural.noise import (
+    DEFAULT_NOISE,
+    NOISE_LAWS,
     NOISE_SCALE,
+    NoiseLaw,
     constant_color,
     constant_color_np,
     gaussian_noise,
     gaussian_noise_np,
+    noise_law,
 )
 from jaxnat.natural.sampler import (
     HostVideoSampler,
@@ -58,6 +65,7 @@ __all__ = [
     "DEFAULT_SHAPE",
     "DEFAULT_TEST_FRACTION",
     "VideoDecodeWarning",
+    "NearDuplicateWarning",
     "VideoCursor",
     "cursor_reset",
     "cursor_step",
@@ -65,6 +73,10 @@ __all__ = [
     "cursor_index",
     "HostVideoSampler",
     "NOISE_SCALE",
+    "NoiseLaw",
+    "NOISE_LAWS",
+    "DEFAULT_NOISE",
+    "noise_law",
     "gaussian_noise",
     "gaussian_noise_np",
     "constant_color",

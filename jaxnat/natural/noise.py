@@ -1,8 +1,18 @@
 """Synthetic backgrounds: i.i.d. Gaussian noise and constant colour, in JAX and NumPy.
 
-The noise law is the public natural_rl_environment repository's: per pixel and channel,
-N(0, 1) * scale with scale = 50, clipped at 0 (and at 255, to fit uint8) and truncated to an
-integer, so about half the pixels are black and the rest spread over 1 ... ~200.
+The noise laws of the noise controls (`NOISE_LAWS`, one `NoiseLaw` each; every family's noise
+control takes its law from here, by name, with `DEFAULT_NOISE` as the default):
+
+- `"authors"` (the default): per pixel and channel, N(0, 1) * 50 clipped at 0 (and at 255, to
+  fit uint8) and truncated to an integer, so about half the pixels are black and the rest
+  spread over 1 ... ~200 (mean ~19.5, std ~29.0). This is the public natural_rl_environment
+  repository's `NoiseSource` (`np.maximum(np.random.randn(h, w, 3) * 50, 0)`, written into the
+  uint8 frame), the only noise code the authors published; the paper itself says only
+  "i.i.d. Gaussian noise". It is the default so that the noise controls reproduce the paper's
+  experiments.
+- `"centred"`: N(127.5, 50) rounded to the nearest integer and clipped to [0, 255] (mean 127.5,
+  std ~49.6): noise centred in the pixel range, with almost no clipped values. Not the
+  authors'; offered for users who want noise that fills the range.
 
 Drawing a float normal per pixel and rounding it wastes most of the work: the result takes only
 256 values. With a fixed (Python number) scale and mean, noise is drawn by inverse transform
@@ -19,17 +29,66 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from statistics import NormalDist
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["NOISE_SCALE", "gaussian_noise", "gaussian_noise_np", "constant_color",
-           "constant_color_np", "noise_table"]
+__all__ = ["NOISE_SCALE", "NoiseLaw", "NOISE_LAWS", "DEFAULT_NOISE", "noise_law",
+           "gaussian_noise", "gaussian_noise_np", "constant_color", "constant_color_np",
+           "noise_table"]
 
 NOISE_SCALE = 50.0
 _TABLE_BITS = 16
+
+
+@dataclass(frozen=True)
+class NoiseLaw:
+    """A pixel-noise law: uint8 `clip(floor(mean + scale * N(0, 1)), 0, 255)`, i.i.d. per pixel
+    and channel (`floor(x + 0.5)` is rounding to the nearest integer)."""
+
+    name: str
+    mean: float
+    scale: float
+
+    def sample(self, key: jax.Array, shape: Sequence[int]) -> jax.Array:
+        """Draws of `shape` (uint8, JAX): `gaussian_noise` with this law."""
+        return gaussian_noise(key, shape, self.scale, self.mean)
+
+    def sample_np(self, rng: np.random.Generator, shape: Sequence[int]) -> np.ndarray:
+        """Draws of `shape` (uint8, NumPy): `gaussian_noise_np` with this law."""
+        return gaussian_noise_np(rng, shape, self.scale, self.mean)
+
+    def probabilities(self) -> np.ndarray:
+        """float64 [256]: the exact P(value = k), k = 0 ... 255."""
+        cdf = NormalDist(self.mean, self.scale).cdf if self.scale > 0 else (
+            lambda x: float(x > self.mean))
+        upper = np.array([cdf(k + 1) for k in range(255)] + [1.0])  # P(value <= k)
+        return np.diff(np.concatenate([[0.0], upper]))
+
+    def moments(self) -> tuple[float, float]:
+        """(mean, standard deviation) of one value, exact."""
+        p, k = self.probabilities(), np.arange(256.0)
+        mean = float(p @ k)
+        return mean, float(np.sqrt(p @ (k - mean) ** 2))
+
+
+NOISE_LAWS = {
+    "authors": NoiseLaw("authors", mean=0.0, scale=NOISE_SCALE),
+    "centred": NoiseLaw("centred", mean=128.0, scale=NOISE_SCALE),  # round(127.5 + 50 z)
+}
+DEFAULT_NOISE = "authors"
+
+
+def noise_law(noise: str | NoiseLaw = DEFAULT_NOISE) -> NoiseLaw:
+    """The `NoiseLaw` named `noise` (one of `NOISE_LAWS`), or `noise` itself."""
+    if isinstance(noise, NoiseLaw):
+        return noise
+    if noise not in NOISE_LAWS:
+        raise ValueError(f"noise must be one of {tuple(NOISE_LAWS)}, got {noise!r}")
+    return NOISE_LAWS[noise]
 
 
 @functools.lru_cache(maxsize=32)

@@ -10,6 +10,12 @@ The split is by whole files: sort the files by content hash; the first `test_fra
 more files and 0 < test_fraction < 1). Both splits come from one partition of one sorted list,
 so they are disjoint by construction, and they are the same on every machine. `split="all"` uses
 every file, as the paper did (it trained and tested on one set of Kinetics clips).
+
+Different bytes can hold the same footage (a re-encoded or damaged copy: opencv-doc's
+`Megamind.avi` and `Megamind_bugy.avi`). Such near-duplicates (`near_duplicates.py`: matching
+perceptual hashes of their first frames) stay on one side: every file of a group takes the side
+of its first member in content-hash order, with a `NearDuplicateWarning` naming the files. Every
+other file keeps the side the rule above gives it.
 """
 
 from __future__ import annotations
@@ -17,10 +23,12 @@ from __future__ import annotations
 import glob
 import hashlib
 import os
+import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from jaxnat.datasets.base import DatasetNotFoundError
+from jaxnat.natural.near_duplicates import NearDuplicateWarning, near_duplicate_groups
 
 __all__ = ["VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS", "SPLITS", "OPENCV_DOC_DIRS",
            "DEFAULT_VIDEOS", "DEFAULT_IMAGES", "default_video_paths", "default_image_paths",
@@ -143,7 +151,8 @@ def content_digest(path: Path) -> str:
 
 def split_files(files: Sequence[Path], split: str, test_fraction: float
                 ) -> list[tuple[Path, str]]:
-    """The (file, content digest) pairs of `split`, in content-hash order, duplicates dropped.
+    """The (file, content digest) pairs of `split`, in content-hash order, duplicates dropped
+    and near-duplicates kept on one side (with a `NearDuplicateWarning`).
 
     See the module docstring for the rule.
     """
@@ -158,10 +167,28 @@ def split_files(files: Sequence[Path], split: str, test_fraction: float
     num_test = int(test_fraction * len(ranked) + 0.5)  # rounded half up
     if len(ranked) >= 2 and 0.0 < test_fraction < 1.0:
         num_test = min(max(num_test, 1), len(ranked) - 1)
-    chosen = {"test": ranked[:num_test], "train": ranked[num_test:], "all": ranked}[split]
+    sides = ["test" if i < num_test else "train" for i in range(len(ranked))]
+    groups = near_duplicate_groups([p for _, p in ranked], [d for d, _ in ranked],
+                                   image=_is_image) if split != "all" and len(ranked) > 1 else []
+    for group in groups:
+        side = sides[group[0]]
+        for i in group:
+            sides[i] = side
+        warnings.warn(
+            f"near-duplicate files (the same footage under different bytes) kept together in "
+            f"the {side!r} split: {', '.join(str(ranked[i][1]) for i in group)}",
+            NearDuplicateWarning, stacklevel=3)
+    chosen = ranked if split == "all" else [r for r, s in zip(ranked, sides) if s == split]
     if not chosen:
+        grouped = (f" ({sum(map(len, groups))} of them near-duplicates kept on one side)"
+                   if groups else "")
         raise DatasetNotFoundError(
-            f"split {split!r} is empty: {len(ranked)} distinct file(s) with "
+            f"split {split!r} is empty: {len(ranked)} distinct file(s){grouped} with "
             f"test_fraction={test_fraction}; add files, change test_fraction, or use "
             "split='all' to use every file for both training and testing")
     return [(path, digest) for digest, path in chosen]
+
+
+def _is_image(path: Path) -> bool:
+    name = path.name.lower()
+    return any(name.endswith(ext) or name.endswith(ext + ".gz") for ext in IMAGE_EXTENSIONS)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxnat.natural.noise import DEFAULT_NOISE, NoiseLaw, noise_law
 from jaxnat.wrappers.base import Wrapper
 
 
@@ -12,9 +13,10 @@ class NoiseObservationWrapper(Wrapper):
     """Replace every observation with i.i.d. Gaussian noise of the same shape and dtype.
 
     A policy that learns as well from this as from real pixels is open loop: it ignores what it
-    sees (the paper's finding on PixelMuJoCo). Float observations get `loc + scale * N(0, 1)`;
-    integer observations (uint8 pixels) get it rounded and clipped to the dtype's range.
-    Dict observations are noised leaf by leaf. Fresh noise at every reset and step, drawn from
+    sees (the paper's finding on PixelMuJoCo). Integer observations (uint8 pixels) get the
+    pixel-noise law `noise` (`jaxnat.natural.NOISE_LAWS`; the default, `DEFAULT_NOISE`, is the
+    one every family's noise control uses: `clip(N(0, 1) * 50, 0)` truncated to uint8, the
+    authors' law). Float observations have no pixel range: they get `N(0, 1)`. Dict observations are noised leaf by leaf. Fresh noise at every reset and step, drawn from
     a key split off the one passed in (the inner env sees its own, independent key).
 
     Leak-free in either order: wrapped around an autoresetting env it also replaces
@@ -23,14 +25,18 @@ class NoiseObservationWrapper(Wrapper):
     where the final observation is already noise.
 
     Args:
-        loc, scale: mean and standard deviation of the noise. The defaults (None) pick
-            `N(0, 1)` for floats and `N(127.5, 50)` for integers, both well inside the range.
+        loc, scale: override the mean and the standard deviation of the Gaussian (None: the
+            law's for integers, 0 and 1 for floats).
+        noise: the law of integer observations, a name in `NOISE_LAWS` (`"authors"`, the
+            default, or `"centred"`: N(127.5, 50) rounded) or a `NoiseLaw`.
     """
 
-    def __init__(self, env, loc: float | None = None, scale: float | None = None):
+    def __init__(self, env, loc: float | None = None, scale: float | None = None, *,
+                 noise: str | NoiseLaw = DEFAULT_NOISE):
         super().__init__(env)
         self.loc = loc
         self.scale = scale
+        self.law = noise_law(noise)
 
     def _noise(self, key, obs):
         leaves, treedef = jax.tree_util.tree_flatten(obs)
@@ -40,14 +46,16 @@ class NoiseObservationWrapper(Wrapper):
         )
 
     def _noise_like(self, key, x):
-        is_int = jnp.issubdtype(x.dtype, jnp.integer)
-        loc = self.loc if self.loc is not None else (127.5 if is_int else 0.0)
-        scale = self.scale if self.scale is not None else (50.0 if is_int else 1.0)
-        noise = loc + scale * jax.random.normal(key, x.shape, jnp.float32)
-        if is_int:
-            info = jnp.iinfo(x.dtype)
-            return jnp.clip(jnp.round(noise), info.min, info.max).astype(x.dtype)
-        return noise.astype(x.dtype)
+        if jnp.issubdtype(x.dtype, jnp.integer):
+            law = NoiseLaw(self.law.name,
+                           self.law.mean if self.loc is None else self.loc,
+                           self.law.scale if self.scale is None else self.scale)
+            info = jnp.iinfo(x.dtype)  # the law's values are 0 ... 255: fit narrower dtypes
+            values = law.sample(key, x.shape).astype(jnp.int32)
+            return jnp.clip(values, max(info.min, 0), min(info.max, 255)).astype(x.dtype)
+        loc = 0.0 if self.loc is None else self.loc
+        scale = 1.0 if self.scale is None else self.scale
+        return (loc + scale * jax.random.normal(key, x.shape, jnp.float32)).astype(x.dtype)
 
     def reset(self, key, params=None):
         key_env, key_noise = jax.random.split(key)
