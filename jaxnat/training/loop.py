@@ -83,8 +83,7 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
         with console.status("compiling init, training chunk and evaluation programs..."):
             compile_start = time.perf_counter()
             program = compiled_program(spec, compiler_options)
-            for length in {spec.eval_every, spec.num_updates % spec.eval_every} - {0}:
-                program.compiled_chunk(length)
+            program.prepare({spec.eval_every, spec.num_updates % spec.eval_every} - {0})
         console.print(f"[dim]programs ready in {time.perf_counter() - compile_start:.1f} s[/dim]")
         backend = program
     new_run = None if saved is not None else {

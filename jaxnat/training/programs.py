@@ -6,6 +6,7 @@ import collections
 import functools
 import importlib
 import inspect
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -109,29 +110,55 @@ class DeviceBackend:
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
             raise TrainError(str(err)) from None
         evaluate = make_evaluate(self.learner.network, test_env, test_params, spec.eval_episodes)
-        self._chance_fn = jax.jit(jax.vmap(make_chance(test_env, test_params, spec.eval_episodes)))
+        chance = jax.jit(jax.vmap(make_chance(test_env, test_params, spec.eval_episodes)))
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
         init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
         self.runner_shape = jax.eval_shape(init, keys)
-        self.compiled_init = self._compile(init, keys)
-        self.compiled_evaluate = self._compile(jax.jit(jax.vmap(evaluate)), self.runner_shape.train_state.params,
-                                               keys, self.runner_shape.normalizer)
-        self._chunks: dict[int, Any] = {}
+        self._lowered = {  # compiled on first use, or together by `prepare`
+            "init": self._lower(init, keys),
+            "evaluate": self._lower(jax.jit(jax.vmap(evaluate)), self.runner_shape.train_state.params, keys,
+                                    self.runner_shape.normalizer),
+            "chance": self._lower(chance, keys)}
+        self._compiled: dict[Any, Any] = {}
         self.groups = [spec.seed_values]
 
-    def _compile(self, jitted, *args):
+    @staticmethod
+    def _lower(jitted, *args):
         try:
-            return jitted.lower(*args).compile(self.compiler_options)
+            return jitted.lower(*args)
         except ValueError as err:  # e.g. a batch that the minibatches do not divide
             raise TrainError(str(err)) from None
 
+    def _lower_chunk(self, n: int) -> None:
+        if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
+            run = functools.partial(self.learner.run, config=self.spec.config, num_updates=n, callback=_update_callback)
+            self._lowered[("chunk", n)] = self._lower(jax.jit(jax.vmap(run)), self.runner_shape)
+
+    def prepare(self, chunk_lengths=()) -> None:
+        """Compile every program (init, evaluation, chance, a chunk of each length) not compiled
+        yet: concurrently on an accelerator (XLA compiles without holding the GIL, and a GPU
+        compile spends much of its time autotuning, so separate programs overlap), one after
+        another on a CPU (there the compiler's own threads already use the cores)."""
+        for n in chunk_lengths:
+            self._lower_chunk(n)
+        pending = {name: lowered for name, lowered in self._lowered.items() if name not in self._compiled}
+        workers = 1 if jax.default_backend() == "cpu" else max(1, len(pending))
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            futures = {name: pool.submit(lowered.compile, self.compiler_options) for name, lowered in pending.items()}
+        for name, future in futures.items():
+            self._compiled[name] = future.result()
+            del self._lowered[name]
+
+    def _program(self, name):
+        if name not in self._compiled:
+            if isinstance(name, tuple):
+                self._lower_chunk(name[1])
+            self._compiled[name] = self._lowered.pop(name).compile(self.compiler_options)
+        return self._compiled[name]
+
     def compiled_chunk(self, num_updates: int):
         """`runner -> (runner, metrics [seeds, num_updates])`, compiled once per length."""
-        if num_updates not in self._chunks:
-            run = functools.partial(self.learner.run, config=self.spec.config,
-                                    num_updates=num_updates, callback=_update_callback)
-            self._chunks[num_updates] = self._compile(jax.jit(jax.vmap(run)), self.runner_shape)
-        return self._chunks[num_updates]
+        return self._program(("chunk", num_updates))
 
     def keys(self):
         return jax.vmap(jax.random.key)(jnp.asarray(self.spec.seed_values, jnp.uint32))
@@ -145,7 +172,7 @@ class DeviceBackend:
         return "checkpoints"
 
     def init(self, group=None):
-        return self.compiled_init(self.keys())
+        return self._program("init")(self.keys())
 
     def update_of(self, state) -> int:
         return int(np.asarray(state.update)[0])
@@ -162,11 +189,11 @@ class DeviceBackend:
             set_progress_sink(None)
 
     def evaluate(self, group, state) -> dict:
-        return jax.device_get(self.compiled_evaluate(state.train_state.params, self.eval_keys(), state.normalizer))
+        return jax.device_get(self._program("evaluate")(state.train_state.params, self.eval_keys(), state.normalizer))
 
     def chance(self) -> dict:
         """The uniform random policy's test scores, over the seeds' evaluation keys."""
-        scores = jax.device_get(self._chance_fn(self.eval_keys()))
+        scores = jax.device_get(self._program("chance")(self.eval_keys()))
         return {name: float(np.mean(value)) for name, value in scores.items()}
 
     def close(self) -> None:
