@@ -121,6 +121,12 @@ def test_findings_judge_hand_made_results():
     worse.append(_result("classify", "classify-cnn", "acktr", [0.1] * 3, dataset="mnist", trunk="cnn"))
     assert next(f for f in findings.FINDINGS if f.rule.__name__ == "_a2c_worst").judge(worse).verdict == \
         "not reproduced"
+    rule = next(f for f in findings.FINDINGS if f.rule.__name__ == "_video_lowers_atari")
+    none = _result("atari", "atari", "ppo", [1.0, 2.0, 3.0], game="Breakout", background="none")
+    for video, verdict in (([0.1, 0.2, 0.3], "reproduced"), ([1.5, 1.9, 2.0], "reproduced by the means only"),
+                           ([3.0, 3.0, 3.0], "not reproduced")):
+        video = _result("atari", "atari", "ppo", video, game="Breakout", background="video")
+        assert rule.judge([none, video]).verdict.startswith(verdict)
     pixels = _result("mujoco", "mujoco", "ppo", [100.0, 110.0, 120.0], robot="Hopper", observation="checker")
     for noise, verdict in ((105.0, "reproduced"), (50.0, "not reproduced")):
         results = [pixels, _result("mujoco", "mujoco", "ppo", [noise] * 3, robot="Hopper", observation="noise")]

@@ -4,7 +4,7 @@ A claim is judged on the finished cells it needs, by their final training return
 paper's figures plot training returns; `report.CellResult.final_train`): "reproduced" when
 it holds in every comparison it makes, "not reproduced" when one fails (the numbers say which),
 "not run" when its cells are missing. An ordering ("worst", "harder", "lower") is judged by the
-means over seeds; the one claim of equality ("as good a policy") by the interval: the noise
+means over seeds, and called "reproduced by the means only" when the two 95% intervals overlap; the one claim of equality ("as good a policy") by the interval: the noise
 policy's mean at or above the lower bound of the pixel policy's 95% interval.
 """
 
@@ -38,16 +38,32 @@ def _select(results, experiment: str, figure: str | None = None, **labels):
 
 
 def _fmt(interval) -> str:
-    return f"{interval.mean:.3g}"
+    """The mean and its 95% interval: an ordering of means inside each other's intervals is weak."""
+    return str(interval)
 
 
 def _not_run(what: str) -> Verdict:
     return Verdict("not run", f"no finished cells for {what}")
 
 
-def _verdict(held: int, total: int, numbers: list[str]) -> Verdict:
+def _verdict(held: int, total: int, numbers: list[str], overlapping: int = 0) -> Verdict:
+    """`overlapping`: of the held orderings, how many have overlapping intervals (weak evidence)."""
     word = "reproduced" if held == total else "not reproduced"
+    if held == total and overlapping:
+        word = "reproduced by the means only (intervals overlap)"
     return Verdict(word, f"{held} of {total}: " + "; ".join(numbers))
+
+
+def _below(low, high) -> tuple[bool, bool]:
+    """(low's mean below high's, and their intervals apart)."""
+    return low.mean < high.mean, low.high < high.low
+
+
+def _ordered(pairs, numbers) -> Verdict:
+    """Pairs `(better, worse)` of results: the claim is that each `worse` is below its `better`."""
+    checks = [_below(worse.final_train, better.final_train) for better, worse in pairs]
+    held = sum(below for below, _ in checks)
+    return _verdict(held, len(pairs), numbers, sum(below and not apart for below, apart in checks))
 
 
 def _close_to_one(results) -> Verdict:
@@ -67,13 +83,13 @@ def _a2c_worst(results) -> Verdict:
     panels = {k: v for k, v in panels.items() if "a2c" in v and len(v) >= 2}
     if not panels:
         return _not_run("A2C beside PPO or ACKTR")
-    held, numbers = 0, []
+    pairs, numbers = [], []
     for (dataset, trunk), algos in panels.items():
-        others = min(r.final_train.mean for algo, r in algos.items() if algo != "a2c")
-        a2c = algos["a2c"].final_train.mean
-        held += a2c < others
-        numbers.append(f"{dataset} {trunk}: A2C {a2c:.3g} vs the next lowest {others:.3g}")
-    return _verdict(held, len(panels), numbers)
+        lowest = min((r for algo, r in algos.items() if algo != "a2c"), key=lambda r: r.final_train.mean)
+        pairs.append((lowest, algos["a2c"]))
+        numbers.append(f"{dataset} {trunk}: A2C {_fmt(algos['a2c'].final_train)} vs the next lowest "
+                       f"{lowest.cell.algo.upper()} {_fmt(lowest.final_train)}")
+    return _ordered(pairs, numbers)
 
 
 def _cifar_harder(results) -> Verdict:
@@ -89,7 +105,7 @@ def _cifar_harder(results) -> Verdict:
         return _not_run("MNIST beside CIFAR")
     numbers = [f"{a.cell.algo.upper()} {a.cell.labels['trunk']}: MNIST {_fmt(a.final_train)} vs "
                f"{b.cell.labels['dataset']} {_fmt(b.final_train)}" for a, b in pairs]
-    return _verdict(sum(b.final_train.mean < a.final_train.mean for a, b in pairs), len(pairs), numbers)
+    return _ordered(pairs, numbers)
 
 
 def _smaller_m_easier(results) -> Verdict:
@@ -124,7 +140,7 @@ def _resnet_worse_localize(results) -> Verdict:
         return _not_run("localisation with both trunks")
     numbers = [f"{a.cell.labels['dataset']} {a.cell.algo.upper()}: CNN {_fmt(a.final_train)} vs ResNet-18 "
                f"{_fmt(b.final_train)}" for a, b in pairs]
-    return _verdict(sum(b.final_train.mean < a.final_train.mean for a, b in pairs), len(pairs), numbers)
+    return _ordered(pairs, numbers)
 
 
 def _video_lowers_atari(results) -> Verdict:
@@ -137,7 +153,7 @@ def _video_lowers_atari(results) -> Verdict:
         return _not_run("Atari with and without video")
     numbers = [f"{a.cell.labels['game']} {a.cell.algo.upper()}: none {_fmt(a.final_train)} vs video "
                f"{_fmt(b.final_train)}" for a, b in pairs]
-    return _verdict(sum(b.final_train.mean < a.final_train.mean for a, b in pairs), len(pairs), numbers)
+    return _ordered(pairs, numbers)
 
 
 def _noise_as_good(results) -> Verdict:
