@@ -15,6 +15,7 @@ import dataclasses
 import datetime
 import json
 import platform
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ FINAL_FRACTION = 0.1  # the final training return averages the last 10% of a see
 FIGURES = {
     "classify-cnn": ("Image classification, 3-layer CNN", "classify-cnn", "dataset", "algo"),
     "classify-resnet18": ("Image classification, ResNet-18", "classify-resnet18", "dataset", "algo"),
-    "sweep": ("CIFAR-10 with PPO: window w at M=20 (left), steps M at w=5 (right)", "sweep", "sweep", "value"),
+    "sweep": ("The difficulty sweep with PPO: window w at M=20, steps M at w=5", "sweep", "sweep", "value"),
     "localize": ("Object localisation: 3-layer CNN and ResNet-18", None, "panel", "algo"),
     "atari": ("Natural Atari: background none / noise / video", "atari", "game", "background"),
     "mujoco": ("PixelMuJoCo: checker floor / video floor / pure noise", "mujoco", "robot", "observation"),
@@ -130,9 +131,9 @@ def _panels(figure: str, results: list[CellResult]) -> dict[str, list[tuple[str,
         if figure == "sweep":
             w, m = cell.labels["w"], cell.labels["M"]
             if m == 20:
-                panels.setdefault("window w (M=20)", []).append((f"w={w}", r))
+                panels.setdefault(f"{_dataset_title(cell)}: window w (M=20)", []).append((f"w={w}", r))
             if w == 5:
-                panels.setdefault("steps per episode M (w=5)", []).append((f"M={m}", r))
+                panels.setdefault(f"{_dataset_title(cell)}: steps M (w=5)", []).append((f"M={m}", r))
             continue
         if figure == "noise-control":
             title = f"{cell.experiment}: {_dataset_title(cell)}, PPO"
@@ -174,14 +175,15 @@ def plot_figure(path: Path, title: str, panels: dict) -> None:
         chance = [r.chance for _, r in curves if r.chance is not None]
         if chance:
             ax.axhline(float(np.mean(chance)), color="0.4", linestyle=":", linewidth=1, label="random policy (test)")
-        ax.set_title(panel)
+        ax.set_title(panel, fontsize="medium")
+        ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 0))
         ax.set_xlabel("env steps per seed")
         ax.set_ylabel("episode return")
         ax.grid(alpha=0.3)
         ax.legend(fontsize="x-small", loc="best")
     for ax in axes[n:]:
         ax.set_visible(False)
-    fig.suptitle(f"{title} (mean over seeds, 95% bootstrap band)")
+    fig.suptitle(textwrap.fill(f"{title} (mean over seeds, 95% bootstrap band)", 40 * columns), fontsize="large")
     fig.savefig(path, dpi=100)
 
 
