@@ -153,6 +153,14 @@ def test_setup_errors(argv, message, tmp_path, capsys):
     assert message in _error(capsys)
 
 
+def test_env_kwargs_with_a_string_default_stay_strings():
+    # `background=none` names Natural Atari's "none" background: `none` reads as None only where
+    # the constructor's default is not a string.
+    assert train.parse_env_kwargs(["start=none", "M=none", "w=3"], "Classify/Digits-v0") == {
+        "start": "none", "M": None, "w": 3}
+    assert train.parse_env_kwargs(["start=none"]) == {"start": None}
+
+
 def test_parse_env_kwargs():
     assert train.parse_env_kwargs(["w=3", "correct_reward=0.5", "start=center", "flag=true", "x=none"]) == {
         "w": 3, "correct_reward": 0.5, "start": "center", "flag": True, "x": None}

@@ -180,7 +180,7 @@ def _check_same_run(cell: Cell, plan: Plan, config: dict) -> None:
 
     saved = (spec.get("env_id"), spec.get("env_kwargs"), spec.get("algo"), spec.get("seeds"),
              spec.get("config", {}).get("total_timesteps"))
-    wanted = (cell.env_id, parse_env_kwargs({k: str(v) for k, v in cell.env_kwargs.items()}), cell.algo, plan.seeds,
+    wanted = (cell.env_id, parse_env_kwargs({k: str(v) for k, v in cell.env_kwargs.items()}, cell.env_id), cell.algo, plan.seeds,
               cell.budget.total_timesteps)
     if saved != wanted:
         raise ReproduceError(f"{plan.out / cell.name} holds a run with other settings (env, kwargs, algo, seeds, "

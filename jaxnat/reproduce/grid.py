@@ -254,7 +254,7 @@ def _atari_cells(profile: Profile) -> list[Cell]:
         for background in profile.subset("backgrounds", BACKGROUNDS):
             for algo in profile.subset("atari_algos", ATARI_ALGOS):
                 cells.append(Cell(f"atari-{game.lower()}-{background}-{algo}", "atari", "atari",
-                                  # "none" is the env's default (on a command line it would read as None)
+                                  # "none" is the env's default: left out, as a user would
                                   f"NaturalAtari/{game}-v0", {} if background == "none" else {"background": background},
                                   algo, None, budget,
                                   _settings(algo, extra), {"game": game, "background": background}))

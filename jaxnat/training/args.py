@@ -66,7 +66,7 @@ class TrainArgs:
     env_id: str = "Classify/Digits-v0"
     """A registered env id (see jaxnat.registered_envs())."""
     env_kwargs: Annotated[tuple[str, ...], tyro.conf.arg(metavar="KEY=VALUE [KEY=VALUE ...]")] = ()
-    """Keyword arguments of jaxnat.make, e.g. w=3 M=10 start=center; values are read as int, float, bool (true/false), none, else str. The trainer sets split (train, and test for evaluation)."""
+    """Keyword arguments of jaxnat.make, e.g. w=3 M=10 start=center; values are read as int, float, bool (true/false), none, else str (an argument whose default is a string keeps the text: background=none). The trainer sets split (train, and test for evaluation)."""
     algo: Annotated[str, tyro.conf.arg(metavar="{" + ",".join(ALGORITHMS) + "}")] = "ppo"
     """The algorithm."""
     seeds: int = 5
@@ -95,8 +95,29 @@ class TrainArgs:
     its default value must still match the run's."""
 
 
-def parse_env_kwargs(items) -> dict[str, Any]:
-    """`["w=3", "start=center"]` (or a dict of strings) -> `{"w": 3, "start": "center"}`."""
+def constructor_parameters(env_id: str) -> dict[str, inspect.Parameter]:
+    """The parameters of the env's entry point ({} when it cannot be imported: `jaxnat.make`
+    then says which dependency is missing, or the id is unknown)."""
+    import importlib
+
+    import jaxnat
+
+    try:
+        entry = jaxnat.spec(env_id).entry_point
+        if isinstance(entry, str):
+            module, _, attr = entry.partition(":")
+            entry = getattr(importlib.import_module(module), attr)
+        target = entry.__init__ if inspect.isclass(entry) else entry
+        return dict(inspect.signature(target).parameters)
+    except (ImportError, LookupError, TypeError, ValueError):
+        return {}
+
+
+def parse_env_kwargs(items, env_id: str | None = None) -> dict[str, Any]:
+    """`["w=3", "start=center"]` (or a dict of strings) -> `{"w": 3, "start": "center"}`.
+
+    With `env_id`, a value for a constructor argument whose default is a string stays a string
+    (`background=none` names Natural Atari's "none" background, not None)."""
     pairs = items.items() if isinstance(items, dict) else []
     if not isinstance(items, dict):
         for item in items:
@@ -104,7 +125,10 @@ def parse_env_kwargs(items) -> dict[str, Any]:
             if not sep or not key:
                 raise TrainError(f"--env-kwargs takes KEY=VALUE pairs, got {item!r}")
             pairs.append((key.strip(), value.strip()))
-    return {key: _parse_value(value) for key, value in pairs}
+    strings = set()
+    if env_id is not None:
+        strings = {name for name, p in constructor_parameters(env_id).items() if isinstance(p.default, str)}
+    return {key: value if key in strings and isinstance(value, str) else _parse_value(value) for key, value in pairs}
 
 
 def _parse_value(value: Any) -> Any:

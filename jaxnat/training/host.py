@@ -67,7 +67,7 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
     if args.algo not in HOST_ALGORITHMS:
         raise TrainError(f"{args.algo} has no host loop: {args.env_id} (host-emulated) trains "
                          f"with {', '.join(HOST_ALGORITHMS)}")
-    env_kwargs = parse_env_kwargs(args.env_kwargs)
+    env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     if "split" in env_kwargs:
         raise TrainError("env kwarg 'split' is set by jaxnat train: split=train for training and "
                          "split=test for evaluation")

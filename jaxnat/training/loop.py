@@ -28,7 +28,7 @@ def _setup(args: TrainArgs, console):
     if is_host_env(args.env_id):
         run_dir = new_run_dir(args)
         return with_eval_every(new_host_spec(args, console), args), run_dir, None
-    env_kwargs = parse_env_kwargs(args.env_kwargs)
+    env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
     spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
     env, params, *_ = make_envs(spec)

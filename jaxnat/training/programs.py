@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import collections
 import functools
-import importlib
-import inspect
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -18,7 +16,7 @@ from jaxnat.agents import ALGORITHMS
 from jaxnat.agents.rollout import make_chance, make_evaluate
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
-from jaxnat.training.args import TrainError
+from jaxnat.training.args import TrainError, constructor_parameters
 from jaxnat.training.spec import RunSpec
 
 EVAL_STREAM = 0x6576616C  # fold_in constant: evaluation keys never collide with training keys
@@ -27,18 +25,7 @@ EVAL_STREAM = 0x6576616C  # fold_in constant: evaluation keys never collide with
 
 def accepts(env_id: str, name: str) -> bool:
     """Whether the env's entry point takes the constructor argument `name` (e.g. "split")."""
-    entry = jaxnat.spec(env_id).entry_point
-    if isinstance(entry, str):
-        module, _, attr = entry.partition(":")
-        try:
-            entry = getattr(importlib.import_module(module), attr)
-        except ImportError:  # jaxnat.make says which dependency is missing
-            return False
-    target = entry.__init__ if inspect.isclass(entry) else entry
-    try:
-        return name in inspect.signature(target).parameters
-    except (TypeError, ValueError):
-        return False
+    return name in constructor_parameters(env_id)
 
 
 def split_argument(env_id: str, env_kwargs: dict) -> str | None:

@@ -53,7 +53,7 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
             continue
         value, default = getattr(args, field.name), getattr(defaults, field.name)
         if field.name == "env_kwargs":
-            value, default = parse_env_kwargs(value), parse_env_kwargs(default)
+            value, default = parse_env_kwargs(value, saved["env_id"]), parse_env_kwargs(default, saved["env_id"])
         given = value != default or field.name in args.given
         if given and value != saved.get(field.name, saved["config"].get(field.name)):
             conflicts.append(f"--{field.name.replace('_', '-')}")
