@@ -37,7 +37,7 @@ class ReproduceArgs:
     Rerunning the same command skips finished cells and resumes an interrupted one."""
 
     profile: Annotated[str, tyro.conf.arg(metavar="{" + ",".join(PROFILES) + "}")] = "quick"
-    """smoke: every cell type, tiny budgets, minutes on a CPU; quick: every finding, reduced budgets (about 20 minutes on one H200); paper: the paper's budgets (run piecewise with --only)."""
+    """smoke: every cell type, tiny budgets, minutes on a CPU; quick: every finding, reduced budgets (one sitting on one GPU); paper: the paper's budgets (run piecewise with --only)."""
     only: Annotated[str, tyro.conf.arg(metavar=",".join(EXPERIMENTS))] = ",".join(EXPERIMENTS)
     """Comma-separated experiments to run and report."""
     seeds: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
-__all__ = ["Finding", "Verdict", "FINDINGS"]
+__all__ = ["Finding", "Verdict", "FINDINGS", "noise_control_pairs"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,9 +32,33 @@ class Finding:
         return self.rule(results)
 
 
+def _is(experiment: str, figure: str | None = None, **labels):
+    """A predicate on results: this experiment (and figure), with these labels."""
+    return lambda r: (r.cell.experiment == experiment and (figure is None or r.cell.figure == figure)
+                      and all(r.cell.labels.get(k) == v for k, v in labels.items()))
+
+
 def _select(results, experiment: str, figure: str | None = None, **labels):
-    return [r for r in results if r.cell.experiment == experiment and (figure is None or r.cell.figure == figure)
-            and all(r.cell.labels.get(k) == v for k, v in labels.items())]
+    return [r for r in results if _is(experiment, figure, **labels)(r)]
+
+
+def _pairs(results, base, other, same: tuple[str, ...]) -> list:
+    """`(b, o)` for each result `b` with `base(b)` and `o` with `other(o)` of the same experiment
+    and algorithm whose labels `same` agree: the two settings a claim compares."""
+    return [(b, o) for b in results if base(b) for o in results
+            if other(o) and (o.cell.experiment, o.cell.algo) == (b.cell.experiment, b.cell.algo)
+            and all(o.cell.labels.get(k) == b.cell.labels.get(k) for k in same)]
+
+
+def _figure_of_classify(r) -> bool:
+    return r.cell.figure.startswith("classify-")
+
+
+def noise_control_pairs(results) -> list:
+    """`(real, noise)`: each vision noise-control result with its real-observation counterpart
+    (same experiment, dataset and algorithm, the 3-layer CNN)."""
+    return _pairs(results, lambda r: r.cell.figure != "noise-control" and r.cell.labels.get("trunk") == "cnn",
+                  lambda r: r.cell.figure == "noise-control", ("dataset",))
 
 
 def _fmt(interval) -> str:
@@ -78,7 +102,7 @@ def _close_to_one(results) -> Verdict:
 def _a2c_worst(results) -> Verdict:
     panels: dict = {}
     for r in results:
-        if r.cell.experiment == "classify" and r.cell.figure.startswith("classify-"):
+        if r.cell.experiment == "classify" and _figure_of_classify(r):
             panels.setdefault((r.cell.labels["dataset"], r.cell.labels["trunk"]), {})[r.cell.algo] = r
     panels = {k: v for k, v in panels.items() if "a2c" in v and len(v) >= 2}
     if not panels:
@@ -93,14 +117,9 @@ def _a2c_worst(results) -> Verdict:
 
 
 def _cifar_harder(results) -> Verdict:
-    pairs = []
-    for r in _select(results, "classify", dataset="mnist"):
-        if not r.cell.figure.startswith("classify-"):
-            continue
-        for dataset in ("cifar10", "cifar100"):
-            for other in _select(results, "classify", r.cell.figure, dataset=dataset):
-                if other.cell.algo == r.cell.algo:
-                    pairs.append((r, other))
+    pairs = _pairs(results, lambda r: _figure_of_classify(r) and r.cell.labels.get("dataset") == "mnist",
+                   lambda r: _figure_of_classify(r) and r.cell.labels.get("dataset") in ("cifar10", "cifar100"),
+                   ("trunk",))
     if not pairs:
         return _not_run("MNIST beside CIFAR")
     numbers = [f"{a.cell.algo.upper()} {a.cell.labels['trunk']}: MNIST {_fmt(a.final_train)} vs "
@@ -131,11 +150,7 @@ def _small_window_later(results) -> Verdict:
 
 
 def _resnet_worse_localize(results) -> Verdict:
-    pairs = []
-    for r in _select(results, "localize", "localize-cnn"):
-        for other in _select(results, "localize", "localize-resnet18", dataset=r.cell.labels["dataset"]):
-            if other.cell.algo == r.cell.algo:
-                pairs.append((r, other))
+    pairs = _pairs(results, _is("localize", "localize-cnn"), _is("localize", "localize-resnet18"), ("dataset",))
     if not pairs:
         return _not_run("localisation with both trunks")
     numbers = [f"{a.cell.labels['dataset']} {a.cell.algo.upper()}: CNN {_fmt(a.final_train)} vs ResNet-18 "
@@ -144,11 +159,7 @@ def _resnet_worse_localize(results) -> Verdict:
 
 
 def _video_lowers_atari(results) -> Verdict:
-    pairs = []
-    for r in _select(results, "atari", background="none"):
-        for other in _select(results, "atari", game=r.cell.labels["game"], background="video"):
-            if other.cell.algo == r.cell.algo:
-                pairs.append((r, other))
+    pairs = _pairs(results, _is("atari", background="none"), _is("atari", background="video"), ("game",))
     if not pairs:
         return _not_run("Atari with and without video")
     numbers = [f"{a.cell.labels['game']} {a.cell.algo.upper()}: none {_fmt(a.final_train)} vs video "
@@ -157,11 +168,7 @@ def _video_lowers_atari(results) -> Verdict:
 
 
 def _noise_as_good(results) -> Verdict:
-    pairs = []
-    for r in _select(results, "mujoco", observation="checker"):
-        for other in _select(results, "mujoco", robot=r.cell.labels["robot"], observation="noise"):
-            if other.cell.algo == r.cell.algo:
-                pairs.append((r, other))
+    pairs = _pairs(results, _is("mujoco", observation="checker"), _is("mujoco", observation="noise"), ("robot",))
     if not pairs:
         return _not_run("PixelMuJoCo from pixels and from noise")
     held = [b.final_train.mean >= a.final_train.low for a, b in pairs]
@@ -171,13 +178,7 @@ def _noise_as_good(results) -> Verdict:
 
 
 def _noise_control(results) -> Verdict:
-    pairs = []
-    for noise in [r for r in results if r.cell.figure == "noise-control"]:
-        for real in results:
-            if (real.cell.experiment == noise.cell.experiment and real.cell.figure != "noise-control"
-                    and real.cell.algo == noise.cell.algo and real.cell.labels.get("trunk") == "cnn"
-                    and real.cell.labels.get("dataset") == noise.cell.labels["dataset"]):
-                pairs.append((real, noise))
+    pairs = noise_control_pairs(results)
     if not pairs:
         return _not_run("the vision noise control")
     held = [b.final_train.mean < a.final_train.low for a, b in pairs]

@@ -99,7 +99,7 @@ PROFILES: dict[str, Profile] = {
     ),
     "quick": Profile(
         name="quick",
-        description="every finding with reduced budgets; sized for about 20 minutes on one H200",
+        description="every finding with reduced budgets, for one sitting on one GPU",
         seeds=5,
         budgets={"classify": Budget(150_000, eval_episodes=200),
                  "localize": Budget(100_000, eval_episodes=100),
@@ -204,23 +204,29 @@ def dataset_choice(dataset: str) -> tuple[str | None, str, str]:
     return None, "", f"{DATASET_NAMES[dataset]} not found and no embedded stand-in ({how})"
 
 
-def _classify_cells(profile: Profile) -> list[Cell]:
-    budget, extra = profile.budgets["classify"], profile.overrides.get("classify", {})
+def _vision_cells(profile: Profile, experiment: str, datasets: tuple[str, ...], noise_dataset: str) -> list[Cell]:
+    """The dataset x trunk x algorithm cells of a vision experiment, and its noise control (PPO
+    with the 3-layer CNN from pure noise, which the paper did not run) on `noise_dataset`."""
+    budget, extra = profile.budgets[experiment], profile.overrides.get(experiment, {})
     cells = []
-    for dataset in profile.subset("datasets", ("mnist", "cifar10", "cifar100")):
+    for dataset in datasets:
         env_id, note, skip = dataset_choice(dataset)
         for trunk in profile.subset("trunks", tuple(TRUNKS)):
             for algo in profile.subset("algos", ALGOS):
-                cells.append(Cell(f"classify-{dataset}-{trunk}-{algo}", "classify", f"classify-{trunk}", env_id,
-                                  {}, algo, TRUNKS[trunk], budget, _settings(algo, extra),
+                cells.append(Cell(f"{experiment}-{dataset}-{trunk}-{algo}", experiment, f"{experiment}-{trunk}",
+                                  env_id, {}, algo, TRUNKS[trunk], budget, _settings(algo, extra),
                                   {"dataset": dataset, "trunk": trunk}, note, skip))
-    # The noise control the paper did not run for this family: PPO with the CNN from pure noise.
-    if "noise_control" not in profile.subsets or profile.subsets["noise_control"]:
-        dataset = profile.subset("datasets", ("mnist",))[0]
-        env_id, note, skip = dataset_choice(dataset)
-        cells.append(Cell(f"classify-{dataset}-cnn-ppo-noise", "classify", "noise-control", env_id,
-                          {"observation_noise": True}, "ppo", None, budget, _settings("ppo", extra),
-                          {"dataset": dataset, "trunk": "cnn", "observation": "noise"}, note, skip))
+    env_id, note, skip = dataset_choice(noise_dataset)
+    cells.append(Cell(f"{experiment}-{noise_dataset}-cnn-ppo-noise", experiment, "noise-control", env_id,
+                      {"observation_noise": True}, "ppo", None, budget, _settings("ppo", extra),
+                      {"dataset": noise_dataset, "trunk": "cnn", "observation": "noise"}, note, skip))
+    return cells
+
+
+def _classify_cells(profile: Profile) -> list[Cell]:
+    datasets = profile.subset("datasets", ("mnist", "cifar10", "cifar100"))
+    cells = _vision_cells(profile, "classify", datasets, datasets[0])
+    budget, extra = profile.budgets["classify"], profile.overrides.get("classify", {})
     env_id, note, skip = dataset_choice("cifar10")
     sweep = [(w, SWEEP_FIXED_M) for w in SWEEP_WINDOWS] + [(SWEEP_FIXED_W, m) for m in SWEEP_STEPS]
     for w, m in dict.fromkeys(profile.subset("sweep", tuple(sweep))):
@@ -230,21 +236,7 @@ def _classify_cells(profile: Profile) -> list[Cell]:
 
 
 def _localize_cells(profile: Profile) -> list[Cell]:
-    budget, extra = profile.budgets["localize"], profile.overrides.get("localize", {})
-    cells = []
-    for dataset in profile.subset("localize", ("cityscapes", "clutter")):
-        env_id, note, skip = dataset_choice(dataset)
-        for trunk in profile.subset("trunks", tuple(TRUNKS)):
-            for algo in profile.subset("algos", ALGOS):
-                cells.append(Cell(f"localize-{dataset}-{trunk}-{algo}", "localize", f"localize-{trunk}", env_id,
-                                  {}, algo, TRUNKS[trunk], budget, _settings(algo, extra),
-                                  {"dataset": dataset, "trunk": trunk}, note, skip))
-    if "noise_control" not in profile.subsets or profile.subsets["noise_control"]:
-        env_id, note, skip = dataset_choice("clutter")
-        cells.append(Cell("localize-clutter-cnn-ppo-noise", "localize", "noise-control", env_id,
-                          {"observation_noise": True}, "ppo", None, budget, _settings("ppo", extra),
-                          {"dataset": "clutter", "trunk": "cnn", "observation": "noise"}, note, skip))
-    return cells
+    return _vision_cells(profile, "localize", profile.subset("localize", ("cityscapes", "clutter")), "clutter")
 
 
 def _atari_cells(profile: Profile) -> list[Cell]:

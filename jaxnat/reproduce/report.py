@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxnat.reproduce.findings import FINDINGS, Verdict
+from jaxnat.reproduce.findings import FINDINGS, Verdict, noise_control_pairs
 from jaxnat.reproduce.grid import DATASET_NAMES, ROBOTS, Cell
 from jaxnat.reproduce.stats import Interval, binned_curve, bootstrap_band, bootstrap_ci
 
@@ -137,9 +137,7 @@ def _panels(figure: str, results: list[CellResult]) -> dict[str, list[tuple[str,
             continue
         if figure == "noise-control":
             title = f"{cell.experiment}: {_dataset_title(cell)}, PPO"
-            real = [o for o in results if o.cell.experiment == cell.experiment and o.cell.figure != tag
-                    and o.cell.algo == cell.algo and o.cell.labels.get("dataset") == cell.labels["dataset"]
-                    and o.cell.labels.get("trunk") == "cnn"]
+            real = [a for a, b in noise_control_pairs(results) if b is r]
             panels.setdefault(title, []).extend([("real observation", o) for o in real] + [("pure noise", r)])
             continue
         title = _dataset_title(cell) if panel_key == "dataset" else cell.labels.get(panel_key)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 
@@ -16,8 +18,9 @@ class NoiseObservationWrapper(Wrapper):
     sees (the paper's finding on PixelMuJoCo). Integer observations (uint8 pixels) get the
     pixel-noise law `noise` (`jaxnat.natural.NOISE_LAWS`; the default, `DEFAULT_NOISE`, is the
     one every family's noise control uses: `clip(N(0, 1) * 50, 0)` truncated to uint8, the
-    authors' law). Float observations have no pixel range: they get `N(0, 1)`. Dict observations are noised leaf by leaf. Fresh noise at every reset and step, drawn from
-    a key split off the one passed in (the inner env sees its own, independent key).
+    authors' law). Float observations have no pixel range: they get `N(0, 1)`. Dict observations
+    are noised leaf by leaf. Fresh noise at every reset and step, drawn from a key split off the
+    one passed in (the inner env sees its own, independent key).
 
     Leak-free in either order: wrapped around an autoresetting env it also replaces
     `info["final_observation"]` (else a learner bootstrapping truncated episodes would see the
@@ -47,9 +50,8 @@ class NoiseObservationWrapper(Wrapper):
 
     def _noise_like(self, key, x):
         if jnp.issubdtype(x.dtype, jnp.integer):
-            law = NoiseLaw(self.law.name,
-                           self.law.mean if self.loc is None else self.loc,
-                           self.law.scale if self.scale is None else self.scale)
+            law = dataclasses.replace(self.law, **{k: v for k, v in (("mean", self.loc), ("scale", self.scale))
+                                                   if v is not None})
             info = jnp.iinfo(x.dtype)  # the law's values are 0 ... 255: fit narrower dtypes
             values = law.sample(key, x.shape).astype(jnp.int32)
             return jnp.clip(values, max(info.min, 0), min(info.max, 255)).astype(x.dtype)
