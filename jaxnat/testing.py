@@ -1,6 +1,6 @@
 """`check_env`: the contract every jaxnat env keeps, as one reusable check; `check_determinism`:
-same key, same trajectory, bit for bit (on the GPU too); `check_noise_law`: draws of a noise
-control follow a pixel-noise law.
+same key, same trajectory, bit for bit (on the GPU too); `check_training_determinism`: same key,
+same trained parameters; `check_noise_law`: draws of a noise control follow a pixel-noise law.
 
 Each env's tests call it; it also runs over every registered env whose data is present.
 It raises `AssertionError` with a message naming the broken contract.
@@ -18,7 +18,11 @@ import numpy as np
 from jaxnat import spaces
 from jaxnat.core import Environment
 
-__all__ = ["check_env", "check_determinism", "DeterminismReport", "check_noise_law"]
+__all__ = ["check_env", "check_determinism", "check_training_determinism", "DeterminismReport",
+           "enable_deterministic_ops", "DETERMINISTIC_OPS_FLAG", "check_noise_law"]
+
+# XLA's switch for GPU kernels whose float sums run in a fixed order (scatter-adds, reductions).
+DETERMINISTIC_OPS_FLAG = "--xla_gpu_deterministic_ops=true"
 
 
 def check_env(env: Environment, params=None, *, num_steps: int = 30, num_envs: int = 4, seed: int = 0):
@@ -155,6 +159,7 @@ class DeterminismReport(NamedTuple):
     identical: bool
     first_difference: dict | None  # {"run": "repeat" | "recompiled", "step", "field", "env"}
     seconds: float  # median wall time of one compiled rollout (the repeats), compile excluded
+    what: str = "rollout"  # or the training run checked, e.g. "ppo, 2 updates"
 
     @property
     def steps_per_second(self) -> float:
@@ -162,10 +167,12 @@ class DeterminismReport(NamedTuple):
 
     def __str__(self) -> str:
         if self.identical:
-            return f"{self.env_id}: {self.num_envs} envs x {self.steps} steps identical bit for bit (repeat and recompiled)"
+            return (f"{self.env_id}: {self.what} of {self.num_envs} envs x {self.steps} steps identical bit for bit "
+                    "(repeat and recompiled)")
         d = self.first_difference
-        return (f"{self.env_id}: the {d['run']} run differs first at step {d['step']} in {d['field']} "
-                f"(env {d['env']})")
+        where = f" at step {d['step']}" if d.get("step") is not None else ""
+        env = f" (env {d['env']})" if d.get("env") is not None else ""
+        return f"{self.env_id}: the {d['run']} run differs first{where} in {d['field']}{env}"
 
 
 def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed: int = 0, repeats: int = 2,
@@ -199,8 +206,65 @@ def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed
 
         return obs, jax.lax.scan(body, state, jax.random.split(key_steps, steps))[1]
 
-    key = jax.random.key(seed)
-    compiled = jax.jit(rollout)
+    difference, seconds = _run_thrice(rollout, jax.random.key(seed), repeats, _first_difference)
+    return DeterminismReport(env_id, num_envs, steps, difference is None, difference, seconds)
+
+
+def check_training_determinism(env_id: str, algo: str = "ppo", num_envs: int = 64, num_steps: int = 16,
+                               updates: int = 2, *, seed: int = 0, repeats: int = 1,
+                               **env_kwargs) -> DeterminismReport:
+    """Train `algo` (the jitted learner, the family's default settings) for `updates` updates of
+    `num_envs` envs x `num_steps` steps, three times under the same key as `check_determinism`
+    does; the trained parameters, optimizer and normaliser state, env state and metrics must be
+    the same bit for bit. The report names the first differing field (`step` and `env` None).
+    """
+    from jaxnat.agents import ALGORITHMS
+    from jaxnat.agents.defaults import family_defaults
+    from jaxnat.registration import make
+
+    env, params = make(env_id, **env_kwargs)
+    spec = ALGORITHMS[algo]
+    settings = {**family_defaults(algo, env.observation_space(params), env.action_space(params)),
+                "num_envs": num_envs, "num_steps": num_steps, "total_timesteps": updates * num_envs * num_steps}
+    learner = spec.make(spec.config(**settings), env, params)
+    difference, seconds = _run_thrice(learner.train, jax.random.key(seed), repeats, _first_leaf_difference)
+    return DeterminismReport(env_id, num_envs, updates * num_steps, difference is None, difference, seconds,
+                             f"{algo}, {updates} updates")
+
+
+def enable_deterministic_ops() -> None:
+    """Make every jaxnat env (and training) bitwise reproducible on a GPU: adds
+    `--xla_gpu_deterministic_ops=true` to `XLA_FLAGS`. XLA reads its flags once, when JAX first
+    starts a backend, so call this before any JAX computation (or set the variable in the shell:
+    `XLA_FLAGS=--xla_gpu_deterministic_ops=true jaxnat train ...`); called later it raises
+    `RuntimeError`. It costs throughput where the default is not reproducible (MJX's contact
+    code): bench/results/determinism.md.
+    """
+    import os
+
+    flags = os.environ.get("XLA_FLAGS", "")
+    if DETERMINISTIC_OPS_FLAG in flags.split():
+        return
+    if _backends_started():
+        raise RuntimeError("enable_deterministic_ops() came after JAX started its backends, so XLA will not read "
+                           "it; call it first thing, or start Python with "
+                           f"XLA_FLAGS={DETERMINISTIC_OPS_FLAG}")
+    os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISTIC_OPS_FLAG}".strip()
+
+
+def _backends_started() -> bool:
+    """Whether JAX has created a backend (XLA has read its flags); False if JAX no longer says."""
+    try:
+        from jax._src import xla_bridge
+        return bool(xla_bridge.backends_are_initialized())
+    except (ImportError, AttributeError):
+        return False
+
+
+def _run_thrice(fn, key, repeats: int, compare):
+    """`fn(key)` jitted: once for reference, `repeats` times more from the same compiled program
+    (timed), once after compiling again; `(first difference or None, median seconds)`."""
+    compiled = jax.jit(fn)
     reference = jax.device_get(compiled(key))
     runs, times = [], []
     for _ in range(max(1, repeats)):
@@ -209,13 +273,22 @@ def check_determinism(env_id: str, num_envs: int = 256, steps: int = 16, *, seed
         times.append(time.perf_counter() - start)
         runs.append(("repeat", jax.device_get(outputs)))
     jax.clear_caches()
-    runs.append(("recompiled", jax.device_get(jax.jit(lambda k: rollout(k))(key))))
-    seconds = float(np.median(times))
+    runs.append(("recompiled", jax.device_get(jax.jit(lambda k: fn(k))(key))))
     for run, outputs in runs:
-        difference = _first_difference(reference, outputs)
+        difference = compare(reference, outputs)
         if difference is not None:
-            return DeterminismReport(env_id, num_envs, steps, False, {"run": run, **difference}, seconds)
-    return DeterminismReport(env_id, num_envs, steps, True, None, seconds)
+            return {"run": run, **difference}, float(np.median(times))
+    return None, float(np.median(times))
+
+
+def _first_leaf_difference(reference, other) -> dict | None:
+    """The first leaf (in pytree order) whose bits differ: `{"step": None, "field", "env": None}`."""
+    flat_a, _ = jax.tree_util.tree_flatten_with_path(reference)
+    for (path, a), b in zip(flat_a, jax.tree.leaves(other)):
+        a, b = _bits(a), _bits(b)
+        if a.shape != b.shape or (a != b).any():
+            return {"step": None, "field": jax.tree_util.keystr(path), "env": None}
+    return None
 
 
 def _first_difference(reference, other) -> dict | None:
