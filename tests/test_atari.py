@@ -487,6 +487,46 @@ def test_clip_reward_and_device_arrays_wrappers():
     assert env.num_envs == 2  # attributes pass through
 
 
+def test_step_in_two_halves_is_step_and_wrappers_keep_their_work():
+    """`step_async` + `step_wait` is `step` bit for bit (with an env of the batch in between,
+    as the pipelined host driver does), a second `step_async` before the wait is an error, and
+    the reward-clipping wrapper clips `step_wait`'s rewards; a `PipelinedVecEnv` of two
+    halves seeds emulator j with seed + j, as one batch does."""
+    from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
+
+    def make(n=2):
+        return NaturalAtariVecEnv("Breakout", n, background="noise", num_threads=1, seed=3)
+
+    whole, halves, other = make(), ClipRewardWrapper(make()), make(1)
+    actions = np.random.default_rng(0).integers(0, 4, (30, 2))
+    np.testing.assert_array_equal(whole.reset(seed=3)[0], halves.reset(seed=3)[0])
+    other.reset(seed=9)
+    for a in actions:
+        expected = whole.step(a)
+        halves.step_async(a)
+        other.step(a[:1])
+        got = halves.step_wait()
+        np.testing.assert_array_equal(expected[0], got[0])
+        np.testing.assert_array_equal(np.clip(expected[1], -1, 1), got[1])
+        np.testing.assert_array_equal(expected[4]["final_observation"], got[4]["final_observation"])
+    halves.step_async(actions[0])
+    with pytest.raises(RuntimeError, match="twice"):
+        halves.step_async(actions[0])
+    for env in (whole, halves, other):
+        env.close()
+
+    ale = lambda n: NaturalAtariVecEnv("Breakout", n, num_threads=1)  # noqa: E731 (ALE resizes: no noise)
+    one, split = ale(4), PipelinedVecEnv([ale(2), ale(2)])
+    assert split.num_envs == 4
+    np.testing.assert_array_equal(one.reset(seed=5)[0], split.reset(seed=5)[0])
+    for a in actions[:20]:
+        a = np.concatenate([a, a[::-1]])
+        for x, y in zip(one.step(a)[:4], split.step(a)[:4]):
+            np.testing.assert_array_equal(x, y)
+    one.close()
+    split.close()
+
+
 # -- threaded host work --------------------------------------------------------------------
 def _trajectory(env, steps, seed=0):
     """Observations, final observations, rewards and episode statistics of a reset and `steps`

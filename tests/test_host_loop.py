@@ -18,7 +18,8 @@ import pytest
 
 from jaxnat.agents import a2c, dqn, ppo
 from jaxnat.agents.dqn import make_host_dqn
-from jaxnat.agents.rollout import evaluate_host, on_policy_host_learner
+from jaxnat.agents.rollout import EnvStep, evaluate_host, host_steps_pipelined, on_policy_host_learner
+from jaxnat.atari.wrappers import PipelinedVecEnv
 from jaxnat.agents.probes import make_probe
 from jaxnat.wrappers import LogWrapper
 
@@ -65,13 +66,15 @@ class HostProbe:
 
 
 @functools.cache
-def trained(probe: str, algo: str, gamma: float = 0.99, **static):
+def trained(probe: str, algo: str, gamma: float = 0.99, parts: int = 1, **static):
     if algo == "dqn":
         config = DQN.replace(gamma=gamma, **static)
         learner = make_host_dqn(config, HostProbe(probe, config.num_envs), FAST)
     else:
         config = CONFIGS[algo].replace(gamma=gamma)
-        learner = on_policy_host_learner(config, HostProbe(probe, config.num_envs), RULES[algo], FAST)
+        env = (HostProbe(probe, config.num_envs) if parts == 1 else
+               PipelinedVecEnv([HostProbe(probe, config.num_envs // parts) for _ in range(parts)]))
+        learner = on_policy_host_learner(config, env, RULES[algo], FAST)
     state, history = learner.train(jax.random.key(0))
     return learner, learner.params(state), history
 
@@ -89,17 +92,95 @@ def test_policy_learns_the_sign_probe(algo):
     assert greedy.shape == (20,) and (greedy == 1.0).all()
 
 
-def test_truncated_steps_bootstrap_from_the_final_observation():
+def test_pipelined_policy_learns_the_sign_probe():
+    learner, params, history = trained("sign", "ppo", parts=2)
+    assert np.nanmean([h["episode_return"] for h in history[-5:]]) >= 0.9
+    assert learner.timings["steps"] == learner.num_updates * CONFIGS["ppo"].num_steps
+
+
+@pytest.mark.parametrize("parts", [1, 2])
+def test_truncated_steps_bootstrap_from_the_final_observation(parts):
     """As tests/test_agents.py: 5-step episodes that are truncated, never terminated; the first
     step shows [1, 0] and pays -10, later ones [0, 1] and pay 1; gamma 0.9: V([0, 1]) = 10 and
     V([1, 0]) = -1. Bootstrapping from the next episode's first observation gives V([0, 1])
-    about -11; treating truncation as termination gives about 2.7."""
-    learner, params, history = trained("costly_start", "ppo", gamma=0.9)
+    about -11; treating truncation as termination gives about 2.7. Pipelined too (two parts)."""
+    learner, params, history = trained("costly_start", "ppo", gamma=0.9, parts=parts)
     start, later = value(learner, params, [[1.0, 0.0], [0.0, 1.0]])
     assert 8.0 < later < 12.0, later
     assert abs(start + 1.0) < 2.0, start
     assert history[-1]["episode_return"] == -10.0 + 4.0
     assert history[-1]["terminated_fraction"] == 0.0
+
+
+class Counter:
+    """Envs whose observation counts their steps (env j of a part starts at its seed + j),
+    rewarding the action; with `step_async`/`step_wait`, logging the calls."""
+
+    single_observation_space = None
+    single_action_space = None
+
+    def __init__(self, name, num_envs, log, halves=True):
+        self.name, self.num_envs, self.log, self._sent = name, num_envs, log, None
+        if not halves:
+            self.step_async = self.step_wait = None
+            del self.step_async, self.step_wait
+
+    def reset(self, seed=0):
+        self.count = seed + np.arange(self.num_envs)
+        return self.count.copy(), {}
+
+    def step(self, actions):
+        self.count = self.count + 1
+        zeros = np.zeros(self.num_envs, bool)
+        return self.count.copy(), np.asarray(actions, np.float32), zeros, zeros, {}
+
+    def step_async(self, actions):
+        self.log.append(("send", self.name))
+        self._sent = actions
+
+    def step_wait(self):
+        self.log.append(("wait", self.name))
+        return self.step(self._sent)
+
+
+@pytest.mark.parametrize("halves", [True, False])
+def test_pipelined_steps_act_on_each_part_s_latest_observation(halves):
+    """Each action is computed from its part's latest observation and lands on that part;
+    keys are split once per part and step; with `step_async` the next part is sent before the
+    previous one is waited for (its emulation overlaps the driver's work)."""
+    log = []
+    env = PipelinedVecEnv([Counter("a", 2, log, halves), Counter("b", 3, log, halves)])
+    obs, _ = env.reset(seed=10)
+    seen = []
+
+    def policy(carry, obs, key, t, part):
+        log.append(("policy", "ab"[part]))
+        return (obs * 100 + t)[:, None], (np.asarray(obs), jax.random.key_data(key))  # actions [B, F]
+
+    def observe(carry, s: EnvStep, aux, t, part):
+        seen.append((t, part, aux[0], np.asarray(s.obs), s.action, s.reward, s.next_obs, aux[1]))
+        return carry + 1
+
+    carry, obs, key = host_steps_pipelined(env, 3, policy, observe, 0, obs, jax.random.key(0))
+    assert carry == 6 and [(t, p) for t, p, *_ in seen] == [(t, p) for t in range(3) for p in range(2)]
+    np.testing.assert_array_equal(obs, 10 + np.arange(5) + 3)
+    for t, part, policy_obs, step_obs, action, reward, next_obs, _ in seen:
+        start = 10 + (np.arange(2) if part == 0 else 2 + np.arange(3))
+        np.testing.assert_array_equal(policy_obs, start + t)  # the latest observation of these envs
+        np.testing.assert_array_equal(step_obs, start + t)
+        np.testing.assert_array_equal(reward, (start + t) * 100 + t)  # its own action
+        np.testing.assert_array_equal(action[:, 0], reward)
+        np.testing.assert_array_equal(next_obs, start + t + 1)
+    expected_key = jax.random.key(0)
+    for *_, key_data in seen:
+        expected_key, key_act = jax.random.split(expected_key)
+        np.testing.assert_array_equal(key_data, jax.random.key_data(key_act))
+    if halves:
+        assert log[:6] == [("policy", "a"), ("policy", "b"), ("send", "a"), ("send", "b"), ("wait", "a"),
+                           ("policy", "a")]
+    with pytest.raises(ValueError, match="two or more"):
+        host_steps_pipelined(PipelinedVecEnv([Counter("a", 2, log)]), 1, policy, observe, 0, obs[:2],
+                             jax.random.key(0))
 
 
 def test_terminal_steps_do_not_bootstrap():

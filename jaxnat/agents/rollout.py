@@ -41,7 +41,8 @@ from jaxnat.wrappers import LogWrapper
 __all__ = [
     "static", "Transition", "EnvStep", "RunnerState", "UpdateRule", "Learner", "HostState", "HostLearner",
     "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box", "is_scalar_action", "env_action",
-    "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_updates",
+    "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_steps_pipelined",
+    "host_updates", "TIMING_KEYS",
     "on_policy_learner", "on_policy_host_learner", "check_host_batch", "make_evaluate", "make_chance",
     "evaluate_host",
     "clipped_optimizer", "host_jit", "EPISODE_KEYS",
@@ -391,6 +392,9 @@ class HostLearner(NamedTuple):
     sample: Callable  # jitted (params, obs, key) -> an action sampled from the policy [B, F]
     network: Any
     num_updates: int
+    # Where the time of `updates` went, added up over the learner's life (`TIMING_KEYS`); the
+    # caller may clear it. On-policy learners time their steps too; DQN's only its updates.
+    timings: dict | None = None
 
 
 def check_host_batch(config, env, memory: int = 0) -> int:
@@ -404,28 +408,134 @@ def check_host_batch(config, env, memory: int = 0) -> int:
     return count_updates(config)
 
 
-def host_steps(env, num_steps: int, policy: Callable, observe: Callable, carry, obs, key):
+def host_steps(env, num_steps: int, policy: Callable, observe: Callable, carry, obs, key,
+               timings: dict | None = None):
     """`num_steps` steps of a host-batched env from Python: per step one jitted `policy` call
     (observations to the device, actions back to the host) and `observe` with the outcome.
-    Returns `(carry, obs, key)` (records are the carry's business)."""
+    Returns `(carry, obs, key)` (records are the carry's business). `timings`, when given,
+    adds up where the time went (`TIMING_KEYS`)."""
+    clock = _Clock(timings)
     for t in range(num_steps):
         key, key_act = jax.random.split(key)
         obs_device = jax.device_put(obs)
         action, aux = policy(carry, obs_device, key_act, t)
         action = np.asarray(action)
+        clock.lap("policy_s")
         next_obs, reward, terminated, truncated, info = env.step(env_action(action, env.single_action_space))
+        clock.lap("env_s")
         done = terminated | truncated
         final_obs = info.get("final_observation", next_obs)
         carry = observe(carry, EnvStep(obs_device, action, next_obs, reward, terminated, done, final_obs, info),
                         aux, t)
         obs = next_obs
+        clock.lap("observe_s")
+    clock.done(num_steps)
     return carry, obs, key
 
 
+def host_steps_pipelined(env, num_steps: int, policy: Callable, observe: Callable, carry, obs, key,
+                         timings: dict | None = None):
+    """`host_steps` over the parts of a `jaxnat.atari.wrappers.PipelinedVecEnv` (two or more) in
+    turn, so that the device's policy call for one part runs while ALE emulates another:
+
+        send part p's actions; finish part p-1's step (outcome, `observe`), dispatch its next
+        policy call; then fetch part p+1's actions (computed meanwhile) and send them ...
+
+    Every action is the current policy's on its env's latest observation, as in `host_steps`;
+    only the sampling keys differ (one split of `key` per part and step, in that order).
+    `policy(carry, obs, key, t, part)` and `observe(carry, EnvStep, aux, t, part)` see one
+    part's envs. Parts with `step_async`/`step_wait` emulate while the driver finishes the
+    previous part (its host pass, `observe`, the next policy call); others step in `send`.
+    Returns `(carry, obs of the whole batch, key)`."""
+    parts = env.parts
+    count = len(parts)
+    if count < 2:
+        raise ValueError("host_steps_pipelined needs an env of two or more parts")
+    clock = _Clock(timings)
+    obs_parts = env.split(obs)
+    total = num_steps * count  # events e = t * count + part, in this order
+    queued, in_flight = {}, {}
+
+    def dispatch(e, part_obs):
+        nonlocal key
+        key, key_act = jax.random.split(key)
+        obs_device = jax.device_put(part_obs)
+        queued[e] = obs_device, policy(carry, obs_device, key_act, e // count, e % count)
+
+    def send(e):
+        obs_device, (action, aux) = queued.pop(e)
+        action = np.asarray(action)
+        clock.lap("policy_s")
+        part = parts[e % count]
+        if hasattr(part, "step_async"):
+            part.step_async(env_action(action, env.single_action_space))
+            outcome = None
+        else:
+            outcome = part.step(env_action(action, env.single_action_space))
+        in_flight[e] = obs_device, action, aux, outcome
+        clock.lap("env_s")
+
+    def finish(e):
+        nonlocal carry
+        obs_device, action, aux, outcome = in_flight.pop(e)
+        part = e % count
+        if outcome is None:
+            outcome = parts[part].step_wait()
+        clock.lap("env_s")
+        next_obs, reward, terminated, truncated, info = outcome
+        final_obs = info.get("final_observation", next_obs)
+        carry = observe(carry, EnvStep(obs_device, action, next_obs, reward, terminated, terminated | truncated,
+                                       final_obs, info), aux, e // count, part)
+        obs_parts[part] = next_obs
+        clock.lap("observe_s")
+        if e + count < total:
+            dispatch(e + count, next_obs)
+            clock.lap("policy_s")
+
+    for e in range(count):
+        dispatch(e, obs_parts[e])
+    clock.lap("policy_s")
+    for e in range(total):
+        send(e)
+        if e:
+            finish(e - 1)
+    finish(total - 1)
+    clock.done(num_steps)
+    return carry, np.concatenate(obs_parts), key
+
+
+# What `host_steps` and `host_updates` add up in a learner's `timings` (seconds and counts):
+# per batched step the policy's round trip (key split, observations to the device, the jitted
+# call, actions back), the env's step and `observe`; per update the rollout and the whole
+# update (rollout, then stacking, GAE and the jitted update until its metrics are on the host).
+TIMING_KEYS = ("steps", "policy_s", "env_s", "observe_s", "rollout_s", "updates", "update_s")
+
+
+class _Clock:
+    """Adds the seconds since the previous lap to `timings[name]`; a no-op without `timings`."""
+
+    def __init__(self, timings: dict | None):
+        self.timings = timings
+        self.start = self.last = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[name] = self.timings.get(name, 0.0) + now - self.last
+            self.last = now
+
+    def done(self, steps: int) -> None:
+        if self.timings is not None:
+            self.timings["steps"] = self.timings.get("steps", 0) + steps
+            self.timings["rollout_s"] = self.timings.get("rollout_s", 0.0) + time.perf_counter() - self.start
+
+
 def host_updates(env, network, num_updates: int, init_learner: Callable, update: Callable,
-                 params: Callable, jit: Callable) -> HostLearner:
+                 params: Callable, jit: Callable, timings: dict | None = None) -> HostLearner:
     """The Python loop of updates on a host-batched env. `update(learner, obs, key, update_index)
-    -> (learner, obs, key, metrics)` does one update's env steps and learning."""
+    -> (learner, obs, key, metrics)` does one update's env steps and learning; `timings` (the
+    one `update` hands its `host_steps`, if any) also gets each update's seconds."""
+    timings = {} if timings is None else timings
 
     @jit
     def greedy(params, obs, key):
@@ -449,7 +559,10 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
             start = time.perf_counter()
             learner, obs, key, metrics = update(learner, obs, key, index)
             metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
-            yield HostState(learner, key, jnp.asarray(index + 1, jnp.int32)), metrics, time.perf_counter() - start
+            seconds = time.perf_counter() - start
+            timings["updates"] = timings.get("updates", 0) + 1
+            timings["update_s"] = timings.get("update_s", 0.0) + seconds
+            yield HostState(learner, key, jnp.asarray(index + 1, jnp.int32)), metrics, seconds
 
     def run(state: HostState, num_updates: int = num_updates):
         """Updates `state.update + 1 .. num_updates` on freshly reset envs: `(state, history)`."""
@@ -462,7 +575,7 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
         """Train from scratch."""
         return run(init(key), num_updates)
 
-    return HostLearner(init, run, train, updates, params, greedy, sample, network, num_updates)
+    return HostLearner(init, run, train, updates, params, greedy, sample, network, num_updates, timings)
 
 
 def host_jit(compiler_options: dict | None) -> Callable:
@@ -475,7 +588,12 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     """The host-loop on-policy learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched
     host env: per env step one jitted policy call, and one value call on final observations
     when an episode ended; per update the rollout goes to the device once and one jitted
-    update runs (`rule.update_step`, as the jitted learner's)."""
+    update runs (`rule.update_step`, as the jitted learner's).
+
+    On a `jaxnat.atari.wrappers.PipelinedVecEnv` of two or more parts the steps run through
+    `host_steps_pipelined`: each part's policy call overlaps the other parts' emulation. Same
+    policy, same update; the action samples use other keys, so the run is not the one-batch
+    run bit for bit (with one batch, it is the run it always was)."""
     options = rule.network_options(config)
     num_updates = check_host_batch(config, env, options.get("memory", 0))
     observation_space = env.single_observation_space
@@ -506,41 +624,61 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     # One compiled program, not hundreds of small eager ones.
     init = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
 
+    parts = getattr(env, "parts", None)
+    pipelined = parts is not None and len(parts) > 1
+    timings = {}
+
     def update(train_state, obs, key, index):
         del index  # on-policy updates do not depend on the update count (schedules are in the optimizer)
         params = train_state.params
 
-        def observe(rollout, s: EnvStep, aux, t):
+        def observe(rollout, s: EnvStep, aux, t, part=0):
             log_prob, value = aux
             # V(final observation) where an episode ended; elsewhere the next step's value serves.
             final_value = (value_of(params, jax.device_put(s.final_obs)) if s.done.any()
-                           else np.zeros(config.num_envs, np.float32))
+                           else np.zeros(len(s.done), np.float32))
             for name, x in (("obs", s.obs), ("action", s.action), ("log_prob", log_prob), ("value", value),
                             ("reward", s.reward), ("done", s.done), ("terminated", s.terminated),
                             ("final_value", final_value), *((k, s.info[k]) for k in EPISODE_KEYS)):
-                rollout[name].append(x)
+                rollout[name][part].append(x)
             return rollout
 
-        rollout = {name: [] for name in ("obs", "action", "log_prob", "value", "reward", "done",
-                                         "terminated", "final_value", *EPISODE_KEYS)}
-        rollout, obs, key = host_steps(env, config.num_steps,
-                                       lambda carry, o, k, t: policy(params, o, k), observe, rollout, obs, key)
-        transitions = _host_transitions(rollout, value_of(params, jax.device_put(obs)))
+        # name -> one list of steps per part of the batch (one part unless pipelined)
+        rollout = {name: [[] for _ in range(len(parts) if pipelined else 1)]
+                   for name in ("obs", "action", "log_prob", "value", "reward", "done", "terminated",
+                                "final_value", *EPISODE_KEYS)}
+        if pipelined:
+            rollout, obs, key = host_steps_pipelined(
+                env, config.num_steps, lambda carry, o, k, t, part: policy(params, o, k), observe, rollout, obs,
+                key, timings)
+            last_value = [value_of(params, jax.device_put(o)) for o in env.split(obs)]
+        else:
+            rollout, obs, key = host_steps(env, config.num_steps, lambda carry, o, k, t: policy(params, o, k),
+                                           observe, rollout, obs, key, timings)
+            last_value = [value_of(params, jax.device_put(obs))]
+        # Host arrays (actions, rewards, flags, episode statistics) stacked here go to the device
+        # as one transfer per name and part, not one per step.
+        rollout = {name: [np.stack(steps) if all(isinstance(x, np.ndarray) for x in steps) else steps
+                          for steps in part_steps] for name, part_steps in rollout.items()}
+        transitions = _host_transitions(rollout, last_value)
         key, key_update = jax.random.split(key)
         train_state, metrics = learn(train_state, transitions, key_update)
         return train_state, obs, key, metrics
 
-    return host_updates(env, network, num_updates, init, update, lambda s: s.learner.params, jit)
+    return host_updates(env, network, num_updates, init, update, lambda s: s.learner.params, jit, timings)
 
 
 @jax.jit
-def _host_transitions(rollout: dict, last_value) -> Transition:
-    """Stack the per-step lists (host and device arrays) into a time-major `Transition` on the
-    device; the value after a step is the next step's (the last one's: `last_value`), or
-    V(final observation) where the episode ended."""
-    stacked = {name: jnp.stack(steps) for name, steps in rollout.items()}
+def _host_transitions(rollout: dict, last_value: list) -> Transition:
+    """Stack the per-step lists (host and device arrays, or arrays stacked already; one per part
+    of the batch, the parts side by side) into a time-major `Transition` on the device; the value after a step
+    is the next step's (the last one's: `last_value`, one array per part), or V(final
+    observation) where the episode ended."""
+    stacked = {name: jnp.concatenate([jnp.stack(steps) if isinstance(steps, list) else steps for steps in parts],
+                                     axis=1)
+               for name, parts in rollout.items()}
     value, done, terminated = stacked["value"], stacked["done"], stacked["terminated"]
-    following = jnp.concatenate([value[1:], last_value[None]])
+    following = jnp.concatenate([value[1:], jnp.concatenate(last_value)[None]])
     info = {name: stacked[name] for name in EPISODE_KEYS}
     return Transition(
         obs=stacked["obs"],

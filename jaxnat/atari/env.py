@@ -202,6 +202,7 @@ class NaturalAtariVecEnv:
         self._last_lengths = np.zeros(self.num_envs, np.int32)
         self._ended = np.zeros(self.num_envs, bool)  # next_step mode: reset at the next step
         self._needs_reset = True
+        self._pending = None  # step_async's timestamps until step_wait
 
     # -- the batched API ------------------------------------------------------------------
     def reset(self, *, seed: int | None = None):
@@ -225,6 +226,14 @@ class NaturalAtariVecEnv:
 
     def step(self, actions):
         """One agent step of every env; numpy in (`int[B]` actions) and out."""
+        self.step_async(actions)
+        return self.step_wait()
+
+    def step_async(self, actions) -> None:
+        """`step`'s first half: hands the actions to ALE's threads and returns while they
+        emulate (after this step's background draws); `step_wait` returns the outcome. Between
+        the two the caller may do other work, e.g. the policy call of another batch of envs
+        (`jaxnat.atari.wrappers.PipelinedVecEnv`)."""
         if self._needs_reset:
             raise RuntimeError("Call reset() before step().")
         actions = np.asarray(actions)
@@ -238,11 +247,22 @@ class NaturalAtariVecEnv:
                 f"actions must lie in [0, {self.single_action_space.n}), got {actions.min()} .. "
                 f"{actions.max()}"
             )
+        if self._pending is not None:
+            raise RuntimeError("step_async() twice without step_wait()")
         start = time.perf_counter()
         self._ale.send(actions.astype(np.int64))
         sent = time.perf_counter()
         self._background.advance()  # next video frames, noise draws: while ALE emulates
-        advanced = time.perf_counter()
+        self._pending = (start, sent, time.perf_counter())
+
+    def step_wait(self):
+        """`step`'s second half: waits for ALE's emulation of the actions `step_async` sent and
+        returns the step's outcome, as `step` does."""
+        if self._pending is None:
+            raise RuntimeError("step_wait() without step_async()")
+        start, sent, advanced = self._pending
+        self._pending = None
+        waiting = time.perf_counter()
         raw, reward, terminated, truncated, ale_info = self._ale.recv()
         received = time.perf_counter()
         # ale-py's ordered mode (batch = all envs) puts env i in row i; checked, as it is cheap
@@ -268,7 +288,7 @@ class NaturalAtariVecEnv:
             self._ended = done
         timings = self.step_timings
         timings["steps"] += 1
-        timings["ale_s"] += sent - start + received - advanced
+        timings["ale_s"] += sent - start + received - waiting
         timings["ahead_s"] += advanced - sent
         timings["host_s"] += time.perf_counter() - received
         return obs, reward, terminated, truncated, info

@@ -1,7 +1,9 @@
-"""Wrappers for host-batched envs (numpy `reset()` / `step(actions)`): reward clipping, JAX arrays.
+"""Wrappers for host-batched envs (numpy `reset()` / `step(actions)`): reward clipping, JAX arrays,
+and a batch made of parts that the host driver steps in turn.
 
     env = ClipRewardWrapper(jaxnat.make_vec("NaturalAtari/Breakout-v0", 8))
     env = DeviceArraysWrapper(env)      # jax arrays out, for jitted agents
+    env = PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec("NaturalAtari/Breakout-v0", 4)) for _ in range(2)])
 """
 
 from __future__ import annotations
@@ -9,7 +11,7 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-__all__ = ["HostVecWrapper", "ClipRewardWrapper", "DeviceArraysWrapper"]
+__all__ = ["HostVecWrapper", "ClipRewardWrapper", "DeviceArraysWrapper", "PipelinedVecEnv"]
 
 
 class HostVecWrapper:
@@ -23,6 +25,14 @@ class HostVecWrapper:
 
     def step(self, actions):
         return self.env.step(actions)
+
+    def step_async(self, actions) -> None:
+        """`step` in two halves, where the env has them (`NaturalAtariVecEnv`): named here so
+        that a wrapper's `step_wait` is not bypassed by the attribute forwarding below."""
+        self.env.step_async(actions)
+
+    def step_wait(self):
+        return self.env.step_wait()
 
     def __getattr__(self, name):
         return getattr(self.env, name)
@@ -43,7 +53,12 @@ class ClipRewardWrapper(HostVecWrapper):
         self.bound = float(bound)
 
     def step(self, actions):
-        obs, reward, terminated, truncated, info = self.env.step(actions)
+        return self._clip(*self.env.step(actions))
+
+    def step_wait(self):
+        return self._clip(*self.env.step_wait())
+
+    def _clip(self, obs, reward, terminated, truncated, info):
         info = {**info, "unclipped_reward": reward}
         return obs, np.clip(reward, -self.bound, self.bound), terminated, truncated, info
 
@@ -66,3 +81,65 @@ class DeviceArraysWrapper(HostVecWrapper):
     def step(self, actions):
         out = self.env.step(np.asarray(actions))
         return jax.device_put(out, self.device)
+
+    def step_async(self, actions) -> None:
+        self.env.step_async(np.asarray(actions))
+
+    def step_wait(self):
+        return jax.device_put(self.env.step_wait(), self.device)
+
+
+class PipelinedVecEnv:
+    """One batch of `sum(part.num_envs)` envs made of `parts` (host-batched envs of the same
+    game and settings): env `j` of the batch is env `j - offset` of the part holding it.
+
+    As an env it steps every part and concatenates (`reset(seed=s)` seeds part `i` with
+    `s + offset_i`, so emulator `j` gets seed `s + j`, as in one batch). The host driver
+    (`jaxnat.agents.rollout.host_steps_pipelined`) steps the parts in turn instead: while ALE
+    emulates one part, the device computes the next actions of another, so the policy's round
+    trip, the host pass and the emulation overlap (EnvPool's asynchronous idea) while every
+    action is still chosen by the current policy on the latest observation (exact on-policy
+    steps). Parts with `step_async`/`step_wait` (`NaturalAtariVecEnv`, and the wrappers here
+    around it) also overlap one part's host pass with the next part's emulation.
+    """
+
+    def __init__(self, parts):
+        if len(parts) < 1:
+            raise ValueError("PipelinedVecEnv needs at least one part")
+        self.parts = list(parts)
+        sizes = [int(part.num_envs) for part in self.parts]
+        self.offsets = list(np.cumsum([0, *sizes]))
+        self.num_envs = int(self.offsets[-1])
+        self.single_observation_space = self.parts[0].single_observation_space
+        self.single_action_space = self.parts[0].single_action_space
+
+    def split(self, batch):
+        """`[num_envs, ...]` -> one view per part."""
+        return [batch[lo:hi] for lo, hi in zip(self.offsets[:-1], self.offsets[1:])]
+
+    def reset(self, *, seed: int | None = None):
+        outs = [part.reset(**({} if seed is None else {"seed": int(seed) + int(offset)}))
+                for part, offset in zip(self.parts, self.offsets)]
+        return np.concatenate([obs for obs, _ in outs]), _concat_infos([info for _, info in outs])
+
+    def step(self, actions):
+        outs = [part.step(a) for part, a in zip(self.parts, self.split(np.asarray(actions)))]
+        return concat_steps(outs)
+
+    def close(self) -> None:
+        for part in self.parts:
+            part.close()
+
+    def __repr__(self) -> str:
+        return f"PipelinedVecEnv({self.parts!r})"
+
+
+def concat_steps(outs):
+    """The parts' `step` outcomes as one batch's."""
+    obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
+    return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
+
+
+def _concat_infos(infos):
+    return {name: np.concatenate([np.asarray(info[name]) for info in infos]) for name in infos[0]
+            if all(name in info for info in infos)}

@@ -25,14 +25,14 @@ import numpy as np
 import jaxnat
 from jaxnat.agents import ALGORITHMS
 from jaxnat.agents.rollout import evaluate_host
-from jaxnat.atari.wrappers import ClipRewardWrapper
+from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
 __all__ = ["HOST_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "new_host_spec",
-           "observation_space", "make_learner", "host_errors"]
+           "observation_space", "make_learner", "make_train_env", "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
 EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_OFFSET + seed)
@@ -47,6 +47,19 @@ def observation_space(env_id: str, env_kwargs: dict):
         return probe.single_observation_space
     finally:
         probe.close()
+
+
+def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1):
+    """The env a host run trains on: `num_envs` envs of the train split, rewards clipped to
+    [-1, 1]; with `parts` > 1 a `PipelinedVecEnv` of that many equal batches, each with the
+    same env kwargs (ALE threads included: the parts mostly emulate in turn), which the
+    on-policy learners step in turn so that the policy calls overlap the emulation."""
+    if parts < 1 or num_envs % parts:
+        raise ValueError(f"parts={parts} must be >= 1 and divide num_envs={num_envs}")
+    if parts == 1:
+        return ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs, split="train", **env_kwargs))
+    return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs // parts, split="train",
+                                                              **env_kwargs)) for _ in range(parts)])
 
 
 def make_learner(algo: str, config, env, compiler_options: dict | None = None):
@@ -109,8 +122,7 @@ class HostBackend:
             if "split" in spec.env_kwargs:
                 raise ValueError("env kwarg 'split' is set by jaxnat train: split=train for training and "
                                  "split=test for evaluation")
-            self.env = ClipRewardWrapper(jaxnat.make_vec(spec.env_id, spec.config.num_envs, split="train",
-                                                         **spec.env_kwargs))
+            self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs)
             self.test_env = jaxnat.make_vec(spec.env_id, spec.config.num_envs, split="test", **spec.env_kwargs)
             self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options)
         self._updates = None
