@@ -4,6 +4,10 @@ Measures, in one run on the default JAX backend, for each robot and batch size:
 - renderer only: frames/s of `jit(vmap(Renderer.render))` at 84x84 grayscale (the env's
   observation frame) from stored poses (MuJoCo C, random joint angles), called as the env calls
   it (the tracking camera's constant orientation); `--kernels xla pallas` times both kernels;
+- renderer with a floor texture: the same, the floor drawn with the checker and with a video
+  frame (a stand-in bank of random frames, one per env), each read at the nearest texel
+  (`floor_filter="nearest"`, the renderer before mip filtering) and mip-filtered by the pixel's
+  footprint (`"mip"`, the default), and the ratio mip / nearest (target >= 90%);
 - physics only: agent steps/s of `PixelMuJoCo(observation="state")` (MJX, frame skip 4, no
   rendering), autoreset, random actions, `lax.scan` inside one jit;
 - full env: agent steps/s of `PixelMuJoCo(observation="pixels")` (physics + one render per
@@ -18,6 +22,7 @@ All programs are traced first and compiled on a thread pool (MJX compiles slowly
     python bench/pixel_mujoco.py                      # sizes by backend (GPU: 1024 16384)
     python bench/pixel_mujoco.py --robots hopper --sizes 1024 4096 --floors video
     python bench/pixel_mujoco.py --no-env --kernels xla pallas   # renderer kernels only
+    python bench/pixel_mujoco.py --no-env --no-mujoco  # renderers only: floor filters too
     python bench/pixel_mujoco.py --strip-only         # PNG strip of observations per floor
 """
 
@@ -54,6 +59,7 @@ from jaxnat.mjx_pixel.render import KERNELS  # noqa: E402
 ROBOTS = ("ant", "half_cheetah", "hopper", "swimmer")
 IDS = {"ant": "Ant", "half_cheetah": "HalfCheetah", "hopper": "Hopper", "swimmer": "Swimmer"}
 FLOORS = ("video", "checker", "noise")
+TEXTURED = ("checker", "video")  # the floors the renderer filters (render_*_{nearest,mip}_fps)
 
 
 def stored_poses(model, count: int, seed: int = 0):
@@ -110,24 +116,51 @@ def kernel_count(compiled) -> int:
     return len(re.findall(r" (?:fusion|custom-call)\(", entry))
 
 
-def renderer_job(env, poses, num_envs: int, pool, kernel: str | None = None) -> Job:
+# The renderer's video floor in the bench: random frames at the env's default video size.
+BENCH_BANK_FRAMES, BENCH_VIDEO_SHAPE, BENCH_VIDEO_TILE = 256, (128, 128), 4.0
+
+
+def renderer_job(env, poses, num_envs: int, pool, kernel: str | None = None,
+                 floor: str | None = None, floor_filter: str = "mip") -> Job:
     """frames/s of the env's renderer (or one with another `kernel`) at `num_envs` stored poses,
-    as the env calls it: the tracking camera's constant orientation, floor in its geom colour."""
+    as the env calls it: the tracking camera's constant orientation. The floor keeps its geom
+    colour, or with `floor` ("checker" or "video") shows that texture read with `floor_filter`
+    ("video": env i shows frame i of a stand-in bank of random frames)."""
+    from jaxnat.mjx_pixel.floor import floor_rgb
     from jaxnat.mjx_pixel.render import Renderer
 
     renderer = env.renderer
-    if kernel is not None and kernel != renderer.kernel:
+    kernel = kernel or renderer.kernel
+    if kernel != renderer.kernel or floor_filter != renderer.floor_filter:
         renderer = Renderer(env.table, renderer.height, renderer.width, fovy=renderer.fovy,
-                            grayscale=renderer.grayscale, shadows=renderer.shadows, kernel=kernel)
+                            grayscale=renderer.grayscale, shadows=renderer.shadows, kernel=kernel,
+                            floor_filter=floor_filter)
     reps = -(-num_envs // len(poses["qpos"]))
     args = [jnp.asarray(np.concatenate([poses[k]] * reps)[:num_envs])
             for k in ("cam_pos", "geom_xpos", "geom_xmat")]
+    args.append(jnp.arange(num_envs, dtype=jnp.int32) % BENCH_BANK_FRAMES)
     cam_mat = env.camera.mat
-    render = jax.jit(jax.vmap(lambda pos, xpos, xmat: renderer.render(pos, cam_mat, xpos, xmat)))
+    bank = None
+    if floor == "video":
+        rng = np.random.default_rng(0)
+        bank = jnp.asarray(rng.integers(0, 256, (BENCH_BANK_FRAMES, *BENCH_VIDEO_SHAPE,
+                                                 renderer.channels), np.uint8))
+
+    def one(pos, xpos, xmat, index):
+        if floor is None:
+            return renderer.render(pos, cam_mat, xpos, xmat)
+
+        def texture(xy, footprint=None):
+            return floor_rgb(floor, env.table, xy, footprint, frame=bank, frame_index=index,
+                             tile=(BENCH_VIDEO_TILE, BENCH_VIDEO_TILE))
+
+        return renderer.render(pos, cam_mat, xpos, xmat, texture)
+
+    render = jax.jit(jax.vmap(one))
 
     def measure(compiled):
         jax.block_until_ready(compiled(*args))
-        seconds = common.median_seconds(lambda: jax.block_until_ready(compiled(*args)), repeats=5)
+        seconds = common.median_seconds(lambda: jax.block_until_ready(compiled(*args)), repeats=7)
         return num_envs / seconds, {"kernels": kernel_count(compiled)}
 
     return Job([render.lower(*args)], measure, pool)
@@ -286,6 +319,11 @@ def main(argv=None):
             for kernel in args.kernels:
                 jobs[f"render_{kernel}_fps"] = renderer_job(
                     envs["checker"][0].unwrapped, poses, num_envs, pool, kernel)
+            for floor in TEXTURED:
+                for floor_filter in ("nearest", "mip"):  # the renderer before filtering, then now
+                    jobs[f"render_{floor}_{floor_filter}_fps"] = renderer_job(
+                        envs["checker"][0].unwrapped, poses, num_envs, pool, floor=floor,
+                        floor_filter=floor_filter)
             if not args.no_env:
                 largest = num_envs == sizes[-1] or args.every_size
                 floors = args.floors or (list(FLOORS) if largest else ["video"])
@@ -317,6 +355,9 @@ def main(argv=None):
         for name in ("video", "checker", "noise", "noise_obs"):
             if f"{name}_sps" in row:
                 row[f"{name}_vs_physics"] = row[f"{name}_sps"] / row["physics_sps"]
+        for floor in TEXTURED:
+            row[f"{floor}_mip_vs_nearest"] = (row[f"render_{floor}_mip_fps"]
+                                              / row[f"render_{floor}_nearest_fps"])
         if row["mujoco_fps"]:
             row["render_vs_mujoco"] = row["render_fps"] / row["mujoco_fps"]
         rows.append(row)
@@ -328,6 +369,10 @@ def main(argv=None):
     columns = [("robot", "robot", ""), ("envs", "envs", ","),
                ("render_fps", "renderer frames/s", ".3e")]
     columns += [(f"render_{k}_fps", f"renderer ({k}) frames/s", ".3e") for k in args.kernels]
+    for floor in TEXTURED:
+        columns += [(f"render_{floor}_nearest_fps", f"renderer {floor} nearest frames/s", ".3e"),
+                    (f"render_{floor}_mip_fps", f"renderer {floor} mip frames/s", ".3e"),
+                    (f"{floor}_mip_vs_nearest", f"{floor} mip / nearest", ".1%")]
     columns += [("physics_sps", "physics-only steps/s", ".3e")]
     for name in ("video", "checker", "noise", "noise_obs"):
         label = "noise observation" if name == "noise_obs" else f"full ({name})"
@@ -349,6 +394,9 @@ def main(argv=None):
         "renderer_vs_2M_target": {r: f"{b['render_fps'] / 2e6:.2f}" for r, b in best.items()},
     }
     largest = [r for r in rows if r["envs"] == sizes[-1]]
+    for floor in TEXTURED:
+        summary[f"{floor}_mip_vs_nearest_at_largest (target >= 90%)"] = {
+            r["robot"]: f"{r[f'{floor}_mip_vs_nearest']:.1%}" for r in largest}
     for name in ("video", "checker", "noise", "noise_obs"):
         key = f"{name}_vs_physics"
         if largest and all(key in r for r in largest):

@@ -392,3 +392,122 @@ def test_checker_floor_is_the_models_texture(cheetah):
     assert not np.allclose(squares[0], squares[1]), "adjacent checker squares differ"
     with pytest.raises(ValueError, match="floor must be one of"):
         floor_rgb("carpet", table, jnp.zeros((1, 2)))
+
+
+# --- floor filtering (issue #21: the far floor was read at the nearest texel) -------------------
+
+def test_mip_levels_average_down_to_the_mean():
+    from jaxnat.mjx_pixel.floor import mip_levels
+
+    texture = np.random.default_rng(0).uniform(size=(100, 36, 3)).astype(np.float32)
+    levels = mip_levels(texture)
+    # OpenGL's sizes: halved and floored, to 1x1 (100 -> 50 -> 25 -> 12 -> 6 -> 3 -> 1).
+    assert [lv.shape[:2] for lv in levels] == [(100, 36), (50, 18), (25, 9), (12, 4), (6, 2),
+                                               (3, 1), (1, 1)]
+    np.testing.assert_allclose(levels[1][0, 0], texture[:2, :2].mean((0, 1)), rtol=1e-5)
+    for level in levels:  # every level, odd sizes included, keeps the texture's mean
+        np.testing.assert_allclose(level.mean((0, 1)), texture.mean((0, 1)), rtol=1e-4)
+    # The same chain on the device (the video floor builds it per frame).
+    device = mip_levels(jnp.asarray(texture))
+    for a, b in zip(levels, device):
+        np.testing.assert_allclose(np.asarray(b), a, rtol=1e-5, atol=1e-6)
+
+
+def test_mip_texture_is_nearest_texel_up_close_and_the_mean_far_away():
+    from jaxnat.mjx_pixel.floor import mip_levels, texture_mip
+
+    texture = np.random.default_rng(1).uniform(size=(16, 16, 1)).astype(np.float32)
+    levels, tile = mip_levels(texture), np.array([2.0, 2.0])
+    xy = jnp.asarray(np.random.default_rng(2).uniform(-5, 5, size=(200, 2)), jnp.float32)
+    near = np.asarray(texture_at(jnp.asarray(texture), xy, tile))
+
+    def footprint(metres):  # a pixel step of `metres` along x (right) and y (down)
+        step, zero = jnp.full(200, metres, jnp.float32), jnp.zeros(200, jnp.float32)
+        return (step, zero), (zero, step)
+
+    # At most one texel per pixel (a texel is 1/8 m): exactly the nearest texel, as before.
+    for metres in (0.0, 0.01, 0.125):
+        np.testing.assert_array_equal(np.asarray(texture_mip(levels, xy, tile, footprint(metres))), near)
+    # Two texels per pixel: level 1 exactly; 16 or more: the texture's mean.
+    level1 = np.asarray(texture_at(jnp.asarray(levels[1]), xy, tile))
+    np.testing.assert_allclose(np.asarray(texture_mip(levels, xy, tile, footprint(0.25))), level1, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(texture_mip(levels, xy, tile, footprint(3.0))),
+                               np.full((200, 1), texture.mean()), rtol=1e-5)
+    # Between levels, a blend of the two: sqrt(2) texels -> halfway between levels 0 and 1.
+    half = np.asarray(texture_mip(levels, xy, tile, footprint(0.125 * math.sqrt(2))))
+    np.testing.assert_allclose(half, (near + level1) / 2, rtol=1e-4, atol=1e-6)
+
+
+def far_and_near_floor_rows(renderer, table, pos, mat, data):
+    """(far, near): the floor mask restricted to the 8 rows below the horizon and to the
+    bottom 12 rows."""
+    floor = np.asarray(renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat).geom) == table.floor
+    first = int(np.flatnonzero(floor.any(axis=1))[0])
+    far, near = floor.copy(), floor.copy()
+    far[first + 8:] = False
+    near[:-12] = False
+    return far, near
+
+
+def render_floor(renderer, pos, mat, data, floor):
+    """uint8 [H, W, 3]: `renderer`'s frame with the floor function `floor(xy, footprint)`."""
+    fn = floor if renderer.floor_filter == "mip" else (lambda xy: floor(xy, None))
+    return np.asarray(jax.jit(lambda p, x, m: renderer.render(p, mat, x, m, fn))(
+        pos, data.geom_xpos, data.geom_xmat)).astype(float)
+
+
+def test_far_checker_fades_to_its_mean_as_in_mujoco(cheetah):
+    """Near the horizon a pixel covers many checker squares. Read at the nearest texel (the
+    renderer before mip filtering) those rows are black-and-grey noise (moire); filtered by
+    the footprint they are the checker's mean colour, smooth as MuJoCo's mipmapped floor. The
+    near floor, a few texels per pixel, keeps its squares: only their edges soften."""
+    model, table, camera = cheetah
+    data = posed(model, 0, scale=0.0)
+    pos, mat = camera.pose(data)
+    checker = lambda xy, fp: floor_rgb("checker", table, xy, fp)  # noqa: E731
+    mean_colour = jnp.asarray(table.floor_texture.mean((0, 1)))
+    frames = {f: render_floor(Renderer(table, 84, 84, fovy=camera.fovy, floor_filter=f), pos, mat,
+                              data, checker) for f in ("nearest", "mip")}
+    flat = render_floor(Renderer(table, 84, 84, fovy=camera.fovy), pos, mat, data,
+                        lambda xy, fp: jnp.broadcast_to(mean_colour, xy.shape[:-1] + (3,)))
+    far, near = far_and_near_floor_rows(Renderer(table, 84, 84, fovy=camera.fovy), table, pos, mat, data)
+    assert far.sum() > 300 and near.sum() > 800
+    row_std = lambda frame: np.array([frame[r][far[r]].std(0).max() for r in np.flatnonzero(far.any(1))])  # noqa: E731
+    assert row_std(frames["nearest"]).min() > 40, "nearest texel: the far rows are moire"
+    assert row_std(frames["mip"]).max() < 3, "filtered: the far rows are smooth"
+    np.testing.assert_allclose(frames["mip"][far], flat[far], atol=2)  # the checker's mean
+    same = np.all(frames["mip"][near] == frames["nearest"][near], axis=-1)
+    assert same.mean() > 0.7, "the near floor keeps its squares"
+    np.testing.assert_allclose(frames["mip"][near].mean(0), frames["nearest"][near].mean(0), atol=4)
+    # MuJoCo's far floor is as smooth in the 5 rows below the horizon (it shows squares from
+    # the 7th on), on the pixels that are floor in both renders (its lighting, with specular,
+    # is a few levels brighter). Skipped without OpenGL.
+    far &= mujoco_segmentation(model, data, 84, 84) == table.geom_ids[table.floor]
+    far[np.flatnonzero(far.any(axis=1))[0] + 5:] = False
+    renderer = mujoco.Renderer(model, 84, 84)
+    try:
+        renderer.update_scene(data, camera="track")
+        theirs = renderer.render().astype(float)
+    finally:
+        renderer.close()
+    assert row_std(theirs).max() < 8 and row_std(frames["mip"]).max() < 3
+    assert abs(theirs[far].mean() - frames["mip"][far].mean()) < 15
+
+
+def test_far_video_floor_is_filtered(cheetah):
+    """The video floor, mip-filtered per frame on the device, read from a bank by index: a
+    white-noise frame averages to grey far away instead of staying noise."""
+    model, table, camera = cheetah
+    data = posed(model, 0, scale=0.0)
+    pos, mat = camera.pose(data)
+    bank = jnp.asarray(np.random.default_rng(0).integers(0, 256, (3, 64, 64, 1), np.uint8))
+    video = lambda xy, fp: floor_rgb("video", table, xy, fp, frame=bank, frame_index=jnp.int32(1),  # noqa: E731
+                                     tile=(4.0, 4.0))
+    far, near = far_and_near_floor_rows(Renderer(table, 84, 84, fovy=camera.fovy), table, pos, mat, data)
+    frames = {f: render_floor(Renderer(table, 84, 84, fovy=camera.fovy, floor_filter=f), pos, mat,
+                              data, video) for f in ("nearest", "mip")}
+    assert frames["nearest"][far].std() > 30
+    assert frames["mip"][far].std() < 0.25 * frames["nearest"][far].std()
+    assert frames["mip"][far].std() < 8
+    with pytest.raises(ValueError, match="floor_filter must be one of"):
+        Renderer(table, floor_filter="linear")

@@ -22,7 +22,10 @@ Semantics: `docs/environments.md` section 4.
   `"checker"` (the model's checker), `"video"` (the current frame of a natural video laid on
   the floor in world x-y, `video_tile` metres per copy; the video advances one frame per agent
   step; `video_split` "train"/"test" picks disjoint videos) or `"noise"` (fresh Gaussian
-  noise each frame, the same law `noise=`). See `floor.py`.
+  noise each frame, the same law `noise=`). See `floor.py`. The checker and the video are
+  mip-filtered by each pixel's footprint (`floor_filter="mip"`, the default), so the far floor
+  fades to the texture's average as in MuJoCo's renderer; `floor_filter="nearest"` reads the
+  nearest texel everywhere (moire near the horizon).
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
   default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
@@ -106,6 +109,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         shadows: render the light's shadows (off by default: about twice the render work).
         render_kernel: the renderer's nearest-hit search: "auto" (a Pallas kernel on a GPU,
             plain JAX elsewhere), "xla" or "pallas" (see `render.Renderer`, `pallas_cast.py`).
+        floor_filter: "mip" (the floor texture filtered by each pixel's footprint, as MuJoCo's
+            mipmaps) or "nearest" (the nearest texel); see `render.Renderer`.
         videos: natural video sources for floor="video" (None: opencv-doc's videos; else files,
             a directory or a glob; see `jaxnat.natural.load_videos`).
         video_split: "train", "test" (disjoint videos) or "all".
@@ -135,6 +140,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         physics: Environment | None = None,
         render_kernel: str = "auto",
         noise: str | NoiseLaw = DEFAULT_NOISE,
+        floor_filter: str = "mip",
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -156,7 +162,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.camera = TrackingCamera.from_model(physics.model)
         self.table = GeomTable.from_model(physics.model)
         self.renderer = Renderer(self.table, height, width, fovy=self.camera.fovy,
-                                 grayscale=grayscale, shadows=shadows, kernel=render_kernel)
+                                 grayscale=grayscale, shadows=shadows, kernel=render_kernel,
+                                 floor_filter=floor_filter)
         self._video = None
         if observation == "pixels" and floor == "video":
             from jaxnat import natural
@@ -212,8 +219,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             frames = video.frames
             frame_index = cursor_index(video, cursor)
 
-        def floor(xy):
-            return floor_rgb(self.floor, self.table, xy, frame=frames, frame_index=frame_index,
+        def floor(xy, footprint=None):  # the renderer passes a footprint with floor_filter="mip"
+            return floor_rgb(self.floor, self.table, xy, footprint, frame=frames,
+                             frame_index=frame_index,
                              tile=(params.video_tile, params.video_tile), key=key,
                              channels=self.renderer.channels, noise=self.noise)
 

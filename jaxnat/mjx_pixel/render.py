@@ -24,6 +24,17 @@ looks along its local -z with +y up and `fovy` the vertical field of view in deg
 directional light along the view axis) plus the model's lights taken as directional (all
 Gymnasium robots have one directional light from above), with optional hard shadows from the
 first light. Colours are the geoms' `rgba`; specular terms and floor reflections are omitted.
+
+Floor texture filtering (`floor_filter=`): MuJoCo's OpenGL renderer reads textures with
+mipmaps (`GL_LINEAR_MIPMAP_LINEAR`), so its far floor fades to the checker's average grey. By
+default (`"mip"`) the renderer computes each pixel's footprint on the floor plane (the exact
+step of the hit point per pixel right and down, from its depth, its ray and the plane's
+normal: what OpenGL's screen-space derivatives measure) and hands it to the floor function,
+which picks the mip level from it (`floor.texture_mip`). The one departure from OpenGL: each
+level is read at its nearest texel (OpenGL reads four, bilinearly), so the near floor, where a
+pixel covers at most one texel, is exactly the nearest-texel floor. `"nearest"` reads the
+nearest texel of the full-size texture everywhere (the renderer before filtering; the bench
+compares both).
 """
 
 from __future__ import annotations
@@ -37,7 +48,7 @@ import numpy as np
 from flax import struct
 
 __all__ = ["GeomTable", "Renderer", "Hit", "intersect", "PLANE", "SPHERE", "CAPSULE",
-           "ELLIPSOID", "CYLINDER", "BOX"]
+           "ELLIPSOID", "CYLINDER", "BOX", "FLOOR_FILTERS"]
 
 # mujoco.mjtGeom values, so this module does not need mujoco to render.
 PLANE, HFIELD, SPHERE, CAPSULE, ELLIPSOID, CYLINDER, BOX, MESH = range(8)
@@ -49,6 +60,7 @@ DEFAULT_SKY = ((0.4, 0.5, 0.6), (0.0, 0.0, 0.0))
 # `Renderer.render`'s ops carry this name in a compiled program's metadata (tests count renders).
 RENDER_SCOPE = "jaxnat_render"
 KERNELS = ("xla", "pallas", "auto")
+FLOOR_FILTERS = ("mip", "nearest")
 # Hits closer than this (metres) are ignored: it keeps shadow rays from re-hitting their own
 # starting surface.
 _EPS = 1e-4
@@ -421,6 +433,10 @@ class Renderer:
             kernel, `pallas_cast.py`: a GPU kernel, interpreted on a CPU). Both render the same
             frames (tests check it on CPU; bench/results/pixel_mujoco.md records the check on
             a GPU).
+        floor_filter: how a floor function (`render`'s `floor_rgb` callable) reads its
+            texture: "mip" (the default: it is also given each pixel's footprint and filters
+            by it, see the module docstring and `floor.texture_mip`) or "nearest" (it is given
+            the hit points only and reads the nearest texel).
 
     Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
     image, with no `dot` and no `[..., 3]` vectors in between, so XLA fuses it into a few
@@ -436,12 +452,15 @@ class Renderer:
 
     def __init__(self, table: GeomTable, height: int = 84, width: int = 84, fovy: float = 45.0,
                  grayscale: bool = False, shadows: bool = False,
-                 sky: tuple | None = None, kernel: str = "auto"):
+                 sky: tuple | None = None, kernel: str = "auto", floor_filter: str = "mip"):
         if height < 1 or width < 1:
             raise ValueError(f"image size must be positive, got {height}x{width}")
         if kernel not in KERNELS:
             raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+        if floor_filter not in FLOOR_FILTERS:
+            raise ValueError(f"floor_filter must be one of {FLOOR_FILTERS}, got {floor_filter!r}")
         self.kernel = kernel
+        self.floor_filter = floor_filter
         self.table = table
         self.height, self.width = int(height), int(width)
         self.fovy = float(fovy)
@@ -457,6 +476,8 @@ class Renderer:
         x, y = np.meshgrid(cols, rows)
         rays = np.stack([x, y, -np.ones_like(x)], axis=-1)
         self._camera_rays = (rays / np.linalg.norm(rays, axis=-1, keepdims=True)).astype(np.float32)
+        # The image-plane distance (at unit depth) between neighbouring pixels' rays.
+        self._pixel_step = 2 * tan_half / self.height
 
     @property
     def channels(self) -> int:
@@ -475,18 +496,21 @@ class Renderer:
     def shade(self, hit: Hit, cam_mat, floor_rgb=None) -> jax.Array:
         """uint8 `[H, W, C]` image of `hit` seen from a camera oriented by `cam_mat` (it aims
         the headlight). `floor_rgb [H, W, 3]` (float in [0, 1]) colours the floor pixels
-        (see `floor.py`); without it the floor keeps its geom colour."""
+        (see `floor.py`); without it the floor keeps its geom colour. It may also be a function,
+        called as in `render`."""
         normal = tuple(hit.normal[..., i] for i in range(3))
         point = tuple(hit.point[..., i] for i in range(3))
-        return self._shade(hit.geom, normal, point, hit.lit, cam_mat, floor_rgb)
+        return self._shade(hit.geom, normal, point, hit.lit, cam_mat, floor_rgb, hit.depth)
 
     def render(self, cam_pos, cam_mat, geom_xpos, geom_xmat, floor_rgb=None) -> jax.Array:
         """`shade(cast(...))` in one pass: one uint8 `[H, W, C]` frame. `floor_rgb` may also be a
         function of the hit points' world `xy [H, W, 2]` returning `[H, W, 3]` (see
-        `floor.floor_rgb`): the floor texture is then looked up inside the same kernel."""
+        `floor.floor_rgb`): the floor texture is then looked up inside the same kernel. With
+        `floor_filter="mip"` it is called as `floor_rgb(xy, footprint)`, `footprint` each
+        pixel's world x-y step per pixel right and down (`footprint`, `floor.texture_mip`)."""
         with jax.named_scope(RENDER_SCOPE):  # names its ops in compiled programs
-            _, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
-            return self._shade(g, normal, point, lit, cam_mat, floor_rgb)
+            depth, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
+            return self._shade(g, normal, point, lit, cam_mat, floor_rgb, depth)
 
     # --- the per-pixel work -------------------------------------------------------------------
 
@@ -652,7 +676,29 @@ class Renderer:
             blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
         return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
 
-    def _shade(self, g, normal, point, lit, cam_mat, floor_rgb):
+    def footprint(self, depth, cam_mat, normal) -> tuple:
+        """`((x, y), (x, y))`, four float32 `[H, W]` arrays: per pixel, the world x-y step of its
+        hit point on the plane through it with unit normal `normal` (a tuple of three `[H, W]`
+        arrays) when the pixel moves one to the right (first pair) or one down (second pair),
+        at distance `depth` along its ray. Kept as separate arrays, not stacked, so XLA fuses
+        them into the pixel loop. Exact for a plane: a ray `r = x e_x + y e_y - e_z` (camera axes, unit
+        depth) meets it at `P = C + k r`, `k = depth (d . forward)`, so a step `dr` moves P by
+        `k (dr - d (n . dr) / (n . d))` (d the unit ray), with `|dr|` one pixel's step."""
+        d = self._rays(cam_mat)
+        axes = _orientation(cam_mat)
+        forward = -(d[0] * axes[0, 2] + d[1] * axes[1, 2] + d[2] * axes[2, 2])
+        depth = jnp.where(jnp.isfinite(depth), depth, 0.0)
+        n_d = _dot(normal, d)
+        n_d = jnp.where(jnp.abs(n_d) > 1e-6, n_d, -1e-6)  # grazing rays (and misses): no blow-up
+        scale = depth * forward * self._pixel_step
+        steps = []
+        for axis, sign in ((0, 1.0), (1, -1.0)):  # right: +e_x; down: -e_y
+            step = tuple(sign * axes[i, axis] for i in range(3))
+            ratio = _dot(normal, step) / n_d
+            steps.append(tuple(scale * (step[j] - d[j] * ratio) for j in range(2)))
+        return tuple(steps)
+
+    def _shade(self, g, normal, point, lit, cam_mat, floor_rgb, depth):
         """uint8 `[H, W, C]` from per-pixel geom ids, normals and points (tuples of arrays)."""
         table = self.table
         safe_g = jnp.maximum(g, 0)
@@ -660,7 +706,11 @@ class Renderer:
         on_floor = (g == table.floor) if table.floor >= 0 else None
         if on_floor is not None and floor_rgb is not None:
             if callable(floor_rgb):
-                floor_rgb = floor_rgb(jnp.stack(point[:2], -1))
+                xy = jnp.stack(point[:2], -1)
+                if self.floor_filter == "mip":
+                    floor_rgb = floor_rgb(xy, self.footprint(depth, cam_mat, normal))
+                else:
+                    floor_rgb = floor_rgb(xy)
             rgb = [jnp.where(on_floor, floor_rgb[..., c], rgb[c]) for c in range(3)]
         # The headlight shines along the view axis: -(n . forward) = n . cam_mat[:, 2].
         back = _orientation(cam_mat)[:, 2]
