@@ -46,6 +46,7 @@ def main(argv=None):
     parser.add_argument("--train-ids", nargs="*", default=[], help="env ids whose PPO training is checked")
     parser.add_argument("--train-envs", type=int, default=64)
     parser.add_argument("--train-updates", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=2, help="timed runs of each compiled program (median)")
     parser.add_argument("--isolate", default=None, help="an MJX env id: which forward stages differ")
     parser.add_argument("--num-envs", type=int, default=1024)
     parser.add_argument("--steps", type=int, default=8)
@@ -70,10 +71,12 @@ def main(argv=None):
     mode = "xla_gpu_deterministic_ops" if args.deterministic_ops else "default"
     if args.isolate:
         isolate(args.isolate, args.num_envs, args.steps)
-    checks = [(item, "rollout", lambda i, kw: check_determinism(i, args.num_envs, args.steps, **kw))
+    checks = [(item, "rollout", lambda i, kw: check_determinism(i, args.num_envs, args.steps,
+                                                                   repeats=args.repeats, **kw))
               for item in args.ids]
     checks += [(item, f"ppo, {args.train_updates} updates",
-                lambda i, kw: check_training_determinism(i, "ppo", args.train_envs, 16, args.train_updates, **kw))
+                lambda i, kw: check_training_determinism(i, "ppo", args.train_envs, 16, args.train_updates,
+                                                            repeats=args.repeats, **kw))
                for item in args.train_ids]
     rows, not_run, start = [], [], time.perf_counter()
     for item, what, check in checks:
