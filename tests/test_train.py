@@ -281,3 +281,31 @@ def test_dqn_runs_saved_before_the_loss_option_resume_with_huber():
     assert RunSpec.from_json(saved).config.loss == "mse"  # today's default, saved explicitly
     del saved["config"]["loss"]
     assert RunSpec.from_json(saved).config.loss == "huber"  # every DQN before the option
+
+
+@pytest.mark.skipif(not _digits_available(), reason="Classify/Digits-v0 data not installed")
+def test_runs_that_differ_in_traced_params_share_compiled_programs():
+    from jaxnat.training import programs
+    from jaxnat.training.spec import RunSpec
+
+    config = ALGORITHMS["ppo"].config(total_timesteps=256, num_envs=4, num_steps=32, trunk="mnist")
+
+    def spec(**kwargs):
+        return RunSpec("Classify/Digits-v0", kwargs, "ppo", config, 2, 0, 1, 8)
+
+    programs._PROGRAMS.clear()
+    def scores(backend):  # the untrained policy's test scores: they depend on what it sees
+        return jax.tree.map(np.asarray, backend.evaluate(None, backend.init()))
+
+    first = programs.compiled_program(spec(window=5))
+    second = programs.compiled_program(spec(window=7))  # a params field: the programs are shared
+    assert second is not first and second._compiled is first._compiled and int(second.params.window) == 7
+    fresh = programs.DeviceBackend(spec(window=7), None)
+    shared = scores(second)
+    jax.tree.map(np.testing.assert_array_equal, shared, scores(fresh))  # reads its own params
+    assert not np.array_equal(shared["greedy_return"], scores(first)["greedy_return"])
+    # A constructor argument (w=) may change the env itself: never shared.
+    assert programs.compiled_program(spec(w=7))._compiled is not first._compiled
+    # Another time limit bounds evaluation differently: not shared either.
+    assert programs.compiled_program(spec(window=5, max_steps_in_episode=10))._compiled is not first._compiled
+    programs._PROGRAMS.clear()

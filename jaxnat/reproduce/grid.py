@@ -230,7 +230,10 @@ def _classify_cells(profile: Profile) -> list[Cell]:
     env_id, note, skip = dataset_choice("cifar10")
     sweep = [(w, SWEEP_FIXED_M) for w in SWEEP_WINDOWS] + [(SWEEP_FIXED_W, m) for m in SWEEP_STEPS]
     for w, m in dict.fromkeys(profile.subset("sweep", tuple(sweep))):
-        cells.append(Cell(f"classify-sweep-w{w}-M{m}", "classify", "sweep", env_id, {"w": w, "M": m}, "ppo",
+        # The params' own names (not the constructor's w=, M=): the sweep's cells then differ only
+        # in traced params and share compiled programs (`training.programs.compiled_program`).
+        cells.append(Cell(f"classify-sweep-w{w}-M{m}", "classify", "sweep", env_id,
+                          {"window": w, "max_steps_in_episode": m}, "ppo",
                           None, budget, _settings("ppo", extra), {"dataset": "cifar10", "w": w, "M": m}, note, skip))
     return cells
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import copy
 import functools
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -89,23 +90,37 @@ class DeviceBackend:
     def __init__(self, spec: RunSpec, compiler_options: dict | None):
         self.spec = spec
         self.compiler_options = compiler_options
-        env, params, test_env, test_params, self.test_split = make_envs(spec)
-        self.observation_space = env.observation_space(params)
+        env, self.params, test_env, self.test_params, self.test_split = make_envs(spec)
+        self.observation_space = env.observation_space(self.params)
         make_learner = ALGORITHMS[spec.algo].make
+        # The env params (datasets, window, time limit, ...) are arguments of every program, not
+        # constants baked into it: runs that differ only in traced params (the w/M sweep) lower to
+        # the same program, which XLA's persistent cache then compiles once.
+        self._learner = lambda params: make_learner(spec.config, env, params)
         try:
-            self.learner = make_learner(spec.config, env, params)
+            self.learner = self._learner(self.params)
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
             raise TrainError(str(err)) from None
-        evaluate = make_evaluate(self.learner.network, test_env, test_params, spec.eval_episodes)
-        chance = jax.jit(jax.vmap(make_chance(test_env, test_params, spec.eval_episodes)))
+        network, episodes = self.learner.network, spec.eval_episodes
+        # A test episode's length bounds the evaluation's scan, whose length is static.
+        max_steps = int(self.test_params.max_steps_in_episode)
+
+        def init(params, keys):  # networks.init_params loops over seeds
+            return jax.vmap(self._learner(params).init)(keys)
+
+        def evaluate(test_params, *args):
+            return jax.vmap(make_evaluate(network, test_env, test_params, episodes, max_steps))(*args)
+
+        def chance(test_params, keys):
+            return jax.vmap(make_chance(test_env, test_params, episodes, max_steps))(keys)
+
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
-        init = jax.jit(jax.vmap(self.learner.init))  # networks.init_params loops over seeds
-        self.runner_shape = jax.eval_shape(init, keys)
+        self.runner_shape = jax.eval_shape(init, self.params, keys)
         self._lowered = {  # compiled on first use, or together by `prepare`
-            "init": self._lower(init, keys),
-            "evaluate": self._lower(jax.jit(jax.vmap(evaluate)), self.runner_shape.train_state.params, keys,
+            "init": self._lower(jax.jit(init), self.params, keys),
+            "evaluate": self._lower(jax.jit(evaluate), self.test_params, self.runner_shape.train_state.params, keys,
                                     self.runner_shape.normalizer),
-            "chance": self._lower(chance, keys)}
+            "chance": self._lower(jax.jit(chance), self.test_params, keys)}
         self._compiled: dict[Any, Any] = {}
         self.groups = [spec.seed_values]
 
@@ -118,8 +133,12 @@ class DeviceBackend:
 
     def _lower_chunk(self, n: int) -> None:
         if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
-            run = functools.partial(self.learner.run, config=self.spec.config, num_updates=n, callback=_update_callback)
-            self._lowered[("chunk", n)] = self._lower(jax.jit(jax.vmap(run)), self.runner_shape)
+            def chunk(params, runner):
+                run = functools.partial(self._learner(params).run, config=self.spec.config, num_updates=n,
+                                        callback=_update_callback)
+                return jax.vmap(run)(runner)
+
+            self._lowered[("chunk", n)] = self._lower(jax.jit(chunk), self.params, self.runner_shape)
 
     def prepare(self, chunk_lengths=()) -> None:
         """Compile every program (init, evaluation, chance, a chunk of each length) not compiled
@@ -145,7 +164,7 @@ class DeviceBackend:
 
     def compiled_chunk(self, num_updates: int):
         """`runner -> (runner, metrics [seeds, num_updates])`, compiled once per length."""
-        return self._program(("chunk", num_updates))
+        return functools.partial(self._program(("chunk", num_updates)), self.params)
 
     def keys(self):
         return jax.vmap(jax.random.key)(jnp.asarray(self.spec.seed_values, jnp.uint32))
@@ -159,7 +178,7 @@ class DeviceBackend:
         return "checkpoints"
 
     def init(self, group=None):
-        return self._program("init")(self.keys())
+        return self._program("init")(self.params, self.keys())
 
     def update_of(self, state) -> int:
         return int(np.asarray(state.update)[0])
@@ -176,25 +195,55 @@ class DeviceBackend:
             set_progress_sink(None)
 
     def evaluate(self, group, state) -> dict:
-        return jax.device_get(self._program("evaluate")(state.train_state.params, self.eval_keys(), state.normalizer))
+        return jax.device_get(self._program("evaluate")(self.test_params, state.train_state.params, self.eval_keys(),
+                                                         state.normalizer))
 
     def chance(self) -> dict:
         """The uniform random policy's test scores, over the seeds' evaluation keys."""
-        scores = jax.device_get(self._program("chance")(self.eval_keys()))
+        scores = jax.device_get(self._program("chance")(self.test_params, self.eval_keys()))
         return {name: float(np.mean(value)) for name, value in scores.items()}
 
     def close(self) -> None:
         pass
 
 
+    def reuse_for(self, spec: RunSpec, compiler_options: dict | None) -> DeviceBackend | None:
+        """This backend's programs serving `spec`, with its own env params, when `spec` differs
+        from this one's only in env params (kwargs that are not constructor arguments, e.g. `w`
+        and `M`) of the same shapes and test-episode bound; else None."""
+        mine, theirs = dict(self.spec.env_kwargs), dict(spec.env_kwargs)
+        differing = {k for k in mine.keys() | theirs.keys() if mine.get(k, _ABSENT) != theirs.get(k, _ABSENT)}
+        if (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes) != (
+                self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes) \
+                or compiler_options != self.compiler_options or differing & set(constructor_parameters(spec.env_id)):
+            return None
+        _, params, _, test_params, _ = make_envs(spec)
+        if (_signature(params), _signature(test_params), int(test_params.max_steps_in_episode)) != (
+                _signature(self.params), _signature(self.test_params), int(self.test_params.max_steps_in_episode)):
+            return None
+        other = copy.copy(self)  # shares the lowered and compiled programs (dicts, not copies)
+        other.spec, other.params, other.test_params = spec, params, test_params
+        return other
+
+
+_ABSENT = object()
+
+
+def _signature(tree):
+    """A pytree's structure and its leaves' shapes and dtypes: what a compiled program accepts."""
+    return jax.tree.structure(tree), [jax.typeof(x) for x in jax.tree.leaves(tree)]
+
+
 _PROGRAMS: collections.OrderedDict = collections.OrderedDict()
 
 
 def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> DeviceBackend:
-    """Build (or reuse, within this process) the compiled programs for `spec`."""
+    """Build (or reuse, within this process) the compiled programs for `spec`: a run that
+    differs from a cached one only in traced env params (a w/M sweep) reuses its programs."""
     key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
     if key not in _PROGRAMS:
-        _PROGRAMS[key] = DeviceBackend(spec, compiler_options)
+        reused = (backend.reuse_for(spec, compiler_options) for backend in reversed(_PROGRAMS.values()))
+        _PROGRAMS[key] = next((b for b in reused if b is not None), None) or DeviceBackend(spec, compiler_options)
         while len(_PROGRAMS) > 2:
             _PROGRAMS.popitem(last=False)
     _PROGRAMS.move_to_end(key)
