@@ -118,6 +118,8 @@ def main(argv=None):
     parser.add_argument("--max-steps", type=int, default=1000)
     parser.add_argument("--drift-steps", type=int, default=100, help="0: skip the qpos drift")
     parser.add_argument("--workers", type=int, default=os.cpu_count())
+    parser.add_argument("--ls-iterations", type=int, default=10,
+                        help="the default setting's line-search bound (jaxnat's 10)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     info = common.machine()
@@ -129,7 +131,8 @@ def main(argv=None):
             reference = {p: c_episodes(pool, name, p, args.episodes, args.max_steps)
                          for p in POLICIES}
             for setting in args.settings:
-                env, params = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics=setting)
+                env, params = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics=setting,
+                                          ls_iterations=args.ls_iterations)
                 params = params.replace(max_steps_in_episode=args.max_steps)
                 drift = {}
                 if args.drift_steps:
@@ -140,8 +143,10 @@ def main(argv=None):
                     c_ret, c_length = reference[policy]
                     (m, h), (cm, ch) = common.mean_ci(ret), common.mean_ci(c_ret)
                     (lm, lh), (clm, clh) = common.mean_ci(length), common.mean_ci(c_length)
+                    label = setting if setting == "fast" or args.ls_iterations == 10 else (
+                        f"default, ls_iterations={args.ls_iterations}")
                     row = {
-                        "robot": name, "physics": setting, "policy": policy,
+                        "robot": name, "physics": label, "policy": policy,
                         "return": f"{m:.1f} ± {h:.1f}", "c_return": f"{cm:.1f} ± {ch:.1f}",
                         "return_in_ci": "yes" if abs(m - cm) <= ch else "no",
                         "return_z": welch_z(ret, c_ret),
@@ -155,7 +160,7 @@ def main(argv=None):
                         "c_drift_n": drift.get(f"c@{args.drift_steps}"),
                     }
                     rows.append(row)
-                    print(f"  {name} {setting} {policy}: return {row['return']} vs C "
+                    print(f"  {name} {label} {policy}: return {row['return']} vs C "
                           f"{row['c_return']} (z {row['return_z']:.2f}), length {row['length']} "
                           f"vs {row['c_length']}", flush=True)
     columns = [
