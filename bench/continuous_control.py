@@ -151,7 +151,7 @@ def pixels_bench(args) -> None:
     from jaxnat.agents import PPOConfig, make_ppo
 
     rows = []
-    env, params = jaxnat.make(f"PixelMuJoCo/{args.robot}-v0")
+    env, params = jaxnat.make(f"PixelMuJoCo/{args.robot}-v0", physics=args.physics)
     for num_envs in args.env_counts:
         run = random_box_rollout(env, params, num_envs, args.num_steps)
         key = jax.random.key(0)
@@ -178,7 +178,7 @@ def pixels_bench(args) -> None:
         ("env_only_sps", "env alone, steps/s", ",.0f"), ("train_sps", "PPO training, steps/s", ",.0f"),
         ("ratio", "training / env", ".2f")])
     common.record("continuous_control", common.machine(), table, {
-        "mode": "pixels: PixelMuJoCo checker floor 84x84x4, PPO (paper settings: 4 epochs x 4 minibatches), one seed",
+        "mode": f"pixels: PixelMuJoCo checker floor 84x84x4, physics={args.physics!r}, PPO (paper settings: 4 epochs x 4 minibatches), one seed",
         "env alone": "jit(scan(vmap(step))) with uniform random actions, median of 3",
         "training": f"mean wall time of {args.updates - 1} updates after the first (compile)",
     }, rows, save=not args.no_record)
@@ -275,6 +275,8 @@ def main(argv=None):
     state.add_argument("--eval-episodes", type=int, default=10)
     pixels = sub.add_parser("pixels")
     pixels.add_argument("--robot", default="Hopper")
+    pixels.add_argument("--physics", default="default", choices=["default", "fast"],
+                        help="the robot's physics= setting (mjx_pixel/base.py)")
     pixels.add_argument("--env-counts", type=int, nargs="*", default=[1024, 2048, 4096, 8192])
     pixels.add_argument("--num-steps", type=int, default=16)
     pixels.add_argument("--updates", type=int, default=3)

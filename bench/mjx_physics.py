@@ -2,11 +2,17 @@
 
 Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper and Swimmer:
 - env steps/s of `jit(vmap(step))` under `lax.scan` with uniformly random actions, for each
-  batch size (GPU default: 1,024, 4,096, 16,384 envs), raw; at the largest size also
-  autoresetting (what `jaxnat.make` returns: under `vmap` every step also computes a reset)
-  and raw with `ls_iterations=--other-ls` (the models' own line-search bound, 50, against
-  jaxnat's default 10; see `mjx_pixel/base.py`);
-  physics steps/s is env steps/s x `frame_skip` (`mj_step` calls);
+  batch size (GPU default: 1,024, 4,096, 16,384 envs) and each `physics=` setting
+  (`--physics`: "default", Gymnasium v5's dynamics, and "fast"), raw; at the largest size also
+  autoresetting (what `jaxnat.make` returns: under `vmap` every step also computes a reset;
+  `--no-autoreset` skips it) and raw with `ls_iterations=--other-ls` (the models' own
+  line-search bound, 50, against jaxnat's default 10; see `mjx_pixel/base.py`);
+  physics steps/s is env steps/s x `frame_skip` (`mj_step` calls), and each row states its
+  physics steps per env step and forward passes per physics step (RK4: 4, Euler: 1);
+- Brax's MJX envs (`brax.envs.get_environment(name, backend="mjx")`: ant, hopper, halfcheetah,
+  raw, the same random actions and batch sizes) in the same run, when brax is importable
+  (an optional bench dependency; the table says when it is absent), and each jaxnat row's
+  ratio to Brax's env steps/s at the same size;
 - MuJoCo C's own `mj_step` on one CPU core (Gymnasium's physics), and the ratio;
 - how far MJX rollouts drift from MuJoCo C (max |qpos| error after 10 and `--drift-steps` env
   steps from the same state under the same random actions; CPU runs only, unless
@@ -16,6 +22,7 @@ Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper an
 
     python bench/mjx_physics.py                    # GPU: the sizes above
     python bench/mjx_physics.py --sizes 16 64      # CPU (default there: 64)
+    python bench/mjx_physics.py --robots Ant --no-autoreset --other-ls 0   # one robot, fewer compiles
 """
 
 from __future__ import annotations
@@ -36,6 +43,40 @@ import common  # noqa: E402
 import jaxnat  # noqa: E402
 
 ROBOTS = ("Ant", "HalfCheetah", "Hopper", "Swimmer")
+BRAX = {"Ant": "ant", "HalfCheetah": "halfcheetah", "Hopper": "hopper"}  # Brax's env names
+
+
+def brax_env(name: str):
+    """Brax's MJX env for robot `name`, or a one-line reason it cannot be built."""
+    if name not in BRAX:
+        return None, "Brax has no such env"
+    try:
+        import warnings
+
+        from brax import envs
+    except ImportError as err:
+        return None, f"brax not importable ({err.__class__.__name__}: pip install brax)"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Brax's notice that it is no longer maintained
+        return envs.get_environment(BRAX[name], backend="mjx"), None
+
+
+def brax_rollout(env, num_envs: int, num_steps: int):
+    """As `physics_rollout`, for a Brax env (actions uniform on [-1, 1], Brax's box)."""
+    step, reset = jax.vmap(env.step), jax.vmap(env.reset)
+
+    def run(key, params):
+        state = reset(jax.random.split(key, num_envs))
+
+        def body(state, key):
+            actions = jax.random.uniform(key, (num_envs, env.action_size), minval=-1.0, maxval=1.0)
+            state = step(state, actions)
+            return state, state.reward.sum()
+
+        _, rewards = jax.lax.scan(body, state, jax.random.split(key, num_steps))
+        return rewards.sum()
+
+    return jax.jit(run)
 
 
 def physics_rollout(env, params, num_envs: int, num_steps: int):
@@ -118,6 +159,12 @@ def main(argv=None):
                              "skipped on GPU)")
     parser.add_argument("--other-ls", type=int, default=50,
                         help="ls_iterations of the compared variant (0: skip it)")
+    parser.add_argument("--physics", nargs="+", default=["default", "fast"],
+                        choices=["default", "fast"], help="jaxnat physics= settings to run")
+    parser.add_argument("--autoreset", action=argparse.BooleanOptionalAction, default=True,
+                        help="also the autoresetting env at the largest size")
+    parser.add_argument("--brax", action=argparse.BooleanOptionalAction, default=True,
+                        help="also Brax's MJX envs (if brax is importable)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
@@ -132,38 +179,75 @@ def main(argv=None):
     rows = []
     for name in args.robots:
         raw, params = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False)
-        auto, _ = jaxnat.make(f"MuJoCo/{name}-v0")
         c_sps = mujoco_c_steps_per_second(raw)
         drift = {}
         if drift_steps:
             drift = drift_from_mujoco_c(raw, params, drift_steps, {10, drift_steps})
-        # Variants at the largest size only (each size and variant is a separate compile).
-        variants = [(n, "raw", raw) for n in sizes] + [(sizes[-1], "autoreset", auto)]
+        # (side, label, env, sizes): each size and variant is a separate compile, so the
+        # variants beyond the physics settings run at the largest size only.
+        variants = []
+        for setting in args.physics:
+            env, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics=setting)
+            variants.append(("jaxnat", f"raw, {setting}", env, sizes))
+        if args.autoreset:
+            variants.append(("jaxnat", "autoreset, default", jaxnat.make(f"MuJoCo/{name}-v0")[0],
+                             sizes[-1:]))
         if args.other_ls:
             other, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, ls_iterations=args.other_ls)
-            variants.append((sizes[-1], f"raw, ls_iterations={args.other_ls}", other))
-        for num_envs, label, env in variants:
-            run = physics_rollout(env, params, num_envs, num_steps)
-            key = jax.random.key(0)
-            t0 = time.perf_counter()
-            jax.block_until_ready(run(key, params))
-            compile_s = time.perf_counter() - t0
-            seconds = common.median_seconds(lambda: jax.block_until_ready(run(key, params)), 3)
-            sps = num_envs * num_steps / seconds
-            row = {
-                "robot": name, "envs": num_envs, "variant": label, "steps": num_steps,
-                "sps": sps, "physics_sps": sps * raw.frame_skip, "compile_s": compile_s,
-                "c_sps": c_sps, "vs_c": sps / c_sps,
-                "drift_10": drift.get("mjx@10"), "drift_n": drift.get(f"mjx@{drift_steps}"),
-                "c_drift_10": drift.get("c@10"), "c_drift_n": drift.get(f"c@{drift_steps}"),
-            }
-            rows.append(row)
-            print(f"  {name} {label} {num_envs} envs: {sps:.3e} env steps/s "
-                  f"({sps / c_sps:.1f}x MuJoCo C on one core), compile {compile_s:.1f}s", flush=True)
+            variants.append(("jaxnat", f"raw, default, ls_iterations={args.other_ls}", other,
+                             sizes[-1:]))
+        brax_sps = {}
+        if args.brax:
+            benv, why = brax_env(name)
+            if benv is None:
+                rows.append({"robot": name, "side": "brax", "variant": why})
+                print(f"  {name} Brax: {why}", flush=True)
+            else:
+                variants.insert(0, ("brax", "raw, Brax MJX env", benv, sizes))
+        for side, label, env, env_sizes in variants:
+            if side == "brax":
+                substeps, forwards = env._n_frames, 1 if env.sys.opt.integrator == 0 else 4
+            else:
+                substeps = env.frame_skip
+                forwards = 4 if env.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else 1
+            for num_envs in env_sizes:
+                if side == "brax":
+                    run = brax_rollout(env, num_envs, num_steps)
+                else:
+                    run = physics_rollout(env, params, num_envs, num_steps)
+                key = jax.random.key(0)
+                t0 = time.perf_counter()
+                jax.block_until_ready(run(key, params))
+                compile_s = time.perf_counter() - t0
+                seconds = common.median_seconds(lambda: jax.block_until_ready(run(key, params)), 3)
+                sps = num_envs * num_steps / seconds
+                if side == "brax":
+                    brax_sps[num_envs] = sps
+                row = {
+                    "robot": name, "side": side, "envs": num_envs, "variant": label,
+                    "steps": num_steps, "substeps": substeps, "forwards": forwards,
+                    "sps": sps, "physics_sps": sps * substeps, "compile_s": compile_s,
+                    "c_sps": c_sps, "vs_c": sps / c_sps,
+                    "vs_brax": (sps / brax_sps[num_envs]
+                                if side == "jaxnat" and num_envs in brax_sps else None),
+                }
+                if side == "jaxnat" and label.endswith(", default"):
+                    row.update({
+                        "drift_10": drift.get("mjx@10"), "drift_n": drift.get(f"mjx@{drift_steps}"),
+                        "c_drift_10": drift.get("c@10"), "c_drift_n": drift.get(f"c@{drift_steps}"),
+                    })
+                rows.append(row)
+                ratio = f", {row['vs_brax']:.2f}x Brax" if row["vs_brax"] is not None else ""
+                print(f"  {name} {side} {label} {num_envs} envs: {sps:.3e} env steps/s "
+                      f"({sps / c_sps:.1f}x MuJoCo C on one core{ratio}), compile "
+                      f"{compile_s:.1f}s", flush=True)
 
     columns = [
-        ("robot", "robot", ""), ("variant", "variant", ""), ("envs", "envs", ","),
-        ("sps", "env steps/s", ".3e"), ("physics_sps", "mj_step/s", ".3e"),
+        ("robot", "robot", ""), ("side", "side", ""), ("variant", "variant", ""),
+        ("envs", "envs", ","), ("substeps", "physics steps/env step", "d"),
+        ("forwards", "forwards/physics step", "d"),
+        ("sps", "env steps/s", ".3e"), ("physics_sps", "physics steps/s", ".3e"),
+        ("vs_brax", "/ Brax", ".2f"),
         ("c_sps", "MuJoCo C env steps/s (1 core)", ".3e"), ("vs_c", "MJX / C", ".1f"),
         ("compile_s", "compile s", ".1f"), ("drift_10", "MJX-C qpos @10", ".1e"),
         ("drift_n", f"MJX-C qpos @{drift_steps}", ".1e"), ("c_drift_10", "C-C' qpos @10", ".1e"),
@@ -173,6 +257,9 @@ def main(argv=None):
     summary = {
         "what": "physics only (state observations), jit(vmap(step)) in lax.scan, random actions",
         "steps_per_scan": num_steps,
+        "brax": "Brax's MJX envs, raw (no wrappers), their own models and settings (Euler; "
+                "Ant: 1 Newton iteration, 4 line-search steps, feet-only contacts); / Brax: "
+                "env steps/s over Brax's at the same size",
         "drift": "max |qpos| error of MJX (float32) vs MuJoCo C (float64) after N env steps, "
                  "same reset state and actions; C-C': MuJoCo C vs MuJoCo C started with qpos "
                  "moved by 1e-7 (chaos: rounding amplified)",

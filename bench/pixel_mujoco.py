@@ -23,6 +23,7 @@ All programs are traced first and compiled on a thread pool (MJX compiles slowly
     python bench/pixel_mujoco.py --robots hopper --sizes 1024 4096 --floors video
     python bench/pixel_mujoco.py --no-env --kernels xla pallas   # renderer kernels only
     python bench/pixel_mujoco.py --no-env --no-mujoco  # renderers only: floor filters too
+    python bench/pixel_mujoco.py --physics fast       # the robots' physics="fast" setting
     python bench/pixel_mujoco.py --strip-only         # PNG strip of observations per floor
 """
 
@@ -277,6 +278,8 @@ def main(argv=None):
                              "opencv-doc's)")
     parser.add_argument("--compile-workers", type=int, default=min(16, os.cpu_count() or 1))
     parser.add_argument("--strip-only", action="store_true")
+    parser.add_argument("--physics", default="default", choices=["default", "fast"],
+                        help="the robots' physics= setting (mjx_pixel/base.py)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
@@ -296,7 +299,8 @@ def main(argv=None):
     steps = args.steps or (10 if on_gpu else 4)
     print(f"{info['backend']}: {info['device']}; sizes {sizes}, {steps} scan steps", flush=True)
     pool = ThreadPoolExecutor(max(1, args.compile_workers))
-    common_kwargs = {"shadows": args.shadows, "render_kernel": args.render_kernel}
+    common_kwargs = {"shadows": args.shadows, "render_kernel": args.render_kernel,
+                     "physics": args.physics}
     plans = []  # (row, {column: Job}) in measuring order
     mujoco_fps = {}
     for robot in args.robots:
@@ -387,7 +391,8 @@ def main(argv=None):
             for robot in args.robots}
     summary = {
         "frame": f"84x84 grayscale, shadows {'on' if args.shadows else 'off (env default)'}, "
-                 f"renderer kernel {args.render_kernel}, frame skip 4, stack 4, autoreset, "
+                 f"renderer kernel {args.render_kernel}, physics={args.physics!r}, frame skip 4, "
+                 f"stack 4, autoreset, "
                  f"{steps} steps per timed scan",
         "renderer_peak_frames_per_s": {r: f"{b['render_fps']:.3e} at {b['envs']} envs"
                                        for r, b in best.items()},

@@ -259,3 +259,44 @@ def test_mujoco_is_quiet_and_logs_to_the_cache(tmp_path):
     assert out.stdout.strip() == "made" and "Failed to import" not in out.stderr
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
     assert "settotalmass" in (tmp_path / "cache" / "mujoco.log").read_text()
+
+
+def test_physics_setting_is_validated_and_applied():
+    """`physics=` takes "default" or "fast"; "fast" changes only the robot's model copy."""
+    with pytest.raises(ValueError, match=r"physics must be one of \('default', 'fast'\), got 'quick'"):
+        jaxnat.make("MuJoCo/Ant-v0", physics="quick")
+    fast = jaxnat.make("MuJoCo/Ant-v0", autoreset=False, physics="fast")[0]
+    opt = fast.model.opt
+    assert opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    assert (opt.iterations, opt.ls_iterations) == (1, 4) == (fast.mjx_model.opt.iterations,
+                                                            fast.mjx_model.opt.ls_iterations)
+    colliding = {mujoco.mj_id2name(fast.model, mujoco.mjtObj.mjOBJ_GEOM, g)
+                 for g in range(fast.model.ngeom) if fast.model.geom_contype[g]}
+    assert colliding == {"floor", *fast.fast_physics.contact_geoms}
+    default = models.load_model("ant")  # the cached model is untouched
+    assert default.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 and default.opt.iterations == 100
+    pixel = jaxnat.make("PixelMuJoCo/Hopper-v0", observation="state", physics="fast")[0].unwrapped
+    assert pixel.physics.physics_mode == "fast"
+    assert pixel.physics.model.opt.integrator == mujoco.mjtIntegrator.mjINT_EULER
+    with pytest.raises(ValueError, match="physics must be one of"):
+        jaxnat.make("PixelMuJoCo/Hopper-v0", physics="quick")
+
+
+@pytest.mark.xdist_group("mjx-Hopper")
+def test_fast_physics_steps_near_but_not_on_the_default():
+    """Hopper's fast setting (Euler, foot-only contacts) stays close to the default over a few
+    steps from the same state, and is not the same arithmetic."""
+    robot = compiled("Hopper")
+    fast, _ = jaxnat.make("MuJoCo/Hopper-v0", autoreset=False, physics="fast")
+    fast_step = jax.jit(fast.step)
+    _, state = robot.reset(jax.random.key(3), robot.params)
+    fast_state = jax.jit(fast.reset)(jax.random.key(3), robot.params)[1]
+    np.testing.assert_array_equal(state.data.qpos, fast_state.data.qpos)
+    rng = np.random.default_rng(0)
+    for t in range(STEPS):
+        action = jnp.asarray(rng.uniform(-1, 1, 3), jnp.float32)
+        _, state, *_ = robot.step(jax.random.key(t), state, action, robot.params)
+        _, fast_state, reward, *_ = fast_step(jax.random.key(t), fast_state, action, robot.params)
+        assert np.isfinite(float(reward))
+    gap = np.abs(np.asarray(state.data.qpos) - np.asarray(fast_state.data.qpos)).max()
+    assert 0 < gap < 1e-2, gap

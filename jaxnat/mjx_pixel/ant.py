@@ -21,6 +21,11 @@ Gymnasium's `ant.xml`, RK4 at 0.01 s, `frame_skip` 5: one step is 0.05 s of simu
 - **Termination**: `not is_healthy` after the step, if `terminate_when_unhealthy` (default).
 - **Reset**: `qpos = qpos0 + U(-s, s)`, `qvel = s * N(0, 1)`, `s = reset_noise_scale` (0.1);
   `qpos0` puts the torso at z = 0.75, upright.
+- **`physics="fast"`**: Euler instead of RK4 (same 0.01 s step and `frame_skip`, no implicit
+  joint damping), one Newton iteration with at most 4 line-search steps, and only the four
+  lower legs (`*_ankle_geom`) touch the floor (torso, hip and upper-leg geoms collide with
+  nothing), as Brax's MJX Ant. Faster, further from Gymnasium's trajectories
+  (bench/results/mjx_fidelity.md).
 - **Time limit**: 1000 steps (`truncated`, never `terminated`).
 - **Info**: `x_position`, `y_position`, `distance_from_origin`, `x_velocity`, `y_velocity`,
   `reward_forward`, `reward_ctrl`, `reward_contact`, `reward_survive` (as Gymnasium's).
@@ -40,7 +45,7 @@ from flax import struct
 
 from jaxnat.core import EnvParams
 from jaxnat.mjx_pixel import mjx_internals
-from jaxnat.mjx_pixel.base import MJXEnv, MJXState
+from jaxnat.mjx_pixel.base import MJXEnv, MJXState, PhysicsSettings
 
 __all__ = ["Ant", "AntState", "AntParams"]
 
@@ -69,7 +74,7 @@ class Ant(MJXEnv):
     """Gymnasium's `Ant-v5` in MJX (see the module docstring for the spec).
 
     Args: as `MJXEnv` (`frame_skip` 5, `exclude_current_positions_from_observation`,
-    `ls_iterations`), and
+    `ls_iterations`, `physics`), and
         include_cfrc_ext_in_observation: append the clipped contact forces (Gymnasium's True).
     """
 
@@ -79,6 +84,10 @@ class Ant(MJXEnv):
     qvel_noise = "normal"
     default_frame_skip = 5
     root_position_size = 2
+    fast_physics = PhysicsSettings(
+        integrator="euler", iterations=1, ls_iterations=4, eulerdamp=False,
+        contact_geoms=("left_ankle_geom", "right_ankle_geom", "third_ankle_geom", "fourth_ankle_geom"),
+    )
 
     def __init__(
         self,
@@ -86,8 +95,10 @@ class Ant(MJXEnv):
         exclude_current_positions_from_observation: bool = True,
         include_cfrc_ext_in_observation: bool = True,
         ls_iterations: int | None = 10,
+        physics: str = "default",
     ):
-        super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations)
+        super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations,
+                         physics)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
 
     @property

@@ -37,12 +37,21 @@ adds Gymnasium MuJoCo v5's reward and termination (and observation where it is n
   `ls_iterations=50` rows and the moved notes of bench/results/mjx_physics.md).
   `ls_iterations=None` restores the model's 50. The Newton iterations themselves keep the
   model's bound and tolerance.
+- **Physics settings** (`physics=`): `"default"` keeps Gymnasium v5's model as it is
+  (integrator, contacts, Newton iterations and tolerance; only the line-search bound above
+  differs, which leaves the converged solution alone). `"fast"` applies the robot's
+  `fast_physics` (`PhysicsSettings`: Euler, fewer Newton and line-search iterations, fewer
+  colliding geoms, as Brax's and MuJoCo Playground's MJX envs do), listed in each robot's
+  docstring; its distance from Gymnasium's dynamics is measured in
+  bench/results/mjx_fidelity.md. Where the default's time goes: bench/results/mjx_profile.md.
 - **Precision**: MJX runs in float32 (MuJoCo C in float64). Its matrix products are traced
   at full float32 precision: JAX's default on recent NVIDIA GPUs is TF32 (10-bit mantissa),
   too coarse for a contact solver.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -58,7 +67,9 @@ mjx = import_mjx()  # (before mjx_internals, which imports MJX's private modules
 
 from jaxnat.mjx_pixel import mjx_internals  # noqa: E402  MJX's private names: RK4 tableau, `_impl` fields
 
-__all__ = ["MJXState", "MJXEnv"]
+__all__ = ["MJXState", "MJXEnv", "PhysicsSettings", "PHYSICS"]
+
+PHYSICS = ("default", "fast")  # the values of `MJXEnv(physics=...)`
 
 _PLANE, _CAPSULE = int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_CAPSULE)
 
@@ -70,6 +81,42 @@ class MJXState(EnvState):
     data: mjx.Data
 
 
+@dataclasses.dataclass(frozen=True)
+class PhysicsSettings:
+    """Changes to Gymnasium's model for `physics="fast"` (None: the model's own).
+
+    integrator: "euler" or "rk4". iterations, ls_iterations: bounds on the Newton solver's
+    iterations and on each one's line search. contact_geoms: names of the robot's geoms that
+    still collide (with whatever they collided with); every other geom of the robot (not of the
+    world body) collides with nothing. eulerdamp: keep Euler's implicit joint damping.
+    """
+
+    integrator: str | None = None
+    iterations: int | None = None
+    ls_iterations: int | None = None
+    contact_geoms: tuple[str, ...] | None = None
+    eulerdamp: bool = True
+
+    def apply(self, model: mujoco.MjModel) -> None:
+        """Change `model` in place."""
+        if self.integrator is not None:
+            model.opt.integrator = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
+                                    "rk4": mujoco.mjtIntegrator.mjINT_RK4}[self.integrator]
+        if self.iterations is not None:
+            model.opt.iterations = self.iterations
+        if self.ls_iterations is not None:
+            model.opt.ls_iterations = self.ls_iterations
+        if not self.eulerdamp:
+            model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+        if self.contact_geoms is not None:
+            keep = {mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in self.contact_geoms}
+            if -1 in keep:
+                raise ValueError(f"contact_geoms {self.contact_geoms} names a geom the model lacks")
+            for geom in range(model.ngeom):
+                if model.geom_bodyid[geom] != 0 and geom not in keep:
+                    model.geom_contype[geom] = model.geom_conaffinity[geom] = 0
+
+
 class MJXEnv(Environment):
     """A Gymnasium-v5-style MuJoCo task stepped by MJX. Subclasses set the class attributes
     below and implement `step_env` (and `get_obs`, `observation_size` if theirs differ).
@@ -79,7 +126,10 @@ class MJXEnv(Environment):
         exclude_current_positions_from_observation: leave the root's position in the plane
             (x, or x and y) out of the observation (Gymnasium's True).
         ls_iterations: bound on the contact solver's line-search iterations: 10 by default,
-            `None` for the model's own (50). See the module docstring.
+            `None` for the model's own (50). See the module docstring. Under `physics="fast"`
+            the fast settings' own bound is used instead.
+        physics: `"default"` (Gymnasium v5's dynamics) or `"fast"` (the robot's
+            `fast_physics`: speed over fidelity; see the module docstring).
     """
 
     robot: str  # a key of `jaxnat.mjx_pixel.models.ROBOTS`
@@ -88,13 +138,18 @@ class MJXEnv(Environment):
     qvel_noise: str  # reset noise on qvel: "uniform" U(-s, s) or "normal" s * N(0, 1)
     default_frame_skip: int  # Gymnasium v5's
     root_position_size: int  # leading qpos entries that hold the root's x (or x, y)
+    fast_physics: PhysicsSettings  # what physics="fast" changes
 
     def __init__(
         self,
         frame_skip: int | None = None,
         exclude_current_positions_from_observation: bool = True,
         ls_iterations: int | None = 10,
+        physics: str = "default",
     ):
+        if physics not in PHYSICS:
+            raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")
+        self.physics_mode = physics
         frame_skip = self.default_frame_skip if frame_skip is None else frame_skip
         if int(frame_skip) < 1:
             raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
@@ -103,9 +158,11 @@ class MJXEnv(Environment):
         exclude = exclude_current_positions_from_observation
         self.skip_qpos = self.root_position_size if exclude else 0
         self.model = load_model(self.robot)  # mujoco.MjModel, for MuJoCo C and the renderer
-        if ls_iterations is not None:
-            if int(ls_iterations) < 1:
-                raise ValueError(f"ls_iterations must be >= 1, got {ls_iterations}")
+        if ls_iterations is not None and int(ls_iterations) < 1:
+            raise ValueError(f"ls_iterations must be >= 1, got {ls_iterations}")
+        if physics == "fast":
+            self.fast_physics.apply(self.model)
+        elif ls_iterations is not None:
             self.model.opt.ls_iterations = int(ls_iterations)
         self.torso_body_id = torso_body_id(self.model)
         with _full_precision():

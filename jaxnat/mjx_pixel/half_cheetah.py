@@ -11,6 +11,10 @@ Euler at 0.01 s, `frame_skip` 5: one step is 0.05 s of simulated time.
   and 0.1), `dx` the change of `qpos[0]` over the step, `dt = 0.05`. Unclipped.
 - **Termination**: never (the cheetah cannot fall out of its task).
 - **Reset**: `qpos = qpos0 + U(-s, s)`, `qvel = s * N(0, 1)`, `s = reset_noise_scale` (0.1).
+- **`physics="fast"`**: at most 4 Newton iterations with at most 4 line-search steps each,
+  and only the head, thighs and feet touch the floor (torso and shins collide with nothing),
+  as Brax's MJX HalfCheetah; the integrator is Gymnasium's Euler already. Faster, further
+  from Gymnasium's trajectories (bench/results/mjx_fidelity.md).
 - **Time limit**: 1000 steps (`truncated`, never `terminated`).
 - **Info**: `x_position`, `x_velocity`, `reward_forward`, `reward_ctrl` (as Gymnasium's).
 
@@ -27,7 +31,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxnat.core import EnvParams
-from jaxnat.mjx_pixel.base import MJXEnv, MJXState
+from jaxnat.mjx_pixel.base import MJXEnv, MJXState, PhysicsSettings
 
 __all__ = ["HalfCheetah", "HalfCheetahState", "HalfCheetahParams"]
 
@@ -51,7 +55,7 @@ class HalfCheetah(MJXEnv):
     """Gymnasium's `HalfCheetah-v5` in MJX (see the module docstring for the spec).
 
     Args: as `MJXEnv` (`frame_skip` 5, `exclude_current_positions_from_observation`,
-    `ls_iterations`).
+    `ls_iterations`, `physics`).
     """
 
     robot = "half_cheetah"
@@ -60,6 +64,8 @@ class HalfCheetah(MJXEnv):
     qvel_noise = "normal"
     default_frame_skip = 5
     root_position_size = 1
+    fast_physics = PhysicsSettings(iterations=4, ls_iterations=4,
+                                   contact_geoms=("head", "bthigh", "bfoot", "fthigh", "ffoot"))
 
     def step_env(self, key, state: HalfCheetahState, action, params: HalfCheetahParams):
         data = self._step_data(state.data, action)

@@ -17,6 +17,10 @@ RK4 at 0.002 s, `frame_skip` 4: one step is 0.008 s of simulated time.
 - **Termination**: `not is_healthy` after the step, if `terminate_when_unhealthy` (default).
 - **Reset**: `qpos = qpos0 + U(-s, s)`, `qvel = U(-s, s)`, `s = reset_noise_scale` (5e-3);
   `qpos0` stands the hopper upright at z = 1.25.
+- **`physics="fast"`**: Euler instead of RK4 (same 0.002 s step and `frame_skip`), at most 4
+  Newton iterations with at most 4 line-search steps each, and only the foot collides (with
+  the floor; torso, thigh and leg collide with nothing), as Brax's MJX Hopper. Faster,
+  further from Gymnasium's trajectories (bench/results/mjx_fidelity.md).
 - **Time limit**: 1000 steps (`truncated`, never `terminated`).
 - **Info**: `x_position`, `z_distance_from_origin`, `x_velocity`, `reward_forward`,
   `reward_ctrl`, `reward_survive` (as Gymnasium's).
@@ -37,7 +41,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxnat.core import EnvParams
-from jaxnat.mjx_pixel.base import MJXEnv, MJXState
+from jaxnat.mjx_pixel.base import MJXEnv, MJXState, PhysicsSettings
 
 __all__ = ["Hopper", "HopperState", "HopperParams"]
 
@@ -66,7 +70,7 @@ class Hopper(MJXEnv):
     """Gymnasium's `Hopper-v5` in MJX (see the module docstring for the spec).
 
     Args: as `MJXEnv` (`frame_skip` 4, `exclude_current_positions_from_observation`,
-    `ls_iterations`).
+    `ls_iterations`, `physics`).
     """
 
     robot = "hopper"
@@ -75,6 +79,8 @@ class Hopper(MJXEnv):
     qvel_noise = "uniform"
     default_frame_skip = 4
     root_position_size = 1
+    fast_physics = PhysicsSettings(integrator="euler", iterations=4, ls_iterations=4,
+                                   contact_geoms=("foot_geom",))
 
     def get_obs(self, state: HopperState, params: HopperParams) -> jax.Array:
         data = state.data

@@ -96,7 +96,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
     """An MJX robot observed as pixels, pure noise or state (see the module docstring).
 
     Args:
-        robot: "ant", "half_cheetah", "hopper" or "swimmer" (ignored when `physics` is given).
+        robot: "ant", "half_cheetah", "hopper" or "swimmer" (ignored when `physics` is an env).
         observation: "pixels", "noise" or "state".
         floor: "checker", "video" or "noise".
         noise: the pixel-noise law of observation="noise" and floor="noise": a name in
@@ -116,8 +116,10 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         video_split: "train", "test" (disjoint videos) or "all".
         video_shape: (H, W) the videos are decoded to before being laid on the floor.
         video_max_frames: cap on the frames held on the device (None: all).
-        physics: a physics env instance to wrap instead of `robot`'s (its state must carry an
-            `mjx.Data` as `.data` and the env its `mujoco.MjModel` as `.model`).
+        physics: `"default"` or `"fast"`: `robot`'s physics env with that `physics=` setting
+            (see `mjx_pixel/base.py`); or a physics env instance to wrap instead of `robot`'s
+            (its state must carry an `mjx.Data` as `.data` and the env its `mujoco.MjModel` as
+            `.model`).
     """
 
     params_type = PixelParams
@@ -137,7 +139,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         video_split: str = "train",
         video_shape: tuple[int, int] = (128, 128),
         video_max_frames: int | None = None,
-        physics: Environment | None = None,
+        physics: Environment | str = "default",
         render_kernel: str = "auto",
         noise: str | NoiseLaw = DEFAULT_NOISE,
         floor_filter: str = "mip",
@@ -148,11 +150,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             raise ValueError(f"floor must be one of {FLOOR_MODES}, got {floor!r}")
         if int(frame_skip) < 1 or int(frame_stack) < 1:
             raise ValueError(f"frame_skip and frame_stack must be >= 1, got {frame_skip}, {frame_stack}")
-        if physics is None:
+        if physics is None or isinstance(physics, str):
             if robot not in PHYSICS:
                 raise ValueError(f"robot must be one of {sorted(PHYSICS)}, got {robot!r}")
             module, _, cls = PHYSICS[robot].partition(":")
-            physics = getattr(importlib.import_module(module), cls)()
+            physics = getattr(importlib.import_module(module), cls)(physics=physics or "default")
         self.robot = robot
         self.physics = physics
         self.observation = observation

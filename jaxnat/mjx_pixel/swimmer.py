@@ -15,6 +15,9 @@ at 0.01 s, `frame_skip` 4: one step is 0.04 s of simulated time.
   and 1e-4), `dx` the change of `qpos[0]` over the step, `dt = 0.04`. Unclipped.
 - **Termination**: never.
 - **Reset**: `qpos = qpos0 + U(-s, s)`, `qvel = U(-s, s)`, `s = reset_noise_scale` (0.1).
+- **`physics="fast"`**: Euler instead of RK4 (same 0.01 s step and `frame_skip`); Swimmer has
+  no contacts, so nothing else changes. Faster, further from Gymnasium's trajectories
+  (bench/results/mjx_fidelity.md).
 - **Time limit**: 1000 steps (`truncated`, never `terminated`).
 - **Info**: `x_position`, `y_position`, `distance_from_origin`, `x_velocity`, `y_velocity`,
   `reward_forward`, `reward_ctrl` (as Gymnasium's).
@@ -32,7 +35,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxnat.core import EnvParams
-from jaxnat.mjx_pixel.base import MJXEnv, MJXState
+from jaxnat.mjx_pixel.base import MJXEnv, MJXState, PhysicsSettings
 
 __all__ = ["Swimmer", "SwimmerState", "SwimmerParams"]
 
@@ -56,7 +59,7 @@ class Swimmer(MJXEnv):
     """Gymnasium's `Swimmer-v5` in MJX (see the module docstring for the spec).
 
     Args: as `MJXEnv` (`frame_skip` 4, `exclude_current_positions_from_observation`,
-    `ls_iterations`).
+    `ls_iterations`, `physics`).
     """
 
     robot = "swimmer"
@@ -65,6 +68,7 @@ class Swimmer(MJXEnv):
     qvel_noise = "uniform"
     default_frame_skip = 4
     root_position_size = 2
+    fast_physics = PhysicsSettings(integrator="euler", ls_iterations=10)
 
     def step_env(self, key, state: SwimmerState, action, params: SwimmerParams):
         data = self._step_data(state.data, action)
