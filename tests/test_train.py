@@ -147,6 +147,8 @@ def test_unknown_algo(tmp_path, capsys):
     (["--env-kwargs", "split=test"], "split"),
     (["--trunk", "atari"], "atari"),
     (["--algo", "a2c", "--clip-eps", "0.2"], "--clip-eps"),
+    (["--env-parts", "2"], "--env-parts applies to host-batched envs (NaturalAtari/*); Classify/Digits-v0 is a JAX env"),
+    (["--env-parts", "0"], "--env-parts must be at least 1"),
 ])
 def test_setup_errors(argv, message, tmp_path, capsys):
     assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
@@ -281,3 +283,18 @@ def test_dqn_runs_saved_before_the_loss_option_resume_with_huber():
     assert RunSpec.from_json(saved).config.loss == "mse"  # today's default, saved explicitly
     del saved["config"]["loss"]
     assert RunSpec.from_json(saved).config.loss == "huber"  # every DQN before the option
+
+
+def test_runs_saved_before_env_parts_resume_as_one_batch():
+    from jaxnat.agents import PPOConfig
+    from jaxnat.training import RunSpec
+    from jaxnat.training.rundir import check_resume_args
+
+    saved = RunSpec("NaturalAtari/Breakout-v0", {}, "ppo", PPOConfig(trunk="atari"), 2, 0, 1, 10).to_json()
+    assert saved["env_parts"] == 1
+    del saved["env_parts"]  # as config.json was written before the setting
+    assert RunSpec.from_json(saved).env_parts == 1
+    for argv in ([], ["--env-parts", "1"]):
+        check_resume_args(train.parse_args(["--resume", "run", *argv]), saved)
+    with pytest.raises(train.TrainError, match="--env-parts conflicts"):
+        check_resume_args(train.parse_args(["--resume", "run", "--env-parts", "2"]), saved)
