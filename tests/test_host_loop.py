@@ -368,3 +368,19 @@ def test_env_parts_errors(argv, message, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("jaxnat train: error: ") and message in err and len(err.splitlines()) == 1
     assert not (tmp_path / "run").exists()
+
+
+def test_host_backend_builds_parts_and_no_more_test_envs_than_test_games():
+    pytest.importorskip("ale_py")
+    from jaxnat.training import RunSpec
+    from jaxnat.training.host import HostBackend
+
+    kwargs = {"obs_size": 36, "num_threads": 1, "max_episode_steps": 10}
+    config = CONFIGS["ppo"].replace(trunk="atari", num_envs=4)
+    for parts, episodes, pipelined, test_envs in ((1, 2, False, 2), (2, 8, True, 4)):
+        backend = HostBackend(RunSpec("NaturalAtari/Breakout-v0", kwargs, "ppo", config, 1, 0, 1, episodes, parts))
+        try:
+            assert isinstance(backend.env, PipelinedVecEnv) == pipelined and backend.env.num_envs == 4
+            assert backend.test_env.num_envs == test_envs
+        finally:
+            backend.close()

@@ -5,8 +5,9 @@ use the agents' host learners (`rollout.host_steps`), one seed after another, on
 clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
 (train and test) are whole games with unclipped rewards. When a seed's last update is done,
 its policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
-sampled and greedy. `trainer.run_training` does the rest, as for every run: the run directory,
-checkpoints (`checkpoints/seed_<s>/`, every `--eval-every` updates), `--resume`, the summary.
+sampled and greedy, on at most `eval_episodes` envs. `trainer.run_training` does the rest, as
+for every run: the run directory, checkpoints (`checkpoints/seed_<s>/`, every `--eval-every`
+updates), `--resume`, the summary.
 
 `--env-parts N` (PPO, A2C) trains on a `PipelinedVecEnv` of N equal parts, which the learner
 steps in turn (`rollout.host_steps_pipelined`): the policy's call for one part overlaps the
@@ -142,7 +143,10 @@ class HostBackend:
                 raise ValueError("env kwarg 'split' is set by jaxnat train: split=train for training and "
                                  "split=test for evaluation")
             self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts)
-            self.test_env = jaxnat.make_vec(spec.env_id, spec.config.num_envs, split="test", **spec.env_kwargs)
+            # No more test envs than test games: the first games to end are the short ones, so
+            # many envs would bias the scores (and step emulators whose games are never counted).
+            self.test_env = jaxnat.make_vec(spec.env_id, min(spec.config.num_envs, spec.eval_episodes), split="test",
+                                            **spec.env_kwargs)
             self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options)
         self._updates = None
 
