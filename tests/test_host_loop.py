@@ -283,6 +283,7 @@ def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
 
     # What the checkpoint of seed 1 holds is what the resumed run starts from.
     spec = RunSpec.from_json(json.loads((run_dir / "config.json").read_text())["spec"])
+    assert spec.env_parts == 1  # one batch, the loop as it always was
     if algo == "dqn":
         assert spec.config.loss == "huber"  # Nature DQN's loss is the Atari default
     env = ClipRewardWrapper(jaxnat_make_vec(spec, "train"))
@@ -324,3 +325,62 @@ def test_host_runs_check_counts_as_the_jitted_path(capsys, tmp_path):
     assert main(["--env-id", "NaturalAtari/Breakout-v0", "--eval-every", "0",
                  "--run-dir", str(tmp_path / "run")]) == 2
     assert "--eval-every must be at least 1" in capsys.readouterr().err
+
+
+def test_jaxnat_train_env_parts_pipelines_records_and_resumes(tmp_path, monkeypatch):
+    """`--env-parts 2` trains through the pipelined driver, is saved in config.json, resumes,
+    and a resume naming other parts is refused."""
+    pytest.importorskip("ale_py")
+    import json
+
+    from jaxnat.agents import rollout
+    from jaxnat.train import main
+
+    calls = []
+    pipelined = rollout.host_steps_pipelined
+    monkeypatch.setattr(rollout, "host_steps_pipelined",
+                        lambda env, *a, **k: calls.append(len(env.parts)) or pipelined(env, *a, **k))
+    run_dir = tmp_path / "run"
+    argv = [*ATARI, "--seeds", "1", "--algo", "ppo", *ALGO_ARGS["ppo"], "--env-parts", "2"]
+    assert main([*argv, "--run-dir", str(run_dir)], compiler_options=FAST, stop_after_chunks=1) == 0
+    assert calls == [2]  # one update, two parts of one env
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["spec"]["env_parts"] == 2 and config["args"]["env_parts"] == 2
+    assert main(["--resume", str(run_dir), "--env-parts", "1"]) == 2
+    assert main(["--resume", str(run_dir), "--env-parts", "2"], compiler_options=FAST) == 0
+    assert calls == [2, 2]
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert [(r["seed"], r["update"]) for r in rows] == [(0, 1), (0, 2)]
+    assert json.loads((run_dir / "summary.json").read_text())["complete"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--num-envs", "3", "--env-parts", "2"], "--env-parts 2 must divide num_envs=3"),
+    (["--algo", "dqn", "--env-parts", "2"], "--env-parts applies to ppo, a2c: dqn's host loop"),
+    (["--env-parts", "0"], "--env-parts must be at least 1"),
+])
+def test_env_parts_errors(argv, message, tmp_path, capsys):
+    pytest.importorskip("ale_py")
+    from jaxnat.train import main
+
+    assert main(["--env-id", "NaturalAtari/Breakout-v0", "--env-kwargs", "obs_size=36", *argv,
+                 "--run-dir", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxnat train: error: ") and message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+def test_host_backend_builds_parts_and_no_more_test_envs_than_test_games():
+    pytest.importorskip("ale_py")
+    from jaxnat.training import RunSpec
+    from jaxnat.training.host import HostBackend
+
+    kwargs = {"obs_size": 36, "num_threads": 1, "max_episode_steps": 10}
+    config = CONFIGS["ppo"].replace(trunk="atari", num_envs=4)
+    for parts, episodes, pipelined, test_envs in ((1, 2, False, 2), (2, 8, True, 4)):
+        backend = HostBackend(RunSpec("NaturalAtari/Breakout-v0", kwargs, "ppo", config, 1, 0, 1, episodes, parts))
+        try:
+            assert isinstance(backend.env, PipelinedVecEnv) == pipelined and backend.env.num_envs == 4
+            assert backend.test_env.num_envs == test_envs
+        finally:
+            backend.close()

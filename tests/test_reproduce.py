@@ -157,3 +157,23 @@ def test_unwritable_out_is_refused(tmp_path, capsys):
 def test_a_folder_of_other_settings_is_refused(smoke, tmp_path, capsys):
     assert command.main(["--profile", "smoke", "--out", str(smoke), "--seeds", "3", "--only", "classify"]) == 2
     assert "holds a run with other settings" in capsys.readouterr().err
+
+
+def test_atari_cells_step_pipelined_parts_in_quick_only():
+    from jaxnat.training import parse_args
+
+    for name, parts in (("smoke", 1), ("quick", 2), ("paper", 1)):
+        cells = grid.build_grid(grid.PROFILES[name], ("atari",))
+        for cell in cells:
+            args = parse_args(cell.train_argv(5, "run"))
+            assert args.env_parts == parts, (name, cell.name)
+            if name == "quick":  # two parts of 128 envs, whole updates
+                assert args.num_envs == 256 and args.config.num_steps == 32
+                assert cell.budget.total_timesteps % (256 * 32) == 0
+    plan = command.make_plan(command.ReproduceArgs(profile="quick", only="atari", out="out"))
+    cell = plan.cells[0]
+    spec = {"env_id": cell.env_id, "env_kwargs": dict(cell.env_kwargs), "algo": cell.algo, "seeds": plan.seeds,
+            "config": {"total_timesteps": cell.budget.total_timesteps}, "env_parts": 2}
+    command._check_same_run(cell, plan, {"spec": spec})
+    with pytest.raises(command.ReproduceError, match="other settings"):  # one batch: written before parts
+        command._check_same_run(cell, plan, {"spec": {k: v for k, v in spec.items() if k != "env_parts"}})

@@ -147,6 +147,8 @@ def test_unknown_algo(tmp_path, capsys):
     (["--env-kwargs", "split=test"], "split"),
     (["--trunk", "atari"], "atari"),
     (["--algo", "a2c", "--clip-eps", "0.2"], "--clip-eps"),
+    (["--env-parts", "2"], "--env-parts applies to host-batched envs (NaturalAtari/*); Classify/Digits-v0 is a JAX env"),
+    (["--env-parts", "0"], "--env-parts must be at least 1"),
 ])
 def test_setup_errors(argv, message, tmp_path, capsys):
     assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
@@ -294,6 +296,7 @@ def test_runs_that_differ_in_traced_params_share_compiled_programs():
         return RunSpec("Classify/Digits-v0", kwargs, "ppo", config, 2, 0, 1, 8)
 
     programs._PROGRAMS.clear()
+
     def scores(backend):  # the untrained policy's test scores: they depend on what it sees
         return jax.tree.map(np.asarray, backend.evaluate(None, backend.init()))
 
@@ -309,3 +312,18 @@ def test_runs_that_differ_in_traced_params_share_compiled_programs():
     # Another time limit bounds evaluation differently: not shared either.
     assert programs.compiled_program(spec(window=5, max_steps_in_episode=10))._compiled is not first._compiled
     programs._PROGRAMS.clear()
+
+
+def test_runs_saved_before_env_parts_resume_as_one_batch():
+    from jaxnat.agents import PPOConfig
+    from jaxnat.training import RunSpec
+    from jaxnat.training.rundir import check_resume_args
+
+    saved = RunSpec("NaturalAtari/Breakout-v0", {}, "ppo", PPOConfig(trunk="atari"), 2, 0, 1, 10).to_json()
+    assert saved["env_parts"] == 1
+    del saved["env_parts"]  # as config.json was written before the setting
+    assert RunSpec.from_json(saved).env_parts == 1
+    for argv in ([], ["--env-parts", "1"]):
+        check_resume_args(train.parse_args(["--resume", "run", *argv]), saved)
+    with pytest.raises(train.TrainError, match="--env-parts conflicts"):
+        check_resume_args(train.parse_args(["--resume", "run", "--env-parts", "2"]), saved)

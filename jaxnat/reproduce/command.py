@@ -15,7 +15,7 @@ from typing import Annotated, Optional
 
 import tyro
 
-from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, Cell, Profile, build_grid
+from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, RUN_SETTINGS, Cell, Profile, build_grid
 
 PROG = "jaxnat reproduce"
 
@@ -179,13 +179,13 @@ def _check_same_run(cell: Cell, plan: Plan, config: dict) -> None:
     from jaxnat.training import parse_env_kwargs
 
     saved = (spec.get("env_id"), spec.get("env_kwargs"), spec.get("algo"), spec.get("seeds"),
-             spec.get("config", {}).get("total_timesteps"))
+             spec.get("config", {}).get("total_timesteps"), spec.get("env_parts", RUN_SETTINGS["env_parts"]))
     wanted = (cell.env_id, parse_env_kwargs({k: str(v) for k, v in cell.env_kwargs.items()}, cell.env_id), cell.algo, plan.seeds,
-              cell.budget.total_timesteps)
+              cell.budget.total_timesteps, cell.overrides.get("env_parts", RUN_SETTINGS["env_parts"]))
     if saved != wanted:
         raise ReproduceError(f"{plan.out / cell.name} holds a run with other settings (env, kwargs, algo, seeds, "
-                             f"steps {saved}; this grid wants {wanted}); use another --out, or the same --profile "
-                             "and --seeds")
+                             f"steps, env parts {saved}; this grid wants {wanted}); use another --out, or the same "
+                             "--profile and --seeds")
 
 
 def _duration(seconds: float) -> str:

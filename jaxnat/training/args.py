@@ -77,6 +77,8 @@ class TrainArgs:
     """Env steps per seed (unset: the algorithm's default, 1e6)."""
     num_envs: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16, acktr 32, dqn 8; ppo 1 for Box actions on state vectors, as the authors' MuJoCo setting)."""
+    env_parts: int = 1
+    """Host-batched envs (NaturalAtari) with ppo or a2c: step the num_envs envs as this many equal parts in turn, so that the policy's call for one part runs while ALE emulates the others (pays with many envs per part, e.g. 2 parts of 128, on a host with many cores; small parts lose). 1: one batch, the loop as it always was. Other parts draw other action samples, so the run differs from the one-batch run."""
     trunk: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(TRUNKS) + "}",
                                                   help_behavior_hint="")] = None
     """Network trunk (unset: the paper's trunk for the observation size)."""

@@ -5,8 +5,14 @@ use the agents' host learners (`rollout.host_steps`), one seed after another, on
 clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
 (train and test) are whole games with unclipped rewards. When a seed's last update is done,
 its policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
-sampled and greedy. `trainer.run_training` does the rest, as for every run: the run directory,
-checkpoints (`checkpoints/seed_<s>/`, every `--eval-every` updates), `--resume`, the summary.
+sampled and greedy, on at most `eval_episodes` envs. `trainer.run_training` does the rest, as
+for every run: the run directory, checkpoints (`checkpoints/seed_<s>/`, every `--eval-every`
+updates), `--resume`, the summary.
+
+`--env-parts N` (PPO, A2C) trains on a `PipelinedVecEnv` of N equal parts, which the learner
+steps in turn (`rollout.host_steps_pipelined`): the policy's call for one part overlaps the
+emulation of the others. The actions are sampled with other keys than in one batch, so a run
+with parts differs from the one-batch run (N=1, the default, is that run unchanged).
 
 What a host checkpoint holds: params, optimizer state, DQN's target network and replay buffer,
 the update count and the PRNG key. The emulators' state cannot be saved, so a resumed seed
@@ -31,13 +37,15 @@ from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
-__all__ = ["HOST_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "new_host_spec",
-           "observation_space", "make_learner", "make_train_env", "host_errors"]
+__all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env",
+           "new_host_spec", "check_env_parts", "observation_space", "make_learner", "make_train_env", "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
 EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_OFFSET + seed)
 
 HOST_ALGORITHMS = tuple(name for name, algorithm in ALGORITHMS.items() if algorithm.make_host is not None)
+# The host learners that step a `PipelinedVecEnv` in turn (`rollout.on_policy_host_learner`).
+PIPELINED_ALGORITHMS = ("ppo", "a2c")
 
 
 def observation_space(env_id: str, env_kwargs: dict):
@@ -91,12 +99,24 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
         # Huber bounds the gradient of the rare large TD errors (DQNConfig says why it is not
         # the general default).
         config = config.replace(loss="huber")
+    check_env_parts(args.env_parts, args.algo, config.num_envs)
     eval_episodes = args.eval_episodes
     if eval_episodes > MAX_EVAL_EPISODES:
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
-    return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes)
+    return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes,
+                   args.env_parts)
+
+
+def check_env_parts(parts: int, algo: str, num_envs: int) -> None:
+    """`--env-parts` (at least 1, `rundir.check_counts`): more than 1 only for the learners
+    that step parts in turn, and dividing num_envs (the parts are equal)."""
+    if parts > 1 and algo not in PIPELINED_ALGORITHMS:
+        raise TrainError(f"--env-parts applies to {', '.join(PIPELINED_ALGORITHMS)}: {algo}'s host loop steps "
+                         "its envs as one batch")
+    if num_envs % parts:
+        raise TrainError(f"--env-parts {parts} must divide num_envs={num_envs} (the parts are equal)")
 
 
 @contextlib.contextmanager
@@ -122,8 +142,11 @@ class HostBackend:
             if "split" in spec.env_kwargs:
                 raise ValueError("env kwarg 'split' is set by jaxnat train: split=train for training and "
                                  "split=test for evaluation")
-            self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs)
-            self.test_env = jaxnat.make_vec(spec.env_id, spec.config.num_envs, split="test", **spec.env_kwargs)
+            self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts)
+            # No more test envs than test games: the first games to end are the short ones, so
+            # many envs would bias the scores (and step emulators whose games are never counted).
+            self.test_env = jaxnat.make_vec(spec.env_id, min(spec.config.num_envs, spec.eval_episodes), split="test",
+                                            **spec.env_kwargs)
             self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options)
         self._updates = None
 

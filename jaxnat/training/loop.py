@@ -32,6 +32,9 @@ def _setup(args: TrainArgs, console):
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
     spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
     env, params, *_ = make_envs(spec)
+    if args.env_parts != 1:
+        raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
+                         "stepped in one compiled program")
     try:
         config = resolve_config(args, env.observation_space(params), env.action_space(params))
         spec = dataclasses.replace(spec, config=config)
@@ -52,6 +55,9 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
     table.add_row("evaluation", f"{spec.eval_episodes} episodes per seed on {split}, every {spec.eval_every} updates")
     table.add_row("seeds", f"{spec.seed_values}")
     table.add_row("updates", f"{spec.num_updates} x {spec.steps_per_update} env steps per seed")
+    if spec.env_parts > 1:
+        parts = f"{spec.env_parts} of {spec.config.num_envs // spec.env_parts} envs, stepped in turn"
+        table.add_row("env parts", parts)
     static = {f.name for f in dataclasses.fields(spec.config) if not f.metadata.get("pytree_node", True)}
     for field in dataclasses.fields(spec.config):
         tag = " (static)" if field.name in static else ""

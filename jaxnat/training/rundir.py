@@ -44,6 +44,10 @@ def default_run_dir(env_id: str, algo: str) -> Path:
     return Path("runs") / f"{env_id.replace('/', '_')}-{algo}-{stamp}"
 
 
+# Run spec fields added since runs were first written: the value an older config.json means.
+SPEC_FIELDS_ADDED = {"env_parts": 1}
+
+
 def check_resume_args(args: TrainArgs, saved: dict) -> None:
     """Arguments given with --resume must match the run's; defaults count as left out."""
     defaults = TrainArgs()
@@ -55,7 +59,8 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
         if field.name == "env_kwargs":
             value, default = parse_env_kwargs(value, saved["env_id"]), parse_env_kwargs(default, saved["env_id"])
         given = value != default or field.name in args.given
-        if given and value != saved.get(field.name, saved["config"].get(field.name)):
+        saved_value = saved.get(field.name, saved["config"].get(field.name, SPEC_FIELDS_ADDED.get(field.name)))
+        if given and value != saved_value:
             conflicts.append(f"--{field.name.replace('_', '-')}")
     for field in dataclasses.fields(args.config):
         value = getattr(args.config, field.name)
@@ -93,7 +98,7 @@ def open_resumed(args: TrainArgs):
 
 
 def check_counts(args: TrainArgs) -> None:
-    for name in ("seeds", "eval_episodes"):
+    for name in ("seeds", "eval_episodes", "env_parts"):
         if getattr(args, name) < 1:
             raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
     if args.eval_every is not None and args.eval_every < 1:

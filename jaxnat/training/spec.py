@@ -27,6 +27,7 @@ class RunSpec:
     seed: int
     eval_every: int
     eval_episodes: int
+    env_parts: int = 1  # host-batched envs: the parts the batch is stepped in (`host.make_train_env`)
 
     @property
     def num_updates(self) -> int:
@@ -59,6 +60,7 @@ class RunSpec:
             "seed_values": self.seed_values,
             "eval_every": self.eval_every,
             "eval_episodes": self.eval_episodes,
+            "env_parts": self.env_parts,
             "num_updates": self.num_updates,
             "steps_per_update": self.steps_per_update,
         }
@@ -79,6 +81,8 @@ class RunSpec:
             env_id=data["env_id"], env_kwargs=dict(data["env_kwargs"]), algo=data["algo"],
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
             eval_every=int(data["eval_every"]), eval_episodes=int(data["eval_episodes"]),
+            # Written before env_parts existed: every host run stepped its envs as one batch.
+            env_parts=int(data.get("env_parts", 1)),
         )
 
 
