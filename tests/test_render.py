@@ -433,9 +433,40 @@ def test_mip_texture_is_nearest_texel_up_close_and_the_mean_far_away():
     np.testing.assert_allclose(np.asarray(texture_mip(levels, xy, tile, footprint(0.25))), level1, rtol=1e-6)
     np.testing.assert_allclose(np.asarray(texture_mip(levels, xy, tile, footprint(3.0))),
                                np.full((200, 1), texture.mean()), rtol=1e-5)
-    # Between levels, a blend of the two: sqrt(2) texels -> halfway between levels 0 and 1.
-    half = np.asarray(texture_mip(levels, xy, tile, footprint(0.125 * math.sqrt(2))))
-    np.testing.assert_allclose(half, (near + level1) / 2, rtol=1e-4, atol=1e-6)
+    # The nearest level (no blend): level 0 up to sqrt(2) texels per pixel, level 1 past it.
+    below, above = (np.asarray(texture_mip(levels, xy, tile, footprint(0.125 * math.sqrt(2) * f)))
+                    for f in (0.99, 1.01))
+    np.testing.assert_array_equal(below, near)
+    np.testing.assert_allclose(above, level1, rtol=1e-6)
+    # The packed chain of a uint8 bank, read by frame index: the same texels, rounded to 8 bits.
+    from jaxnat.mjx_pixel.floor import pack_mips
+
+    bank = np.random.default_rng(3).integers(0, 256, (3, 16, 16, 1), np.uint8)
+    chains = pack_mips(jnp.asarray(bank))
+    assert chains.dtype == jnp.uint8 and chains.shape == (3, 16 * 16 + 8 * 8 + 4 * 4 + 2 * 2 + 1, 1)
+    for metres in (0.0, 0.25, 0.6, 3.0):
+        ours = texture_mip(chains, xy, tile, footprint(metres), shape=(16, 16), index=1)
+        exact = texture_mip(mip_levels(bank[1].astype(np.float32)), xy, tile, footprint(metres))
+        np.testing.assert_allclose(np.asarray(ours, float), np.asarray(exact), atol=0.5)
+
+
+def test_footprint_of_a_tracking_camera_is_host_constants_times_depth(cheetah):
+    """With the tracking camera's constant orientation and the world-fixed floor, the footprint
+    is known per pixel up to the depth (host constants); it matches the general per-pixel
+    formula (traced orientation, per-pixel normals) on the floor."""
+    model, table, camera = cheetah
+    data = posed(model, 0)
+    pos, mat = camera.pose(data)
+    renderer = Renderer(table, 84, 84, fovy=camera.fovy)
+    np.testing.assert_allclose(table.floor_normal, [0, 0, 1], atol=1e-6)
+    hit = renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat)
+    normal = tuple(hit.normal[..., i] for i in range(3))
+    static = renderer.footprint(hit.depth, mat, normal)
+    traced = jax.jit(lambda m: renderer.footprint(hit.depth, m, normal).lod(8.0))(jnp.asarray(mat))
+    assert all(isinstance(a, np.ndarray) for a in static.right + static.down)
+    floor = np.asarray(hit.geom) == table.floor
+    np.testing.assert_allclose(np.asarray(static.lod(8.0))[floor], np.asarray(traced)[floor],
+                               atol=1e-4)
 
 
 def far_and_near_floor_rows(renderer, table, pos, mat, data):
@@ -495,8 +526,9 @@ def test_far_checker_fades_to_its_mean_as_in_mujoco(cheetah):
 
 
 def test_far_video_floor_is_filtered(cheetah):
-    """The video floor, mip-filtered per frame on the device, read from a bank by index: a
-    white-noise frame averages to grey far away instead of staying noise."""
+    """The video floor, mip-filtered, read from a bank by index (its chains packed once, as the
+    env does, or built per frame on the device): a white-noise frame averages to grey far away
+    instead of staying noise."""
     model, table, camera = cheetah
     data = posed(model, 0, scale=0.0)
     pos, mat = camera.pose(data)
@@ -506,6 +538,13 @@ def test_far_video_floor_is_filtered(cheetah):
     far, near = far_and_near_floor_rows(Renderer(table, 84, 84, fovy=camera.fovy), table, pos, mat, data)
     frames = {f: render_floor(Renderer(table, 84, 84, fovy=camera.fovy, floor_filter=f), pos, mat,
                               data, video) for f in ("nearest", "mip")}
+    from jaxnat.mjx_pixel.floor import pack_mips
+
+    chains = pack_mips(bank)
+    packed = render_floor(Renderer(table, 84, 84, fovy=camera.fovy), pos, mat, data,
+                          lambda xy, fp: floor_rgb("video", table, xy, fp, frame=bank, mips=chains,
+                                                   frame_index=jnp.int32(1), tile=4.0))
+    assert np.abs(packed - frames["mip"]).max() <= 1  # the same levels, rounded to 8 bits
     assert frames["nearest"][far].std() > 30
     assert frames["mip"][far].std() < 0.25 * frames["nearest"][far].std()
     assert frames["mip"][far].std() < 8

@@ -17,9 +17,14 @@ Filtering (`footprint=`, which `render.Renderer` passes with `floor_filter="mip"
 default): far away, one pixel covers many texels, and reading the nearest texel there turns the
 checker and the video into moire noise near the horizon. With a footprint, the checker and the
 video are read from mip levels (`mip_levels`: each level the 2x2 box average of the one below,
-down to 1x1), the level chosen per pixel from the footprint as OpenGL chooses it (`texture_mip`),
-so the far floor fades to the texture's average as in MuJoCo's renderer. Without one (or with
-`floor_filter="nearest"`) every pixel reads the nearest texel of the full-size texture.
+down to 1x1), packed end to end (`pack_mips`); each pixel reads the nearest texel of the level
+nearest its level of detail, chosen from the footprint as OpenGL chooses it (`texture_mip`), so
+the far floor fades to the texture's average as in MuJoCo's renderer, at the cost of one texel
+read per pixel, as unfiltered. The checker's chain is built on the host; the video's, per bank
+frame, once when the bank is loaded (`PixelParams.video_mips`). A checker whose colours lie on
+one line (MuJoCo's two-colour builtin) is read as one number per texel. Without a footprint
+(or with `floor_filter="nearest"`) every pixel reads the nearest texel of the full-size
+texture.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["FLOOR_MODES", "texture_at", "texture_mip", "mip_levels", "floor_rgb"]
+__all__ = ["FLOOR_MODES", "Footprint", "texture_at", "texture_mip", "mip_levels", "mip_sizes",
+           "pack_mips", "floor_rgb"]
 
 FLOOR_MODES = ("checker", "video", "noise")
 
@@ -82,95 +88,177 @@ def _area_weights(n: int, m: int) -> np.ndarray:
     return overlap / (n / m)
 
 
-def texture_mip(levels, xy, tile, footprint) -> jax.Array:
-    """Mip-filtered texels of the chain `levels` (`mip_levels`) at world points `xy [..., 2]`
-    -> float32 `[..., C]`, mapped as `texture_at` maps level 0.
+def mip_sizes(h: int, w: int) -> list:
+    """`[(h, w), ...]`: the sizes of the levels of `mip_levels` for an `h x w` texture."""
+    sizes = [(int(h), int(w))]
+    while sizes[-1] != (1, 1):
+        sizes.append((max(1, sizes[-1][0] // 2), max(1, sizes[-1][1] // 2)))
+    return sizes
 
-    `footprint = ((dx, dy), (dx, dy))`: the world x-y step of the hit point per pixel to the
-    right and per pixel down, four float32 `[...]` arrays (`render.Renderer.footprint`). As OpenGL does
-    for `GL_LINEAR_MIPMAP_LINEAR` (MuJoCo's setting), the level of detail is log2 of the longer
-    of the two steps in level-0 texels, and the pixel blends the two levels around it linearly.
-    Unlike OpenGL, each level is read at its nearest texel, not bilinearly: two texel reads per
-    pixel instead of eight, and where a pixel covers at most one texel (level of detail <= 0,
-    the near floor) the result is exactly the nearest texel, as before filtering. The chosen
-    level's texels are at most two pixels wide, so this leaves no visible blocks at 84x84."""
-    h, w = levels[0].shape[0], levels[0].shape[1]
-    # Sizes and offsets of the levels packed end to end (static, from the shapes).
-    sizes = np.array([[lv.shape[0], lv.shape[1]] for lv in levels], np.int32)
-    offsets = np.concatenate([[0], np.cumsum(sizes[:, 0] * sizes[:, 1])[:-1]]).astype(np.int32)
-    xp = np if all(isinstance(lv, np.ndarray) for lv in levels) else jnp
-    packed = xp.concatenate([lv.reshape(-1, lv.shape[-1]) for lv in levels], axis=0)
-    packed = jnp.asarray(packed, jnp.float32)
-    # Level-0 texels per pixel step, along each screen axis.
-    (rx, ry), (dx, dy) = footprint
-    su, sv = w / tile[0], h / tile[1]
-    rho2 = jnp.maximum((rx * su) ** 2 + (ry * sv) ** 2, (dx * su) ** 2 + (dy * sv) ** 2)
-    top = len(levels) - 1
-    # nan_to_num: pixels off the floor (sky: infinite depth) carry no footprint; their colour
-    # is discarded, but their texel indices must stay in range.
-    lod = jnp.clip(jnp.nan_to_num(0.5 * jnp.log2(rho2), nan=0.0), 0.0, float(top))
-    low = jnp.floor(lod)
-    blend = (lod - low)[..., None]
-    low = low.astype(jnp.int32)
-    high = jnp.minimum(low + 1, top)
-    u = xy[..., 0] / tile[0]
-    v = xy[..., 1] / tile[1]
+
+def pack_mips(texture):
+    """The mip chain of `texture` packed for `texture_mip`: every level's texels end to end,
+    row-major, level 0 first.
+
+    `texture [h, w, C]` (numpy float, e.g. the checker): float32 `[M, C]`, M the texels of all
+    levels. A stack of uint8 frames `[F, h, w, C]` (a video bank, numpy or jax): uint8
+    `[F, M, C]`, each frame's chain (levels rounded to the nearest 8-bit value; level 0 is the
+    frame itself). Built once per bank (`PixelMuJoCo` puts it in `PixelParams.video_mips`): 4/3
+    of the bank's memory, level 0 included so that a pixel reads one array, and a step only
+    reads texels."""
+    if texture.ndim == 3:
+        levels = mip_levels(np.asarray(texture, np.float32))
+        return np.concatenate([lv.reshape(-1, lv.shape[-1]) for lv in levels]).astype(np.float32)
+
+    def one(frame):
+        levels = mip_levels(frame.astype(jnp.float32))
+        packed = jnp.concatenate([lv.reshape(-1, lv.shape[-1]) for lv in levels])
+        return jnp.round(packed).astype(jnp.uint8)  # level 0 stays exact
+
+    return jax.jit(lambda frames: jax.lax.map(one, frames, batch_size=64))(jnp.asarray(texture))
+
+
+class Footprint:
+    """Each pixel's footprint on the floor plane: the world x-y step of its hit point when the
+    pixel moves one to the right (`right = (x, y)`) or one down (`down`), `depth` times the
+    per-unit-depth steps `right`/`down` (`depth` None: the steps are absolute).
+
+    `render.Renderer.footprint` makes one. With a tracking camera (a constant orientation) and
+    a floor fixed to the world, `right` and `down` are host constants (numpy `[H, W]`), so the
+    level of detail costs one log2 per pixel (`lod`); otherwise they are traced arrays."""
+
+    def __init__(self, right, down, depth=None):
+        self.right, self.down, self.depth = right, down, depth
+
+    def lod(self, scale, aspect: float = 1.0) -> jax.Array:
+        """log2 of the longer of the two steps, in texels of `scale` per metre along x and
+        `scale * aspect` along y (`aspect` a host number): OpenGL's level of detail. +inf
+        where nothing is hit (infinite depth); possibly NaN there with traced steps
+        (`texture_mip` reads the last level for +inf, level 0 for NaN)."""
+        (rx, ry), (dx, dy) = self.right, self.down
+        if all(isinstance(a, np.ndarray) for a in (rx, ry, dx, dy)):
+            longest = np.maximum(rx * rx + (aspect * ry) ** 2, dx * dx + (aspect * dy) ** 2)
+            base = (0.5 * np.log2(np.maximum(longest, 1e-30))).astype(np.float32)
+        else:
+            longest = jnp.maximum(rx * rx + (aspect * ry) ** 2, dx * dx + (aspect * dy) ** 2)
+            base = 0.5 * jnp.log2(longest)
+        if self.depth is None:
+            return base + jnp.log2(jnp.asarray(scale, jnp.float32))
+        return jnp.log2(self.depth * jnp.asarray(scale, jnp.float32)) + base
+
+
+def _as_footprint(footprint) -> Footprint:
+    if isinstance(footprint, Footprint):
+        return footprint
+    right, down = footprint
+    return Footprint(tuple(right), tuple(down))
+
+
+def texture_mip(levels, xy, tile, footprint, *, shape=None, index=None) -> jax.Array:
+    """Mip-filtered texels at world points `xy [..., 2]` -> `[..., C]`, mapped as
+    `texture_at` maps level 0: float32 for a float chain, the chain's dtype (uint8) for a packed
+    video bank.
+
+    `levels`: the chain, a list (`mip_levels`) or packed (`pack_mips`; then `shape = (h, w)`,
+    level 0's size, and, for a bank `[F, M, C]`, `index` the frame). `footprint`: a `Footprint`
+    (`render.Renderer.footprint`), or `((dx, dy), (dx, dy))`, the world x-y step of the hit
+    point per pixel right and down. As OpenGL, the level of detail is log2 of the longer of the
+    two steps in level-0 texels; the pixel then reads the nearest texel of the nearest level
+    (OpenGL's `GL_NEAREST_MIPMAP_NEAREST`: level 0 up to a level of detail of 1/2). MuJoCo's
+    renderer is trilinear (`GL_LINEAR_MIPMAP_LINEAR`: four texels bilinearly in each of the two
+    levels around the level of detail, blended): here one texel per pixel, as the unfiltered
+    floor reads, so the near floor (up to sqrt(2) texels per pixel) is exactly the nearest
+    texel, and where the level changes the floor steps from one level to the next instead of
+    blending (the chosen level's texels are 0.7 to 1.4 pixels wide)."""
+    if isinstance(levels, (list, tuple)):
+        shape = levels[0].shape[:2]
+        levels = pack_mips(levels[0]) if isinstance(levels[0], np.ndarray) else jnp.concatenate(
+            [jnp.asarray(lv, jnp.float32).reshape(-1, lv.shape[-1]) for lv in levels])
+    h, w = int(shape[0]), int(shape[1])
+    sizes = mip_sizes(h, w)
+    offsets = np.concatenate([[0], np.cumsum([a * b for a, b in sizes])[:-1]])
+    if offsets[-1] >= 2**24:
+        raise ValueError(f"a {h}x{w} texture is too large for float32 texel indices")
+    if np.ndim(tile) == 0:  # square copies (the video's tile, which may be traced)
+        tile_x = tile_y = tile
+        aspect = h / w
+    else:  # host numbers (x, y): the checker's
+        tile_x, tile_y = float(tile[0]), float(tile[1])
+        aspect = (h / w) * (tile_x / tile_y)
+    lod = _as_footprint(footprint).lod(w / tile_x, aspect)
+    # The nearest level: k where lod > k - 1/2 (NaN, no hit: level 0). Its size and offset by a
+    # chain of selects over the few static levels: elementwise, so XLA keeps it in the pixel
+    # loop, and in float32 (exact: a chain holds fewer than 2**24 texels).
+    lw = jnp.full(lod.shape, float(w), jnp.float32)
+    lh = jnp.full(lod.shape, float(h), jnp.float32)
+    off = jnp.zeros(lod.shape, jnp.float32)
+    for k in range(1, len(sizes)):
+        deeper = lod > k - 0.5
+        lh = jnp.where(deeper, float(sizes[k][0]), lh)
+        lw = jnp.where(deeper, float(sizes[k][1]), lw)
+        off = jnp.where(deeper, float(offsets[k]), off)
+    u = xy[..., 0] / tile_x
+    v = xy[..., 1] / tile_y
     fu, fv = u - jnp.floor(u), jnp.ceil(v) - v  # as texture_at: columns +x, rows -y
-
-    def fetch(level):
-        # The level's size and offset by a chain of selects over the few static levels, not
-        # lookups in small tables: elementwise, so XLA keeps them in the pixel loop.
-        lh, lw, off = (jnp.full(level.shape, v, jnp.int32) for v in (h, w, 0))
-        for k in range(1, top + 1):
-            deeper = level >= k
-            lh = jnp.where(deeper, int(sizes[k, 0]), lh)
-            lw = jnp.where(deeper, int(sizes[k, 1]), lw)
-            off = jnp.where(deeper, int(offsets[k]), off)
-        col = jnp.clip(jnp.floor(fu * lw.astype(jnp.float32)).astype(jnp.int32), 0, lw - 1)
-        row = jnp.clip(jnp.floor(fv * lh.astype(jnp.float32)).astype(jnp.int32), 0, lh - 1)
-        return packed[off + row * lw + col]
-
-    return fetch(low) * (1.0 - blend) + fetch(high) * blend
+    col = jnp.minimum(jnp.floor(fu * lw), lw - 1.0)  # fu, fv in [0, 1]: only the top end clips
+    row = jnp.minimum(jnp.floor(fv * lh), lh - 1.0)
+    flat = (off + row * lw + col).astype(jnp.uint32)  # unsigned: no negative-index fix-up
+    levels = jnp.asarray(levels)
+    return levels[flat] if index is None else levels[index, flat]
 
 
 def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=None, tile=None,
-              key=None, channels: int = 3, noise=None) -> jax.Array:
+              key=None, channels: int = 3, noise=None, mips=None) -> jax.Array:
     """float32 `[..., 3]` in [0, 1]: the floor's colour at world points `xy [..., 2]`.
 
     Args:
         mode: one of `FLOOR_MODES`.
         table: the scene's `render.GeomTable` (its floor texture, for "checker").
         xy: world x-y of each pixel's hit point (only floor pixels use the result).
-        footprint: each pixel's world x-y step per pixel right and down, `((dx, dy), (dx, dy))`
-            (`render.Renderer` passes it with `floor_filter="mip"`): the checker and the video
-            are then mip-filtered (`texture_mip`); None reads the nearest texel (`texture_at`).
+        footprint: each pixel's `Footprint` on the floor (`render.Renderer` passes it with
+            `floor_filter="mip"`), or `((dx, dy), (dx, dy))`, its world x-y step per pixel
+            right and down: the checker and the video are then mip-filtered (`texture_mip`);
+            None reads the nearest texel (`texture_at`).
         frame: uint8 `[h, w, C]` (C = 1 or 3): the video frame, for "video"; or, with
             `frame_index`, the bank's frames `[F, h, w, C]` and the index of the current one.
-        tile: metres (x, y) one video frame covers, for "video".
+        tile: metres one video frame covers, for "video": a scalar (square copies; it may be
+            traced) or host numbers (x, y).
         key: a PRNG key, for "noise".
         channels: 1 draws one noise value per pixel (gray: the law survives the grayscale
             conversion exactly), 3 one per colour channel.
         noise: the law of "noise", a name in `jaxnat.natural.NOISE_LAWS` or a `NoiseLaw`
             (None: `DEFAULT_NOISE`).
+        mips: the video's mip chains, `pack_mips(frame)` (uint8 `[F, M, C]` for a bank, read
+            at `frame_index`), built once per bank: with a footprint, "video" reads them and
+            builds nothing per step. Without them it builds the current frame's chain on the
+            device every call (a third of the frame's texels more to write, every step).
     """
     if mode == "checker":
         if table.floor_texture is None:
             return jnp.broadcast_to(jnp.asarray(table.rgb[table.floor]), xy.shape[:-1] + (3,))
+        texture = np.asarray(table.floor_texture, np.float32)
+        base, direction, texture = _colour_line(texture)
         if footprint is not None:  # the chain is built on the host, once per trace
-            levels = mip_levels(np.asarray(table.floor_texture, np.float32))
-            return texture_mip(levels, xy, np.asarray(table.floor_tile), footprint)
-        return texture_at(jnp.asarray(table.floor_texture), xy, jnp.asarray(table.floor_tile))
+            values = texture_mip(pack_mips(texture), xy, np.asarray(table.floor_tile), footprint,
+                                 shape=texture.shape[:2])
+        else:
+            values = texture_at(jnp.asarray(texture), xy, jnp.asarray(table.floor_tile))
+        if direction is None:
+            return values
+        return jnp.asarray(base) + values * jnp.asarray(direction)
     if mode == "video":
         if frame is None or tile is None:
             raise ValueError('floor="video" needs the current video frame and its tile size')
-        tile = jnp.asarray(tile, jnp.float32)
         if footprint is not None:
-            # The frame changes every step, so its chain is built per frame, on the device:
-            # the levels below the frame hold a third of its texels.
+            if mips is not None:
+                colour = texture_mip(mips, xy, tile, footprint, shape=frame.shape[-3:-1],
+                                     index=frame_index)
+                return _unit_rgb(colour)
             current = frame if frame_index is None else frame[frame_index]
             levels = mip_levels(current.astype(jnp.float32) / 255.0)
             colour = texture_mip(levels, xy, tile, footprint)
             return jnp.broadcast_to(colour, colour.shape[:-1] + (3,))
+        tile = jnp.broadcast_to(jnp.asarray(tile, jnp.float32), (2,))
         colour = texture_at(frame, xy, tile, frame_index)
         return _unit_rgb(colour)
     if mode == "noise":
@@ -181,6 +269,22 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
         law = noise_law(DEFAULT_NOISE if noise is None else noise)
         return _unit_rgb(law.sample(key, xy.shape[:-1] + (channels,)))
     raise ValueError(f"floor must be one of {FLOOR_MODES}, got {mode!r}")
+
+
+def _colour_line(texture):
+    """`(base, direction, values)`: a texture `[h, w, 3]` whose colours lie on one line in
+    colour space (a two-colour checker, MuJoCo's builtin, or a grey one) as
+    `base + values * direction`, `values [h, w, 1]`; its mip levels lie on the same line (they
+    are averages), so the floor reads one number per pixel instead of three. `(None, None,
+    texture)` for any other texture."""
+    colours = texture.reshape(-1, 3).astype(np.float64)
+    base = colours.mean(axis=0)
+    _, spread, axes = np.linalg.svd(colours - base, full_matrices=False)
+    if spread[1] > 1e-6 * max(float(spread[0]), 1e-30) and spread[1] > 0:
+        return None, None, texture
+    values = (colours - base) @ axes[0]
+    return (base.astype(np.float32), axes[0].astype(np.float32),
+            values.reshape(texture.shape[:2] + (1,)).astype(np.float32))
 
 
 def _unit_rgb(pixels) -> jax.Array:

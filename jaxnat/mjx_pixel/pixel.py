@@ -25,7 +25,8 @@ Semantics: `docs/environments.md` section 4.
   noise each frame, the same law `noise=`). See `floor.py`. The checker and the video are
   mip-filtered by each pixel's footprint (`floor_filter="mip"`, the default), so the far floor
   fades to the texture's average as in MuJoCo's renderer; `floor_filter="nearest"` reads the
-  nearest texel everywhere (moire near the horizon).
+  nearest texel everywhere (moire near the horizon). The video's mip levels are built once,
+  when the bank is loaded (`PixelParams.video_mips`: 4/3 of the bank's memory again).
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
   default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
@@ -89,6 +90,10 @@ class PixelParams(EnvParams):
     physics: Any  # the physics env's params
     video: Any = None  # natural.FrameBank on the device, with floor="video"
     video_tile: float = 4.0  # metres of floor one video frame covers (x and y)
+    # floor="video" with floor_filter="mip": every bank frame's mip chain, `floor.pack_mips`
+    # (uint8 [F, M, C]: 4/3 of the bank, level 0 included, so a pixel reads one array), built
+    # once when the bank is loaded.
+    video_mips: Any = None
     max_steps_in_episode: int = 250
 
 
@@ -173,6 +178,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             bank = natural.load_videos(videos, shape=tuple(video_shape), grayscale=grayscale,
                                        split=video_split, max_frames=video_max_frames)
             self._video = bank.to_device()
+        self._video_mips = None
+        if self._video is not None and self.renderer.floor_filter == "mip":
+            from jaxnat.mjx_pixel.floor import pack_mips
+
+            self._video_mips = pack_mips(self._video.frames)
         self.video_split = video_split
 
     @property
@@ -182,6 +192,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
     @property
     def default_params(self) -> PixelParams:
         return PixelParams(physics=self.physics.default_params, video=self._video,
+                           video_mips=self._video_mips,
                            max_steps_in_episode=max(1, 1000 // self.frame_skip))
 
     def action_space(self, params: PixelParams) -> spaces.Space:
@@ -224,8 +235,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         def floor(xy, footprint=None):  # the renderer passes a footprint with floor_filter="mip"
             return floor_rgb(self.floor, self.table, xy, footprint, frame=frames,
                              frame_index=frame_index,
-                             tile=(params.video_tile, params.video_tile), key=key,
-                             channels=self.renderer.channels, noise=self.noise)
+                             tile=params.video_tile, key=key, channels=self.renderer.channels,
+                             noise=self.noise, mips=params.video_mips)
 
         return self.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor)
 

@@ -27,14 +27,18 @@ first light. Colours are the geoms' `rgba`; specular terms and floor reflections
 
 Floor texture filtering (`floor_filter=`): MuJoCo's OpenGL renderer reads textures with
 mipmaps (`GL_LINEAR_MIPMAP_LINEAR`), so its far floor fades to the checker's average grey. By
-default (`"mip"`) the renderer computes each pixel's footprint on the floor plane (the exact
-step of the hit point per pixel right and down, from its depth, its ray and the plane's
-normal: what OpenGL's screen-space derivatives measure) and hands it to the floor function,
-which picks the mip level from it (`floor.texture_mip`). The one departure from OpenGL: each
-level is read at its nearest texel (OpenGL reads four, bilinearly), so the near floor, where a
-pixel covers at most one texel, is exactly the nearest-texel floor. `"nearest"` reads the
-nearest texel of the full-size texture everywhere (the renderer before filtering; the bench
-compares both).
+default (`"mip"`) the renderer gives the floor function each pixel's footprint on the floor
+plane (`Renderer.footprint`: the exact step of the hit point per pixel right and down, from its
+depth, its ray and the plane's normal: what OpenGL's screen-space derivatives measure), and the
+floor function picks the mip level from it (`floor.texture_mip`). With a tracking camera (its
+orientation constant) and a floor fixed to the world, the footprint is the pixel's depth times
+host constants, so the level of detail costs one log2 per pixel. The departure from OpenGL:
+each pixel reads one texel, the nearest of the nearest level (`GL_NEAREST_MIPMAP_NEAREST`;
+OpenGL reads four in each of two levels and blends them), so the near floor, where a pixel
+covers at most one texel, is exactly the nearest-texel floor, and the filter costs no more
+texel reads than no filter; where the level changes, the floor steps from one level to the
+next instead of blending. `"nearest"` reads the nearest texel of the full-size texture
+everywhere (the renderer before filtering; the bench compares both).
 """
 
 from __future__ import annotations
@@ -86,6 +90,9 @@ class GeomTable:
         cast_shadows: bool [G]: whether a geom is tested for shadows (planes never are).
         sky: float32 [2, 3] or None: the model's skybox colours in [0, 1], zenith and nadir
             (`_skybox_colours`), the renderer's sky gradient; None when it has no skybox.
+        floor_normal: float32 [3] or None: the floor plane's world normal when the floor is
+            fixed to the world (a geom of the world body, as in Gymnasium's models), so the
+            renderer knows it before any step; None otherwise.
     """
 
     geom_ids: np.ndarray
@@ -102,6 +109,7 @@ class GeomTable:
     floor_tile: np.ndarray
     cast_shadows: np.ndarray
     sky: np.ndarray | None = None
+    floor_normal: np.ndarray | None = None
 
     @property
     def num_geoms(self) -> int:
@@ -144,6 +152,7 @@ class GeomTable:
             floor_tile=tile,
             cast_shadows=types != PLANE,
             sky=_skybox_colours(model),
+            floor_normal=_world_normal(model, int(ids[floor])) if floor >= 0 else None,
         )
 
 
@@ -159,6 +168,16 @@ def _lights(model) -> dict:
         "diffuse": np.asarray(model.light_diffuse, np.float32).reshape(n, 3),
         "ambient": np.asarray(model.light_ambient, np.float32).reshape(n, 3).sum(0),
     }
+
+
+def _world_normal(model, geom: int) -> np.ndarray | None:
+    """The local z axis of a geom of the world body (body 0: its pose never changes), in the
+    world, from its `geom_quat`; None for a geom of any other body."""
+    if int(np.asarray(model.geom_bodyid)[geom]) != 0:
+        return None
+    w, x, y, z = np.asarray(model.geom_quat[geom], np.float64) / np.linalg.norm(model.geom_quat[geom])
+    normal = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+    return normal.astype(np.float32)
 
 
 _SKYBOX = 2  # mujoco.mjtTexture.mjTEXTURE_SKYBOX
@@ -434,9 +453,9 @@ class Renderer:
             frames (tests check it on CPU; bench/results/pixel_mujoco.md records the check on
             a GPU).
         floor_filter: how a floor function (`render`'s `floor_rgb` callable) reads its
-            texture: "mip" (the default: it is also given each pixel's footprint and filters
-            by it, see the module docstring and `floor.texture_mip`) or "nearest" (it is given
-            the hit points only and reads the nearest texel).
+            texture: "mip" (the default: it is also given each pixel's `floor.Footprint` and
+            filters by it, see the module docstring and `floor.texture_mip`) or "nearest" (it
+            is given the hit points only and reads the nearest texel).
 
     Speed: the whole frame is one chain of per-pixel float32 arithmetic ending in the uint8
     image, with no `dot` and no `[..., 3]` vectors in between, so XLA fuses it into a few
@@ -507,7 +526,8 @@ class Renderer:
         function of the hit points' world `xy [H, W, 2]` returning `[H, W, 3]` (see
         `floor.floor_rgb`): the floor texture is then looked up inside the same kernel. With
         `floor_filter="mip"` it is called as `floor_rgb(xy, footprint)`, `footprint` each
-        pixel's world x-y step per pixel right and down (`footprint`, `floor.texture_mip`)."""
+        pixel's `floor.Footprint` (its world x-y step per pixel right and down: `footprint`,
+        `floor.texture_mip`)."""
         with jax.named_scope(RENDER_SCOPE):  # names its ops in compiled programs
             depth, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
             return self._shade(g, normal, point, lit, cam_mat, floor_rgb, depth)
@@ -676,27 +696,38 @@ class Renderer:
             blocked |= (t < _MISS) & (best_g != g)  # a convex geom never shadows itself
         return jnp.where(blocked | (best_g < 0), 0.0, 1.0)
 
-    def footprint(self, depth, cam_mat, normal) -> tuple:
-        """`((x, y), (x, y))`, four float32 `[H, W]` arrays: per pixel, the world x-y step of its
-        hit point on the plane through it with unit normal `normal` (a tuple of three `[H, W]`
-        arrays) when the pixel moves one to the right (first pair) or one down (second pair),
-        at distance `depth` along its ray. Kept as separate arrays, not stacked, so XLA fuses
-        them into the pixel loop. Exact for a plane: a ray `r = x e_x + y e_y - e_z` (camera axes, unit
-        depth) meets it at `P = C + k r`, `k = depth (d . forward)`, so a step `dr` moves P by
-        `k (dr - d (n . dr) / (n . d))` (d the unit ray), with `|dr|` one pixel's step."""
-        d = self._rays(cam_mat)
+    def footprint(self, depth, cam_mat, normal):
+        """Each pixel's `floor.Footprint`: the world x-y step of its hit point on the plane
+        through it with unit normal `normal` (a tuple of three `[H, W]` arrays) when the pixel
+        moves one to the right or one down, at distance `depth` along its ray. Exact for a
+        plane: a ray `r = x e_x + y e_y - e_z` (camera axes, unit depth) meets it at `P = C + k r`,
+        `k = depth (d . forward)`, so a step `dr` moves P by `k (dr - d (n . dr) / (n . d))`
+        (d the unit ray), with `|dr|` one pixel's step.
+
+        With a camera orientation given as host numbers (a tracking camera) and a floor fixed
+        to the world (`GeomTable.floor_normal`), everything but `depth` is known when tracing:
+        the steps per unit depth are host constants, computed with the floor's normal (the
+        footprint only matters on floor pixels), and the level of detail costs one log2 per
+        pixel (`Footprint.lod`). Otherwise they are computed per pixel from `normal`."""
+        from jaxnat.mjx_pixel.floor import Footprint
+
         axes = _orientation(cam_mat)
+        d = self._rays(cam_mat)  # host constants for a host orientation
+        xp = jnp
+        if isinstance(axes, np.ndarray) and self.table.floor_normal is not None:
+            xp, normal = np, tuple(np.float32(c) for c in self.table.floor_normal)
         forward = -(d[0] * axes[0, 2] + d[1] * axes[1, 2] + d[2] * axes[2, 2])
-        depth = jnp.where(jnp.isfinite(depth), depth, 0.0)
         n_d = _dot(normal, d)
-        n_d = jnp.where(jnp.abs(n_d) > 1e-6, n_d, -1e-6)  # grazing rays (and misses): no blow-up
-        scale = depth * forward * self._pixel_step
+        n_d = xp.where(xp.abs(n_d) > 1e-6, n_d, -1e-6)  # grazing rays (and misses): no blow-up
+        scale = forward * self._pixel_step
         steps = []
         for axis, sign in ((0, 1.0), (1, -1.0)):  # right: +e_x; down: -e_y
             step = tuple(sign * axes[i, axis] for i in range(3))
             ratio = _dot(normal, step) / n_d
-            steps.append(tuple(scale * (step[j] - d[j] * ratio) for j in range(2)))
-        return tuple(steps)
+            steps.append(tuple((scale * (step[j] - d[j] * ratio)).astype(np.float32)
+                               for j in range(2)))
+        # A miss (infinite depth) reads the last level: in range, and its colour is discarded.
+        return Footprint(steps[0], steps[1], depth)
 
     def _shade(self, g, normal, point, lit, cam_mat, floor_rgb, depth):
         """uint8 `[H, W, C]` from per-pixel geom ids, normals and points (tuples of arrays)."""
