@@ -19,12 +19,14 @@ from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, RUN_SETTINGS, Cell, Pro
 
 PROG = "jaxnat reproduce"
 
-# Rough env steps/s (all seeds of a cell together) and compile seconds per experiment, for the
-# estimate printed before starting; the progress bar's ETA then follows the measured pace.
+# Rough env steps/s (all seeds of a cell together) and compile + evaluation seconds per
+# experiment, for the estimate printed before starting; the progress bar's ETA then follows the
+# measured pace. The GPU figures follow the per-cell measurements of bench/reproduce_cost.py
+# (Atari: the quick profile's 256 envs in two parts, bench/atari_training.py).
 RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2},
-         "gpu": {"classify": 2e5, "localize": 4e4, "atari": 4e3, "mujoco": 3e4}}
+         "gpu": {"classify": 3.5e4, "localize": 2e4, "atari": 1e4, "mujoco": 1e4}}
 COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
-             "gpu": {"classify": 25, "localize": 40, "atari": 20, "mujoco": 60}}
+             "gpu": {"classify": 50, "localize": 60, "atari": 100, "mujoco": 250}}
 
 
 class ReproduceError(Exception):
