@@ -28,13 +28,13 @@ def _setup(args: TrainArgs, console):
     if is_host_env(args.env_id):
         run_dir = new_run_dir(args)
         return with_eval_every(new_host_spec(args, console), args), run_dir, None
+    if args.env_parts != 1:
+        raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
+                         "stepped in one compiled program")
     env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
     spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
     env, params, *_ = make_envs(spec)
-    if args.env_parts != 1:
-        raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
-                         "stepped in one compiled program")
     try:
         config = resolve_config(args, env.observation_space(params), env.action_space(params))
         spec = dataclasses.replace(spec, config=config)

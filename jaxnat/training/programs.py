@@ -87,10 +87,10 @@ class DeviceBackend:
 
     evaluates_each_chunk = True
 
-    def __init__(self, spec: RunSpec, compiler_options: dict | None):
+    def __init__(self, spec: RunSpec, compiler_options: dict | None, envs=None):
         self.spec = spec
         self.compiler_options = compiler_options
-        env, self.params, test_env, self.test_params, self.test_split = make_envs(spec)
+        env, self.params, test_env, self.test_params, self.test_split = envs or make_envs(spec)
         self.observation_space = env.observation_space(self.params)
         make_learner = ALGORITHMS[spec.algo].make
         # The env params (datasets, window, time limit, ...) are arguments of every program, not
@@ -207,17 +207,21 @@ class DeviceBackend:
         pass
 
 
-    def reuse_for(self, spec: RunSpec, compiler_options: dict | None) -> DeviceBackend | None:
-        """This backend's programs serving `spec`, with its own env params, when `spec` differs
-        from this one's only in env params (kwargs that are not constructor arguments, e.g. `w`
-        and `M`) of the same shapes and test-episode bound; else None."""
+    def may_serve(self, spec: RunSpec, compiler_options: dict | None) -> bool:
+        """Whether `spec` differs from this backend's only in env params (kwargs that are not
+        constructor arguments, e.g. `window` and `max_steps_in_episode`): then `reuse_for` may
+        serve it with these programs."""
         mine, theirs = dict(self.spec.env_kwargs), dict(spec.env_kwargs)
         differing = {k for k in mine.keys() | theirs.keys() if mine.get(k, _ABSENT) != theirs.get(k, _ABSENT)}
-        if (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes) != (
-                self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes) \
-                or compiler_options != self.compiler_options or differing & set(constructor_parameters(spec.env_id)):
-            return None
-        _, params, _, test_params, _ = make_envs(spec)
+        return (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes) == (
+            self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes) \
+            and compiler_options == self.compiler_options and not differing & set(constructor_parameters(spec.env_id))
+
+    def reuse_for(self, spec: RunSpec, envs) -> DeviceBackend | None:
+        """This backend's programs serving `spec` (one `may_serve` accepts) with its own envs'
+        params (`make_envs(spec)`), when they have the same shapes and test-episode bound; else
+        None."""
+        _, params, _, test_params, _ = envs
         if (_signature(params), _signature(test_params), int(test_params.max_steps_in_episode)) != (
                 _signature(self.params), _signature(self.test_params), int(self.test_params.max_steps_in_episode)):
             return None
@@ -242,8 +246,12 @@ def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> Dev
     differs from a cached one only in traced env params (a w/M sweep) reuses its programs."""
     key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
     if key not in _PROGRAMS:
-        reused = (backend.reuse_for(spec, compiler_options) for backend in reversed(_PROGRAMS.values()))
-        _PROGRAMS[key] = next((b for b in reused if b is not None), None) or DeviceBackend(spec, compiler_options)
+        envs, backend = None, None
+        for cached in reversed(_PROGRAMS.values()):
+            if backend is None and cached.may_serve(spec, compiler_options):
+                envs = envs or make_envs(spec)  # built once, whether reused or not
+                backend = cached.reuse_for(spec, envs)
+        _PROGRAMS[key] = backend or DeviceBackend(spec, compiler_options, envs)
         while len(_PROGRAMS) > 2:
             _PROGRAMS.popitem(last=False)
     _PROGRAMS.move_to_end(key)
