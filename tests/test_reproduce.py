@@ -177,3 +177,29 @@ def test_atari_cells_step_pipelined_parts_in_quick_only():
     command._check_same_run(cell, plan, {"spec": spec})
     with pytest.raises(command.ReproduceError, match="other settings"):  # one batch: written before parts
         command._check_same_run(cell, plan, {"spec": {k: v for k, v in spec.items() if k != "env_parts"}})
+
+
+def test_cells_compiled_ahead_train_to_the_same_results(smoke, tmp_path, monkeypatch):
+    from rich.console import Console
+
+    from jaxnat.training import programs
+
+    plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="classify", out=tmp_path))
+    built = []
+    real_init = programs.DeviceBackend.__init__
+
+    def init(self, spec, *args, **kwargs):  # count the program sets built
+        built.append(spec.env_id)
+        real_init(self, spec, *args, **kwargs)
+
+    monkeypatch.setattr(programs.DeviceBackend, "__init__", init)
+    outcomes = command.run_cells(plan, Console(quiet=True), compile_ahead=True)
+    assert set(outcomes.values()) == {"finished"}
+    # Each cell's programs were built once, on the worker, and found there by its run.
+    assert len(built) == len(plan.cells)
+    for cell in plan.cells:
+        def scores(directory):
+            return [{k: v for k, v in r.items() if k not in ("chunk_seconds", "steps_per_second")}
+                    for r in read_run(directory / cell.name).evals]
+
+        assert scores(tmp_path) == scores(smoke), cell.name

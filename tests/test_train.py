@@ -311,6 +311,8 @@ def test_runs_that_differ_in_traced_params_share_compiled_programs():
     assert programs.compiled_program(spec(w=7))._compiled is not first._compiled
     # Another time limit bounds evaluation differently: not shared either.
     assert programs.compiled_program(spec(window=5, max_steps_in_episode=10))._compiled is not first._compiled
+    # The noise control wraps the env (a `jaxnat.make` argument): it never runs the real one's programs.
+    assert programs.compiled_program(spec(window=5, observation_noise=True))._compiled is not first._compiled
     programs._PROGRAMS.clear()
 
 

@@ -108,9 +108,58 @@ def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
     return COMPILE_S[platform][cell.experiment] + steps / RATES[platform][cell.experiment]
 
 
-def run_cells(plan: Plan, console) -> dict:
+def _train_argv(cell: Cell, plan: Plan, resume: bool) -> list[str]:
+    """The `jaxnat train` arguments of `cell`: a new run, or `--resume` of its folder."""
+    run_dir = plan.out / cell.name
+    argv = cell.train_argv(plan.seeds, run_dir)
+    if resume:
+        cut = argv.index("--run-dir")
+        argv = ["--resume", str(run_dir), *argv[:cut], *argv[cut + 2:]]
+    return argv
+
+
+class _CompileAhead:
+    """Compiles the next cell's programs on a worker thread while the current cell trains: the
+    compile runs on the host's cores while the run keeps the accelerator busy, so a grid of
+    short cells is not paced by its compiles. `train` then finds the programs in the process's
+    cache (`jaxnat.training.prepare_programs`). A failure here is left for `train` to report."""
+
+    def __init__(self, enabled: bool, compiler_options: dict | None):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.enabled, self.compiler_options = enabled, compiler_options
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="compile-ahead") if enabled else None
+        self.pending = None
+
+    def start(self, argv: list[str] | None) -> None:
+        """Compile the programs of the run `argv` describes (None: nothing to compile)."""
+        if self.enabled and argv is not None:
+            self.pending = self.pool.submit(self._prepare, argv)
+
+    def _prepare(self, argv: list[str]) -> None:
+        from jaxnat.training import parse_args as parse_train_args, prepare_programs
+
+        try:
+            prepare_programs(parse_train_args(argv), compiler_options=self.compiler_options)
+        except Exception:  # noqa: BLE001 (train reports it, in its own words, when the cell runs)
+            pass
+
+    def wait(self) -> None:
+        """Block until the compile started last is done."""
+        if self.pending is not None:
+            self.pending.result()
+            self.pending = None
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None) -> dict:
     """Train every runnable, unfinished cell of `plan`; returns `{cell name: outcome}` where an
-    outcome is "finished before", "finished", or "failed: <one line>"."""
+    outcome is "finished before", "finished", or "failed: <one line>". `compile_ahead`: compile
+    each cell's programs while the one before trains (None: on an accelerator, not on a CPU,
+    where compiling would take the cores the training uses)."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -138,18 +187,20 @@ def run_cells(plan: Plan, console) -> dict:
                         TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=console,
                         disable=not live)
     task = progress.add_task("cells", total=max(total, 1e-9), cells=f"0/{len(todo)}")
+    ahead = _CompileAhead(platform != "cpu" if compile_ahead is None else compile_ahead, compiler_options)
+    argvs = [_train_argv(c, plan, status[c.name] == "partial") for c in todo]
+    ahead.start(argvs[0] if argvs else None)
     with progress:
         for index, cell in enumerate(todo):
-            run_dir = plan.out / cell.name
             resume = status[cell.name] == "partial"
             progress.update(task, description=f"{cell.name}{' (resumed)' if resume else ''}")
             if not live:
                 console.print(f"[{index + 1}/{len(todo)}] {cell.name}{' (resumed)' if resume else ''} ...",
                               highlight=False)
-            argv = cell.train_argv(plan.seeds, run_dir)
-            if resume:
-                argv = ["--resume", str(run_dir), *argv[:argv.index("--run-dir")], *argv[argv.index("--run-dir") + 2:]]
+            argv = argvs[index]
             start = time.perf_counter()
+            ahead.wait()  # this cell's programs (their compile time is counted in this cell)
+            ahead.start(argvs[index + 1] if index + 1 < len(todo) else None)
             with (logs / f"{cell.name}.log").open("a") as log:
                 log_console = Console(file=log, width=120, force_terminal=False)
                 try:
@@ -159,6 +210,7 @@ def run_cells(plan: Plan, console) -> dict:
                     outcomes[cell.name] = f"failed: {err}"
                     console.print(f"{cell.name}: {err}", style="red", highlight=False)
                 except KeyboardInterrupt:
+                    ahead.close()
                     console.print(f"interrupted in {cell.name} (checkpointed); rerun the same command to continue")
                     raise
             seconds = time.perf_counter() - start
@@ -172,6 +224,7 @@ def run_cells(plan: Plan, console) -> dict:
             if not live:
                 console.print(f"[{index + 1}/{len(todo)}] {cell.name}: {outcomes[cell.name]} in {seconds:.0f} s",
                               highlight=False)
+    ahead.close()
     return outcomes
 
 

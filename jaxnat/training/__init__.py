@@ -13,9 +13,9 @@ carries the PRNG keys); `host.HostBackend` trains host-batched envs (Natural Ata
 
 from jaxnat.training.args import ConfigOverrides, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.checkpoints import load_checkpoint
-from jaxnat.training.loop import TrainResult, main, train
+from jaxnat.training.loop import TrainResult, main, prepare_programs, train
 from jaxnat.training.rundir import RunRecord, read_run, run_status
 from jaxnat.training.spec import RunSpec
 
 __all__ = ["TrainArgs", "ConfigOverrides", "RunSpec", "TrainResult", "TrainError", "train",
-           "load_checkpoint", "main", "parse_args", "parse_env_kwargs", "RunRecord", "read_run", "run_status"]
+           "load_checkpoint", "main", "prepare_programs", "parse_args", "parse_env_kwargs", "RunRecord", "read_run", "run_status"]

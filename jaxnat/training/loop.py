@@ -88,10 +88,8 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     else:
         with console.status("compiling init, training chunk and evaluation programs..."):
             compile_start = time.perf_counter()
-            program = compiled_program(spec, compiler_options)
-            program.prepare({spec.eval_every, spec.num_updates % spec.eval_every} - {0})
+            backend = _ready_program(spec, compiler_options)
         console.print(f"[dim]programs ready in {time.perf_counter() - compile_start:.1f} s[/dim]")
-        backend = program
     new_run = None if saved is not None else {
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
         "versions": versions(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
@@ -102,6 +100,27 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     finally:
         backend.close()
     return TrainResult(run_dir, state, summary, complete)
+
+
+def _ready_program(spec: RunSpec, compiler_options: dict | None):
+    """The device programs of `spec`, every one compiled (the chunk lengths the run will use)."""
+    program = compiled_program(spec, compiler_options)
+    program.prepare({spec.eval_every, spec.num_updates % spec.eval_every} - {0})
+    return program
+
+
+def prepare_programs(args: TrainArgs, *, compiler_options: dict | None = None) -> None:
+    """Build and compile the programs `train(args)` will run, writing nothing: a later `train`
+    with the same arguments (and compiler options) in this process finds them compiled. For
+    compiling the next run while another trains (`jaxnat reproduce` does); host-stepped envs
+    (Natural Atari, compiled as they run) are left alone. Raises `TrainError` as `train` would."""
+    from rich.console import Console
+
+    if args.resume is None and is_host_env(args.env_id):
+        return
+    spec, _, _ = _setup(args, Console(quiet=True))
+    if not is_host_env(spec.env_id):
+        _ready_program(spec, compiler_options)
 
 
 def main(argv=None, **train_options) -> int:

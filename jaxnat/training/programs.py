@@ -5,6 +5,8 @@ from __future__ import annotations
 import collections
 import copy
 import functools
+import inspect
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -215,7 +217,7 @@ class DeviceBackend:
         differing = {k for k in mine.keys() | theirs.keys() if mine.get(k, _ABSENT) != theirs.get(k, _ABSENT)}
         return (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes) == (
             self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes) \
-            and compiler_options == self.compiler_options and not differing & set(constructor_parameters(spec.env_id))
+            and compiler_options == self.compiler_options and not differing & _structural_kwargs(spec.env_id)
 
     def reuse_for(self, spec: RunSpec, envs) -> DeviceBackend | None:
         """This backend's programs serving `spec` (one `may_serve` accepts) with its own envs'
@@ -233,26 +235,38 @@ class DeviceBackend:
 _ABSENT = object()
 
 
+def _structural_kwargs(env_id: str) -> set[str]:
+    """The make kwargs that change an env's program, not only its params: the entry point's
+    constructor arguments and `jaxnat.make`'s own (e.g. `observation_noise`, which wraps the env)."""
+    own = {name for name, p in inspect.signature(jaxnat.make).parameters.items() if p.kind is p.KEYWORD_ONLY}
+    return own | set(constructor_parameters(env_id))
+
+
 def _signature(tree):
     """A pytree's structure and its leaves' shapes and dtypes: what a compiled program accepts."""
     return jax.tree.structure(tree), [jax.typeof(x) for x in jax.tree.leaves(tree)]
 
 
 _PROGRAMS: collections.OrderedDict = collections.OrderedDict()
+# Three: the run training now, the next one compiled ahead (`loop.prepare_programs`) and the one
+# before, whose programs the next may reuse.
+_CACHED_PROGRAMS = 3
+_CACHE_LOCK = threading.Lock()  # a run may be compiled ahead on another thread
 
 
 def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> DeviceBackend:
     """Build (or reuse, within this process) the compiled programs for `spec`: a run that
     differs from a cached one only in traced env params (a w/M sweep) reuses its programs."""
     key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
-    if key not in _PROGRAMS:
-        envs, backend = None, None
-        for cached in reversed(_PROGRAMS.values()):
-            if backend is None and cached.may_serve(spec, compiler_options):
-                envs = envs or make_envs(spec)  # built once, whether reused or not
-                backend = cached.reuse_for(spec, envs)
-        _PROGRAMS[key] = backend or DeviceBackend(spec, compiler_options, envs)
-        while len(_PROGRAMS) > 2:
-            _PROGRAMS.popitem(last=False)
-    _PROGRAMS.move_to_end(key)
-    return _PROGRAMS[key]
+    with _CACHE_LOCK:
+        if key not in _PROGRAMS:
+            envs, backend = None, None
+            for cached in reversed(_PROGRAMS.values()):
+                if backend is None and cached.may_serve(spec, compiler_options):
+                    envs = envs or make_envs(spec)  # built once, whether reused or not
+                    backend = cached.reuse_for(spec, envs)
+            _PROGRAMS[key] = backend or DeviceBackend(spec, compiler_options, envs)
+            while len(_PROGRAMS) > _CACHED_PROGRAMS:
+                _PROGRAMS.popitem(last=False)
+        _PROGRAMS.move_to_end(key)
+        return _PROGRAMS[key]

@@ -10,6 +10,7 @@ seeds, the host backend one group per seed); the loop here is the same for both:
     for each group: restore its latest checkpoint (if any), drop the records written after it,
         then chunk by chunk: train `eval_every` updates, append `metrics.jsonl` rows, evaluate
         (every chunk or at the group's end) into `eval.jsonl`, checkpoint, redraw `curve.png`
+        (at most every `PLOT_EVERY_S`, and after the last chunk)
     write `summary.json` (also for a run stopped early, marked incomplete)
 
 Checkpoints live in `checkpoints/` (device) or `checkpoints/seed_<s>/` (host); each holds the
@@ -31,6 +32,10 @@ from jaxnat.training.progress import Progress
 from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
                                      run_summary, terminated_label, write_jsonl)
 from jaxnat.training.spec import RunSpec
+
+# `curve.png` is redrawn after a chunk at most this often (and always after the last one): a
+# short run's chunks take a second or two, and drawing the figure costs a good part of one.
+PLOT_EVERY_S = 10.0
 
 __all__ = ["Backend", "run_training"]
 
@@ -82,6 +87,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
         console.print(f"chance (uniform random policy on the test split): return {chance['return']:+.3f}"
                       + ("" if accuracy is None else f" · {terminated_label(spec.env_id)} {accuracy:.1%}"))
     prior_wall, chunks_done, interrupted, stopped = 0.0, 0, False, False
+    last_plot = -float("inf")
     num_chunks = -(-spec.num_updates // spec.eval_every)
     state = None
 
@@ -156,7 +162,9 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                         checkpoints.save(state, {"chunk": chunk_index, "update": update,
                                                  "env_steps": update * spec.steps_per_update,
                                                  "wall_time_s": prior_wall + time.perf_counter() - session_start})
-                        plot(run_dir / "curve.png", spec, History.load(spec, metrics_rows, eval_rows), chance)
+                        if update >= spec.num_updates or time.perf_counter() - last_plot >= PLOT_EVERY_S:
+                            plot(run_dir / "curve.png", spec, History.load(spec, metrics_rows, eval_rows), chance)
+                            last_plot = time.perf_counter()
                         chunks_done += 1
                         progress.sync(update, None if scores is None else f"{mean_std(scores['greedy_return'])[0]:+.3f}")
                         console.print(f"{label}chunk {chunk_index}/{num_chunks} · update {update}/{spec.num_updates}"
