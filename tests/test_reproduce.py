@@ -2,6 +2,7 @@
 a killed cell, the bootstrap interval on hand-made data, the findings' verdicts, and one-line
 errors for bad arguments."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -131,6 +132,11 @@ def test_findings_judge_hand_made_results():
     for noise, verdict in ((105.0, "reproduced"), (50.0, "not reproduced")):
         results = [pixels, _result("mujoco", "mujoco", "ppo", [noise] * 3, robot="Hopper", observation="noise")]
         assert next(f for f in findings.FINDINGS if f.rule.__name__ == "_noise_as_good").judge(results).verdict == verdict
+    # A pixel policy no better than the random one shows nothing about open loop.
+    untrained = dataclasses.replace(pixels, chance=130.0)
+    results = [untrained, _result("mujoco", "mujoco", "ppo", [105.0] * 3, robot="Hopper", observation="noise")]
+    verdict = next(f for f in findings.FINDINGS if f.rule.__name__ == "_noise_as_good").judge(results)
+    assert verdict.verdict.startswith("not shown") and "random policy 130" in verdict.numbers
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -5,7 +5,9 @@ paper's figures plot training returns; `report.CellResult.final_train`): "reprod
 it holds in every comparison it makes, "not reproduced" when one fails (the numbers say which),
 "not run" when its cells are missing. An ordering ("worst", "harder", "lower") is judged by the
 means over seeds, and called "reproduced by the means only" when the two 95% intervals overlap; the one claim of equality ("as good a policy") by the interval: the noise
-policy's mean at or above the lower bound of the pixel policy's 95% interval.
+policy's mean at or above the lower bound of the pixel policy's 95% interval, judged only
+where the pixel policy beat the uniform random policy ("not shown" otherwise: two policies that
+learned nothing are equal without saying anything about open loop).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ __all__ = ["Finding", "Verdict", "FINDINGS", "noise_control_pairs"]
 
 @dataclasses.dataclass(frozen=True)
 class Verdict:
-    verdict: str  # "reproduced", "not reproduced", "not run"
+    verdict: str  # "reproduced", "not reproduced", "not run", "not shown (...)"
     numbers: str
 
 
@@ -167,14 +169,25 @@ def _video_lowers_atari(results) -> Verdict:
     return _ordered(pairs, numbers)
 
 
+def _learned(result) -> bool:
+    """Whether the policy's final training return is above the uniform random policy's (or no
+    random-policy figure was recorded)."""
+    return result.chance is None or result.final_train.mean > result.chance
+
+
 def _noise_as_good(results) -> Verdict:
     pairs = _pairs(results, _is("mujoco", observation="checker"), _is("mujoco", observation="noise"), ("robot",))
     if not pairs:
         return _not_run("PixelMuJoCo from pixels and from noise")
+    untrained = [f"{a.cell.labels['robot']} {a.cell.algo.upper()}: pixels {a.final_train} vs the random policy "
+                 f"{a.chance:.4g}" for a, _ in pairs if not _learned(a)]
+    pairs = [(a, b) for a, b in pairs if _learned(a)]
+    if not pairs:  # two policies that learned nothing are equal without saying anything of open loop
+        return Verdict("not shown (the pixel policy did not beat the random policy)", "; ".join(untrained))
     held = [b.final_train.mean >= a.final_train.low for a, b in pairs]
     numbers = [f"{a.cell.labels['robot']} {a.cell.algo.upper()}: pixels {a.final_train} vs noise {_fmt(b.final_train)}"
                f" ({'within or above' if ok else 'below'} the pixels' CI)" for (a, b), ok in zip(pairs, held)]
-    return _verdict(sum(held), len(pairs), numbers)
+    return _verdict(sum(held), len(pairs), numbers + [f"not judged, {u}" for u in untrained])
 
 
 def _noise_control(results) -> Verdict:
