@@ -11,7 +11,8 @@ Reads the run's `timings.jsonl` (wall time of every cell session) and each cell'
 excluded). The paper profile's cost per cell is its env steps (budget x seeds) over the
 measured rate of the same kind of cell (experiment, trunk, algorithm; else the experiment's
 median rate), plus the measured compile-and-evaluation overhead of that kind. Cells of a kind
-never measured are listed as such.
+never measured, or measured only with settings that change the rate (`RATE_SETTINGS`, e.g.
+the quick profile's Atari envs), are counted as unmeasured.
 """
 
 from __future__ import annotations
@@ -29,8 +30,19 @@ from jaxnat.reproduce import PROFILES, build_grid  # noqa: E402
 from jaxnat.reproduce.grid import EXPERIMENTS  # noqa: E402
 
 
+# Settings that change a cell's training rate: a measured cell whose profile set one of them
+# (e.g. quick's 256 Atari envs, or PixelMuJoCo's fast physics) says nothing about the paper's rate.
+RATE_SETTINGS = ("num_envs", "num_steps", "env_parts", "physics")
+
+
 def kind(cell) -> tuple:
     return (cell.experiment, cell.labels.get("trunk"), cell.algo)
+
+
+def rate_departures(profile, experiment: str) -> dict:
+    """The settings of `profile` for `experiment` that change the training rate from the paper's."""
+    settings = {**profile.overrides.get(experiment, {}), **profile.env_kwargs.get(experiment, {})}
+    return {k: v for k, v in settings.items() if k in RATE_SETTINGS}
 
 
 def measure(out: Path):
@@ -70,15 +82,17 @@ def main(argv=None):
 
     by_kind: dict[tuple, list] = {}
     by_experiment: dict[str, list] = {}
+    departures = {e: rate_departures(PROFILES[args.profile], e) for e in EXPERIMENTS}
     for cell, _, rate, overhead in measured:
         by_kind.setdefault(kind(cell), []).append((rate, overhead))
-        by_experiment.setdefault(cell.experiment, []).append((rate, overhead))
+        if not departures[cell.experiment]:
+            by_experiment.setdefault(cell.experiment, []).append((rate, overhead))
     paper = PROFILES["paper"]
     for row in rows[:-1]:
         row["paper_hours"], row["unmeasured"] = 0.0, 0
     for cell in build_grid(paper):
         row = rows[EXPERIMENTS.index(cell.experiment)]
-        sample = by_kind.get(kind(cell)) or by_experiment.get(cell.experiment)
+        sample = None if departures[cell.experiment] else by_kind.get(kind(cell)) or by_experiment.get(cell.experiment)
         if not sample or cell.skip:
             row["unmeasured"] += 1
             continue
@@ -104,7 +118,9 @@ def main(argv=None):
     common.record("reproduce_cost", info, table,
                   {"source": f"jaxnat reproduce --profile {args.profile} (timings.jsonl and summaries of {args.out.name})",
                    "paper GPU-hours": f"{rows[-1]['paper_hours']:.0f}, without {rows[-1]['unmeasured']} cells of kinds "
-                                      "never measured"},
+                                      "never measured at the paper's settings",
+                   **{f"{e} not extrapolated": f"{args.profile} runs it with {json.dumps(d)}"
+                      for e, d in departures.items() if d}},
                   rows + kinds)
 
 
