@@ -120,10 +120,12 @@ def _train_argv(cell: Cell, plan: Plan, resume: bool) -> list[str]:
 
 
 class _CompileAhead:
-    """Compiles the next cell's programs on a worker thread while the current cell trains: the
-    compile runs on the host's cores while the run keeps the accelerator busy, so a grid of
-    short cells is not paced by its compiles. `train` then finds the programs in the process's
-    cache (`jaxnat.training.prepare_programs`). A failure here is left for `train` to report."""
+    """Compiles the next cell's programs on a worker thread while the current cell trains: XLA
+    compiles on the host's cores while the run keeps the accelerator busy, so a grid of short
+    cells is not paced by its compiles. The programs are traced and lowered on the calling
+    thread first (`jaxnat.training.prepare_programs`; JAX's tracing is not shared across
+    threads), then `train` finds them compiled in the process's cache. A failure here is left
+    for `train` to report."""
 
     def __init__(self, enabled: bool, compiler_options: dict | None):
         from concurrent.futures import ThreadPoolExecutor
@@ -133,22 +135,22 @@ class _CompileAhead:
         self.pending = None
 
     def start(self, argv: list[str] | None) -> None:
-        """Compile the programs of the run `argv` describes (None: nothing to compile)."""
-        if self.enabled and argv is not None:
-            self.pending = self.pool.submit(self._prepare, argv)
-
-    def _prepare(self, argv: list[str]) -> None:
+        """Lower the programs of the run `argv` describes and start compiling them (None:
+        nothing to compile)."""
+        if not self.enabled or argv is None:
+            return
         from jaxnat.training import parse_args as parse_train_args, prepare_programs
 
         try:
-            prepare_programs(parse_train_args(argv), compiler_options=self.compiler_options)
+            compile_programs = prepare_programs(parse_train_args(argv), compiler_options=self.compiler_options)
         except Exception:  # noqa: BLE001 (train reports it, in its own words, when the cell runs)
-            pass
+            return
+        self.pending = self.pool.submit(compile_programs)
 
     def wait(self) -> None:
-        """Block until the compile started last is done."""
+        """Block until the compile started last is done (its errors are left for `train`)."""
         if self.pending is not None:
-            self.pending.result()
+            self.pending.exception()
             self.pending = None
 
     def close(self) -> None:

@@ -9,6 +9,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Callable
 
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
@@ -20,27 +21,29 @@ from jaxnat.training.trainer import run_training
 
 
 def _setup(args: TrainArgs, console):
-    """(spec, run_dir, the saved config.json when resuming else None)."""
+    """(spec, run_dir, the saved config.json when resuming else None, the envs `make_envs` built
+    for a new run on JAX envs else None)."""
     if args.resume is not None:
-        return open_resumed(args)
+        return (*open_resumed(args), None)
     check_algo(args.algo)
     check_counts(args)
     if is_host_env(args.env_id):
         run_dir = new_run_dir(args)
-        return with_eval_every(new_host_spec(args, console), args), run_dir, None
+        return with_eval_every(new_host_spec(args, console), args), run_dir, None, None
     if args.env_parts != 1:
         raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
                          "stepped in one compiled program")
     env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
     spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
-    env, params, *_ = make_envs(spec)
+    envs = make_envs(spec)  # handed on to the programs, which need them too
+    env, params, *_ = envs
     try:
         config = resolve_config(args, env.observation_space(params), env.action_space(params))
         spec = dataclasses.replace(spec, config=config)
     except (TypeError, ValueError) as err:
         raise TrainError(str(err)) from None
-    return with_eval_every(spec, args), new_run_dir(args), None
+    return with_eval_every(spec, args), new_run_dir(args), None, envs
 
 
 def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
@@ -80,7 +83,7 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     from rich.console import Console
 
     console = console or Console()
-    spec, run_dir, saved = _setup(args, console)
+    spec, run_dir, saved, envs = _setup(args, console)
     host = is_host_env(spec.env_id)  # NaturalAtari/*: emulated on the host, trained from a Python loop
     _print_config(console, spec, run_dir)
     if host:
@@ -88,7 +91,7 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     else:
         with console.status("compiling init, training chunk and evaluation programs..."):
             compile_start = time.perf_counter()
-            backend = _ready_program(spec, compiler_options)
+            backend = _ready_program(spec, compiler_options, envs)
         console.print(f"[dim]programs ready in {time.perf_counter() - compile_start:.1f} s[/dim]")
     new_run = None if saved is not None else {
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
@@ -102,25 +105,40 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     return TrainResult(run_dir, state, summary, complete)
 
 
-def _ready_program(spec: RunSpec, compiler_options: dict | None):
-    """The device programs of `spec`, every one compiled (the chunk lengths the run will use)."""
-    program = compiled_program(spec, compiler_options)
-    program.prepare({spec.eval_every, spec.num_updates % spec.eval_every} - {0})
+def _lowered_program(spec: RunSpec, compiler_options: dict | None, envs=None):
+    """The device programs of `spec`, every one lowered (the chunk lengths the run will use);
+    `envs`: `make_envs(spec)` when already built."""
+    program = compiled_program(spec, compiler_options, envs)
+    program.lower({spec.eval_every, spec.num_updates % spec.eval_every} - {0})
     return program
 
 
-def prepare_programs(args: TrainArgs, *, compiler_options: dict | None = None) -> None:
-    """Build and compile the programs `train(args)` will run, writing nothing: a later `train`
-    with the same arguments (and compiler options) in this process finds them compiled. For
-    compiling the next run while another trains (`jaxnat reproduce` does); host-stepped envs
-    (Natural Atari, compiled as they run) are left alone. Raises `TrainError` as `train` would."""
+def _ready_program(spec: RunSpec, compiler_options: dict | None, envs=None):
+    """The device programs of `spec`, every one compiled."""
+    program = _lowered_program(spec, compiler_options, envs)
+    program.compile_pending()
+    return program
+
+
+def _nothing() -> None:
+    pass
+
+
+def prepare_programs(args: TrainArgs, *, compiler_options: dict | None = None) -> Callable[[], None]:
+    """Trace and lower, on this thread, the programs `train(args)` will run, writing nothing;
+    returns `compile()`, which compiles them (XLA only: it may run on another thread, e.g.
+    while this one trains another run, as `jaxnat reproduce` does). A later `train` with the
+    same arguments (and compiler options) in this process finds them compiled. Host-stepped
+    envs (Natural Atari, compiled as they run) get a `compile` that does nothing. Raises
+    `TrainError` as `train` would."""
     from rich.console import Console
 
     if args.resume is None and is_host_env(args.env_id):
-        return
-    spec, _, _ = _setup(args, Console(quiet=True))
-    if not is_host_env(spec.env_id):
-        _ready_program(spec, compiler_options)
+        return _nothing
+    spec, _, _, envs = _setup(args, Console(quiet=True))
+    if is_host_env(spec.env_id):
+        return _nothing
+    return _lowered_program(spec, compiler_options, envs).compile_pending
 
 
 def main(argv=None, **train_options) -> int:

@@ -6,7 +6,6 @@ import collections
 import copy
 import functools
 import inspect
-import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -96,8 +95,8 @@ class DeviceBackend:
         self.observation_space = env.observation_space(self.params)
         make_learner = ALGORITHMS[spec.algo].make
         # The env params (datasets, window, time limit, ...) are arguments of every program, not
-        # constants baked into it: runs that differ only in traced params (the w/M sweep) lower to
-        # the same program, which XLA's persistent cache then compiles once.
+        # constants baked into it: runs that differ only in traced params (the w/M sweep) can run
+        # the same compiled programs (`may_serve`, `reuse_for`).
         self._learner = lambda params: make_learner(spec.config, env, params)
         try:
             self.learner = self._learner(self.params)
@@ -143,12 +142,23 @@ class DeviceBackend:
             self._lowered[("chunk", n)] = self._lower(jax.jit(chunk), self.params, self.runner_shape)
 
     def prepare(self, chunk_lengths=()) -> None:
-        """Compile every program (init, evaluation, chance, a chunk of each length) not compiled
-        yet: concurrently on an accelerator (XLA compiles without holding the GIL, and a GPU
-        compile spends much of its time autotuning, so separate programs overlap), one after
-        another on a CPU (there the compiler's own threads already use the cores)."""
+        """Lower, then compile every program (init, evaluation, chance, a chunk of each length)
+        not compiled yet (`lower`, `compile_pending`)."""
+        self.lower(chunk_lengths)
+        self.compile_pending()
+
+    def lower(self, chunk_lengths=()) -> None:
+        """Trace and lower the chunk programs of these lengths (the others are lowered when the
+        backend is built). Tracing stays on the thread that uses the programs: JAX's tracing
+        caches are not safe to share with a thread compiling at the same time."""
         for n in chunk_lengths:
             self._lower_chunk(n)
+
+    def compile_pending(self) -> None:
+        """Compile every lowered program not compiled yet: XLA only, no tracing, so it may run on
+        another thread; concurrently on an accelerator (XLA compiles without holding the GIL, and
+        a GPU compile spends much of its time autotuning, so separate programs overlap), one
+        after another on a CPU (there the compiler's own threads already use the cores)."""
         pending = {name: lowered for name, lowered in self._lowered.items() if name not in self._compiled}
         workers = 1 if jax.default_backend() == "cpu" else max(1, len(pending))
         with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -251,22 +261,21 @@ _PROGRAMS: collections.OrderedDict = collections.OrderedDict()
 # Three: the run training now, the next one compiled ahead (`loop.prepare_programs`) and the one
 # before, whose programs the next may reuse.
 _CACHED_PROGRAMS = 3
-_CACHE_LOCK = threading.Lock()  # a run may be compiled ahead on another thread
 
 
-def compiled_program(spec: RunSpec, compiler_options: dict | None = None) -> DeviceBackend:
+def compiled_program(spec: RunSpec, compiler_options: dict | None = None, envs=None) -> DeviceBackend:
     """Build (or reuse, within this process) the compiled programs for `spec`: a run that
-    differs from a cached one only in traced env params (a w/M sweep) reuses its programs."""
+    differs from a cached one only in traced env params (a w/M sweep) reuses its programs.
+    `envs`: `make_envs(spec)` when the caller built them already."""
     key = (spec.program_key(), tuple(sorted((compiler_options or {}).items())))
-    with _CACHE_LOCK:
-        if key not in _PROGRAMS:
-            envs, backend = None, None
-            for cached in reversed(_PROGRAMS.values()):
-                if backend is None and cached.may_serve(spec, compiler_options):
-                    envs = envs or make_envs(spec)  # built once, whether reused or not
-                    backend = cached.reuse_for(spec, envs)
-            _PROGRAMS[key] = backend or DeviceBackend(spec, compiler_options, envs)
-            while len(_PROGRAMS) > _CACHED_PROGRAMS:
-                _PROGRAMS.popitem(last=False)
-        _PROGRAMS.move_to_end(key)
-        return _PROGRAMS[key]
+    if key not in _PROGRAMS:
+        backend = None
+        for cached in reversed(_PROGRAMS.values()):
+            if backend is None and cached.may_serve(spec, compiler_options):
+                envs = envs or make_envs(spec)  # built once, whether reused or not
+                backend = cached.reuse_for(spec, envs)
+        _PROGRAMS[key] = backend or DeviceBackend(spec, compiler_options, envs)
+        while len(_PROGRAMS) > _CACHED_PROGRAMS:
+            _PROGRAMS.popitem(last=False)
+    _PROGRAMS.move_to_end(key)
+    return _PROGRAMS[key]
