@@ -244,14 +244,16 @@ def test_wrong_action_shape_fails_at_trace_time():
 
 
 def test_mujoco_is_quiet_and_logs_to_the_cache(tmp_path):
-    """Making a MuJoCo env prints nothing about MJX's optional Warp backend and writes no
+    """Making MuJoCo envs prints nothing about MJX's optional Warp backend and writes no
     MUJOCO_LOG.TXT into the working folder: MuJoCo's warnings (Gymnasium's half_cheetah.xml
     uses the deprecated settotalmass) go to mujoco.log in jaxnat's cache folder."""
     import os
     import subprocess
     import sys
 
-    code = "import jaxnat; jaxnat.make('MuJoCo/HalfCheetah-v0'); print('made')"
+    # Ant, made first, imports the MJX internals it checks (`mjx_internals`): quiet too.
+    code = ("import jaxnat\nfor id in ('PixelMuJoCo/Ant-v0', 'MuJoCo/HalfCheetah-v0'):\n"
+            "    jaxnat.make(id)\nprint('made')")
     env = {**os.environ, "JAXNAT_CACHE_DIR": str(tmp_path / "cache"), "JAX_PLATFORMS": "cpu"}
     out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
                          timeout=300)

@@ -21,6 +21,8 @@ import dataclasses
 import importlib
 import importlib.metadata
 
+from jaxnat.mjx_pixel.models import import_mjx
+
 # The mujoco-mjx releases this module was written for (tested with 3.17.0), as a pip spec.
 WRITTEN_FOR = "mujoco-mjx==3.17.*"
 
@@ -47,6 +49,7 @@ def installed_version() -> str:
 
 def missing() -> list[str]:
     """The internals above that the installed MJX lacks, as dotted names (empty: all there)."""
+    import_mjx()  # first through the import that keeps MJX's Warp notices quiet
     gone = []
     for module_name, attribute in (*NAMES, IMPL_CLASS):
         try:
