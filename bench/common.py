@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import os
 import pathlib
 import platform
@@ -81,6 +82,16 @@ def median_seconds(fn, repeats: int = 5) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
+
+
+def throughput_seconds(call, repeats: int = 7, min_seconds: float = 0.05, max_calls: int = 256) -> float:
+    """Seconds per `call()` (an async JAX dispatch returning arrays): the median over `repeats`
+    timings of back-to-back calls blocked once. A call shorter than its launch latency (a small
+    batch on an accelerator) timed alone measures the launch, not the work, and varies with
+    it; enough calls per timing to fill `min_seconds` measure the work."""
+    one = median_seconds(lambda: jax.block_until_ready(call()), repeats=3)
+    calls = int(min(max_calls, max(1, math.ceil(min_seconds / max(one, 1e-9)))))
+    return median_seconds(lambda: jax.block_until_ready([call() for _ in range(calls)]), repeats) / calls
 
 
 def markdown_table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:

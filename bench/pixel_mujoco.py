@@ -166,7 +166,7 @@ def renderer_job(env, poses, num_envs: int, pool, kernel: str | None = None,
 
     def measure(compiled):
         jax.block_until_ready(compiled(*args))
-        seconds = common.median_seconds(lambda: jax.block_until_ready(compiled(*args)), repeats=7)
+        seconds = common.throughput_seconds(lambda: compiled(*args))
         return num_envs / seconds, {"kernels": kernel_count(compiled)}
 
     return Job([render.lower(*args)], measure, pool)

@@ -15,16 +15,18 @@ textures, and only those pixels change between modes (the renderer lights them a
 
 Filtering (`footprint=`, which `render.Renderer` passes with `floor_filter="mip"`, its
 default): far away, one pixel covers many texels, and reading the nearest texel there turns the
-checker and the video into moire noise near the horizon. With a footprint, the checker and the
-video are read from mip levels (`mip_levels`: each level the 2x2 box average of the one below,
-down to 1x1), packed end to end (`pack_mips`); each pixel reads the nearest texel of the level
-nearest its level of detail, chosen from the footprint as OpenGL chooses it (`texture_mip`), so
-the far floor fades to the texture's average as in MuJoCo's renderer, at the cost of one texel
-read per pixel, as unfiltered. The checker's chain is built on the host; the video's, per bank
-frame, once when the bank is loaded (`PixelParams.video_mips`). A checker whose colours lie on
-one line (MuJoCo's two-colour builtin) is read as one number per texel. Without a footprint
-(or with `floor_filter="nearest"`) every pixel reads the nearest texel of the full-size
-texture.
+checker and the video into moire noise near the horizon. With a footprint, the video (and any
+floor texture other than a 2x2 checker) is read from mip levels (`mip_levels`: each level the
+2x2 box average of the one below, down to 1x1), packed end to end (`pack_mips`); each pixel
+reads the nearest texel of the level nearest its level of detail, chosen from the footprint as
+OpenGL chooses it (`texture_mip`), so the far floor fades to the texture's average as in
+MuJoCo's renderer, at the cost of one texel read per pixel, as unfiltered. The video's chains
+are built per bank frame, once when the bank is loaded (`PixelParams.video_mips`). MuJoCo's
+builtin checker, a 2x2 pattern, is filtered in closed form instead (`checker_box`: a tent
+average of two square waves over the footprint's extent along each axis), which reads no texel
+at all and lies closer to MuJoCo's trilinear floor. A checker whose colours lie on one line
+(MuJoCo's two-colour builtin) is one number per pixel. Without a footprint (or with
+`floor_filter="nearest"`) every pixel reads the nearest texel of the full-size texture.
 """
 
 from __future__ import annotations
@@ -33,8 +35,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["FLOOR_MODES", "Footprint", "texture_at", "texture_mip", "mip_levels", "mip_sizes",
-           "pack_mips", "floor_rgb"]
+__all__ = ["FLOOR_MODES", "Footprint", "texture_at", "texture_mip", "checker_box", "mip_levels",
+           "mip_sizes", "pack_mips", "floor_rgb"]
 
 FLOOR_MODES = ("checker", "video", "noise")
 
@@ -147,6 +149,17 @@ class Footprint:
         return jnp.log2(self.depth * jnp.asarray(scale, jnp.float32)) + base
 
 
+    def extent(self) -> tuple:
+        """`(x, y)`: the world extent of the pixel's footprint along x and along y, `|right| +
+        |down|` per axis (the bounding box of the parallelogram the pixel covers)."""
+        (rx, ry), (dx, dy) = self.right, self.down
+        xp = np if all(isinstance(a, np.ndarray) for a in (rx, ry, dx, dy)) else jnp
+        ex, ey = xp.abs(rx) + xp.abs(dx), xp.abs(ry) + xp.abs(dy)
+        if self.depth is None:
+            return ex, ey
+        return self.depth * ex, self.depth * ey
+
+
 def _as_footprint(footprint) -> Footprint:
     if isinstance(footprint, Footprint):
         return footprint
@@ -186,17 +199,17 @@ def texture_mip(levels, xy, tile, footprint, *, shape=None, index=None) -> jax.A
         tile_x, tile_y = float(tile[0]), float(tile[1])
         aspect = (h / w) * (tile_x / tile_y)
     lod = _as_footprint(footprint).lod(w / tile_x, aspect)
-    # The nearest level: k where lod > k - 1/2 (NaN, no hit: level 0). Its size and offset by a
-    # chain of selects over the few static levels: elementwise, so XLA keeps it in the pixel
-    # loop, and in float32 (exact: a chain holds fewer than 2**24 texels).
-    lw = jnp.full(lod.shape, float(w), jnp.float32)
-    lh = jnp.full(lod.shape, float(h), jnp.float32)
+    # The nearest level: the largest k with lod > k - 1/2 (NaN, no hit: level 0). Its size is
+    # level 0's halved k times (`mip_sizes`), its offset one select per level: elementwise, so
+    # XLA keeps it in the pixel loop, and in float32 (exact: a chain holds fewer than 2**24
+    # texels, and halving is exact).
+    k = jnp.clip(jnp.ceil(jnp.nan_to_num(lod - 0.5, nan=0.0)), 0.0, len(sizes) - 1.0)
+    half = jnp.exp2(-k)
+    lw = jnp.maximum(jnp.floor(w * half), 1.0)
+    lh = jnp.maximum(jnp.floor(h * half), 1.0)
     off = jnp.zeros(lod.shape, jnp.float32)
-    for k in range(1, len(sizes)):
-        deeper = lod > k - 0.5
-        lh = jnp.where(deeper, float(sizes[k][0]), lh)
-        lw = jnp.where(deeper, float(sizes[k][1]), lw)
-        off = jnp.where(deeper, float(offsets[k]), off)
+    for level in range(1, len(sizes)):
+        off = jnp.where(k == level, float(offsets[level]), off)
     u = xy[..., 0] / tile_x
     v = xy[..., 1] / tile_y
     fu, fv = u - jnp.floor(u), jnp.ceil(v) - v  # as texture_at: columns +x, rows -y
@@ -205,6 +218,71 @@ def texture_mip(levels, xy, tile, footprint, *, shape=None, index=None) -> jax.A
     flat = (off + row * lw + col).astype(jnp.uint32)  # unsigned: no negative-index fix-up
     levels = jnp.asarray(levels)
     return levels[flat] if index is None else levels[index, flat]
+
+
+def checker_box(cells, xy, tile, footprint, *, texels: int) -> jax.Array:
+    """A 2x2 checker texture, `cells = (a, b)` (`a` top-left and bottom-right), filtered over
+    each pixel's footprint in closed form -> float32 `[..., 1]`, mapped as `texture_at` maps
+    it (`tile = (tx, ty)` host metres per copy, `texels` the texture's width).
+
+    A checker is the product of two square waves, one along x and one along y, and a square
+    wave's average under a tent (triangle) window is a second difference of its second
+    integral, a periodic piecewise quadratic: so filtering costs a few arithmetic operations
+    and no texel read. Each wave is filtered over the footprint's own extent along its axis
+    (`Footprint.extent`, `_tent_width`), so the far floor, stretched along y, averages to the
+    two colours' mean, as the mip chain's last level, while the squares' edges across x stay
+    as sharp as the pixels allow (closer to MuJoCo's trilinear floor than the nearest mip
+    level: bench/results/pixel_mujoco.md). Along an axis where the footprint is under sqrt(2)
+    texels (the mip chain's level 0) the wave is read exactly, as unfiltered."""
+    tile_x, tile_y = float(tile[0]), float(tile[1])
+    extent_x, extent_y = _as_footprint(footprint).extent()
+    u = xy[..., 0] / tile_x
+    v = -xy[..., 1] / tile_y  # rows run along -y
+    wave = (_tent_square_wave(u, _tent_width(extent_x / tile_x, texels))
+            * _tent_square_wave(v, _tent_width(extent_y / tile_y, texels)))
+    a, b = cells
+    blend = 0.5 * (a + b) + 0.5 * (a - b) * wave
+    return jnp.where(wave == 1.0, a, jnp.where(wave == -1.0, b, blend))[..., None]  # cells exact
+
+
+def _tent_width(extent, texels: int):
+    """The tent's half-width for a footprint `extent` (in copies of the texture): the extent
+    itself (a tent twice the footprint wide, as trilinear filtering blends two levels, the
+    coarser one texels twice the footprint); 0 (no filtering) under sqrt(2) texels or where
+    nothing is hit (NaN)."""
+    extent = jnp.nan_to_num(extent, nan=0.0, posinf=jnp.inf)
+    return jnp.where(extent * texels < np.sqrt(2.0), 0.0, extent)
+
+
+def _tent_square_wave(x, half_width):
+    """The square wave of period 1 (+1 on [0, 1/2), -1 on [1/2, 1)) averaged under a tent
+    window of `half_width` centred on `x`; the wave itself where `half_width` is 0, 0 where it
+    is infinite."""
+    def second_integral(y):  # periodic: the wave, and its first integral less 1/4, average 0
+        f = y - jnp.floor(y)
+        g = jnp.abs(f - 0.5)
+        return jnp.where(f < 0.5, 1.0, -1.0) * g * (0.5 * g - 0.25)
+
+    sharp = jnp.where(x - jnp.floor(x) < 0.5, 1.0, -1.0)
+    finite = jnp.isfinite(half_width)
+    r = jnp.where(finite & (half_width > 0), half_width, 1.0)
+    average = (second_integral(x + r) - 2.0 * second_integral(x) + second_integral(x - r)) / (r * r)
+    return jnp.where(half_width > 0, jnp.where(finite, average, 0.0), sharp)
+
+
+def _checker_cells(values):
+    """`(a, b)` when `values [h, w, 1]` is a 2x2 checker (MuJoCo's builtin: four equal blocks,
+    `a` top-left and bottom-right, `b != a` in the others), else None."""
+    h, w = values.shape[:2]
+    if values.shape[-1] != 1 or h % 2 or w % 2:
+        return None
+    t = values[..., 0]
+    a, b = float(t[0, 0]), float(t[0, w // 2])
+    blocks = ((t[:h // 2, :w // 2], a), (t[h // 2:, w // 2:], a), (t[:h // 2, w // 2:], b),
+              (t[h // 2:, :w // 2], b))
+    if a == b or not all(np.all(block == value) for block, value in blocks):
+        return None
+    return a, b
 
 
 def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=None, tile=None,
@@ -238,7 +316,11 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
             return jnp.broadcast_to(jnp.asarray(table.rgb[table.floor]), xy.shape[:-1] + (3,))
         texture = np.asarray(table.floor_texture, np.float32)
         base, direction, texture = _colour_line(texture)
-        if footprint is not None:  # the chain is built on the host, once per trace
+        cells = _checker_cells(texture)
+        if footprint is not None and cells is not None:
+            values = checker_box(cells, xy, np.asarray(table.floor_tile), footprint,
+                                 texels=texture.shape[1])
+        elif footprint is not None:  # the chain is built on the host, once per trace
             values = texture_mip(pack_mips(texture), xy, np.asarray(table.floor_tile), footprint,
                                  shape=texture.shape[:2])
         else:
