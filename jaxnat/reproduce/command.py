@@ -27,8 +27,8 @@ PROG = "jaxnat reproduce"
 
 # Rough env steps/s (all seeds of a cell together) and the seconds a cell spends besides
 # training (compiling, where it is not hidden behind the cell before, evaluating, test play),
-# per experiment, for the estimate printed before starting; the progress bar's ETA then follows
-# the measured pace. The GPU figures follow the quick profile's cells (bench/reproduce_cost.py;
+# per experiment, for the estimate printed before starting (with host cells alongside, that of
+# the longer stream: `estimate_total`); the progress bar's ETA then follows the measured pace. The GPU figures follow the quick profile's cells (bench/reproduce_cost.py;
 # Atari: 256 envs in two parts, the seeds one after another).
 RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2},
          "gpu": {"classify": 3.2e4, "localize": 1.5e4, "atari": 1e4, "mujoco": 2.5e4}}
