@@ -209,3 +209,194 @@ def test_cells_compiled_ahead_train_to_the_same_results(smoke, tmp_path, monkeyp
                     for r in read_run(directory / cell.name).evals]
 
         assert scores(tmp_path) == scores(smoke), cell.name
+
+
+# Host cells alongside device cells: forced on (a CPU runs every cell in turn by default), on the
+# smoke grid's classify and Atari cells.
+ALONGSIDE = "atari,classify"
+ATARI_CELL = "atari-breakout-video-ppo"
+
+
+def _without_wall_time(path):
+    """The report's body without its wall time section (the seconds differ from run to run)."""
+    lines, keep = [], True
+    for line in _report_body(path):
+        if line.startswith("## "):
+            keep = line != "## Wall time"
+        if keep:
+            lines.append(line)
+    return lines
+
+
+def _eval_rows(directory, name):
+    return [{k: v for k, v in r.items() if k not in ("chunk_seconds", "steps_per_second")}
+            for r in read_run(directory / name).evals]
+
+
+def _run(out, text=None):
+    """`reproduce` of the smoke grid's ALONGSIDE cells with host cells alongside; (report, output)."""
+    import io
+
+    from rich.console import Console
+
+    text = io.StringIO() if text is None else text
+    args = command.ReproduceArgs(profile="smoke", only=ALONGSIDE, out=out)
+    command.reproduce(args, console=Console(file=text, width=300), overlap=True)
+    return out / "report.md", text.getvalue()
+
+
+@pytest.fixture
+def device_cells_copied(smoke, monkeypatch):
+    """Device cells "trained" by copying the smoke run's folders (this process's `train`; the
+    host stream's child process trains for real)."""
+    import shutil
+
+    from jaxnat import training
+
+    def copy(args, **_):
+        shutil.copytree(smoke / args.run_dir.name, args.run_dir)
+
+    monkeypatch.setattr(training, "train", copy)
+
+
+def test_host_cells_alongside_train_the_same_cells_and_report(smoke, tmp_path):
+    import shutil
+
+    plan = command.make_plan(command.ReproduceArgs(profile="smoke", only=ALONGSIDE, out=tmp_path / "x"))
+    names = [c.name for c in plan.cells]
+    assert ATARI_CELL in names and {c.host for c in plan.cells} == {True, False}
+    out, sequential = tmp_path / "alongside", tmp_path / "sequential"
+    for name in names:  # the sequential run's cells: the smoke run's
+        shutil.copytree(smoke / name, sequential / name)
+    trained = [names[0], ATARI_CELL]  # one classify cell beside the Atari cell; the others finished before
+    for name in set(names) - set(trained):
+        shutil.copytree(smoke / name, out / name)
+    report, output = _run(out)
+    assert "host cells" in output and "alongside device cells" in output
+    assert f"{ATARI_CELL} (alongside) ..." in output and "[2/2]" in output
+    rows = [json.loads(line) for line in (out / "timings.jsonl").read_text().splitlines()]
+    assert sorted(r["cell"] for r in rows) == sorted(trained)
+    assert all(r["outcome"] == "finished" and r["overlapped"] for r in rows)
+    assert (out / "logs" / command.HOST_STREAM_LOG).is_file()
+    assert "| elapsed" in report.read_text()
+    for name in names:
+        assert _eval_rows(out, name) == _eval_rows(smoke, name), name
+    command.reproduce(command.ReproduceArgs(profile="smoke", only=ALONGSIDE, out=sequential, report_only=True))
+    assert _without_wall_time(report) == _without_wall_time(sequential / "report.md")
+    # A rerun trains nothing, with host cells alongside or not.
+    timings, before = (out / "timings.jsonl").read_text(), _report_body(report)
+    _, output = _run(out)
+    assert "4 cells (4 finished before" in output
+    assert command.main(["--profile", "smoke", "--only", ALONGSIDE, "--out", str(out), "--sequential"]) == 0
+    assert (out / "timings.jsonl").read_text() == timings
+    assert _report_body(report) == before
+
+
+def test_a_failing_host_cell_is_reported(smoke, tmp_path, device_cells_copied):
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(smoke / ATARI_CELL, out / ATARI_CELL)
+    (out / ATARI_CELL / "summary.json").unlink()  # interrupted, and its checkpoints damaged
+    for path in (out / ATARI_CELL / "checkpoints").rglob("*"):
+        if path.is_file() and "state" in path.parts:
+            path.write_text("damaged")
+    report, output = _run(out)
+    assert f"{ATARI_CELL}: cannot resume: checkpoint" in output
+    assert f"{ATARI_CELL}: failed: cannot resume" in output
+    rows = {r["cell"]: r for r in map(json.loads, (out / "timings.jsonl").read_text().splitlines())}
+    assert rows[ATARI_CELL]["outcome"] == "failed" and "is damaged" in rows[ATARI_CELL]["message"]
+    assert f"| `{ATARI_CELL}` | incomplete (failed: cannot resume" in report.read_text()
+    assert sum(r["outcome"] == "finished" for r in rows.values()) == len(rows) - 1
+
+
+def test_a_host_stream_that_dies_fails_its_cells(tmp_path, monkeypatch, device_cells_copied):
+    import sys
+
+    monkeypatch.setattr(command, "_child_argv", lambda *_: [sys.executable, "-c", "raise SystemExit(3)"])
+    report, output = _run(tmp_path)
+    assert "exited with status 3 before this cell finished" in output
+    assert f"| `{ATARI_CELL}` | not run (failed): the host stream" in report.read_text()
+    rows = [json.loads(line) for line in (tmp_path / "timings.jsonl").read_text().splitlines()]
+    assert {r["cell"] for r in rows} == {c.name for c in grid.build_grid(grid.PROFILES["smoke"], ("classify",))}
+
+
+def test_ctrl_c_stops_both_streams_and_reports_nothing_unfinished(tmp_path, monkeypatch):
+    import io
+    import subprocess
+    import time
+
+    from jaxnat import training
+    from jaxnat.training import run_status
+
+    children = []
+
+    class Spy(subprocess.Popen):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            children.append(self)
+
+    def interrupted(args, **_):  # Ctrl-C once the host stream is in its cell
+        deadline = time.monotonic() + 120
+        while not (tmp_path / ATARI_CELL / "config.json").is_file() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(subprocess, "Popen", Spy)
+    monkeypatch.setattr(training, "train", interrupted)
+    text = io.StringIO()
+    with pytest.raises(KeyboardInterrupt):
+        _run(tmp_path, text)
+    (child,) = children
+    assert child.returncode in (130, 0)  # stopped (or it had just finished): never left running
+    status = run_status(tmp_path / ATARI_CELL)
+    assert status in ("partial", "finished")
+    timings = tmp_path / "timings.jsonl"
+    rows = [json.loads(line) for line in timings.read_text().splitlines()] if timings.exists() else []
+    assert [r["cell"] for r in rows] == ([ATARI_CELL] if status == "finished" else [])
+    stopped = [line for line in text.getvalue().splitlines() if line.startswith("interrupted in")]
+    assert stopped and "classify-mnist-cnn-ppo" in stopped[0]
+    assert (ATARI_CELL in stopped[0]) == (status == "partial")
+
+
+def test_the_host_stream_stops_when_its_parent_is_gone(tmp_path):
+    import os
+    import subprocess
+
+    plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="atari", out=tmp_path))
+    read_end, write_end = os.pipe()
+    child = subprocess.Popen(command._child_argv(plan, plan.cells, write_end), stdin=subprocess.PIPE,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write_end,))
+    os.close(write_end)
+    child.stdin.close()  # as when the parent dies
+    try:
+        assert child.wait(timeout=120) in (130, -2)  # interrupted, wherever it was
+    finally:
+        child.kill()
+        os.close(read_end)
+
+
+def test_the_estimate_with_host_cells_alongside_is_the_longer_stream():
+    from jaxnat.training.host import is_host_env
+
+    cells = grid.build_grid(grid.PROFILES["quick"])
+    assert all(c.host == is_host_env(c.env_id) for c in cells if c.env_id)
+    streams = command.split_streams(cells, overlap=True)
+    assert streams["host"] == [c for c in cells if c.experiment == "atari"]
+    assert streams["device"] == [c for c in cells if c.experiment != "atari"]
+    device, host = (sum(command.estimate_seconds(c, 5, "gpu") for c in streams[k]) for k in ("device", "host"))
+    assert command.estimate_total(streams, 5, "gpu") == pytest.approx(max(device, host))
+    assert command.estimate_total(command.split_streams(cells, overlap=False), 5, "gpu") == pytest.approx(device + host)
+    only_device = [c for c in cells if not c.host]
+    assert command.split_streams(only_device, overlap=True) == {"all": only_device}
+
+
+def test_concurrent_timing_lines_never_interleave(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    path = tmp_path / "timings.jsonl"
+    rows = [{"cell": f"c{i}", "message": str(i) * 20_000} for i in range(64)]
+    with ThreadPoolExecutor(8) as pool:
+        list(pool.map(lambda row: command.append_jsonl(path, row), rows))
+    written = [json.loads(line) for line in path.read_text().splitlines()]
+    assert sorted(written, key=lambda r: int(r["cell"][1:])) == rows

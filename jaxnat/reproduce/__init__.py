@@ -8,10 +8,13 @@ Pineau (2018) as a grid of training runs, and a findings report.
 Each cell is a `jaxnat train` run (seeds vmapped, or the host loop for Natural Atari) written to
 `<out>/<cell>/` in the same run-directory format, its log in `<out>/logs/<cell>.log`, its wall
 time in `<out>/timings.jsonl`. Rerunning the same command skips finished cells and resumes an
-interrupted one from its checkpoint. The report, `<out>/report.md` with one PNG per paper figure,
-is built from the cells' own files.
+interrupted one from its checkpoint. On an accelerator the Natural Atari cells (ALE on the host's
+cores) train in a second process alongside the others (`--sequential`: every cell in turn, as on
+a CPU). The report, `<out>/report.md` with one PNG per paper figure, is built from the cells' own
+files once every cell has ended.
 
 Modules: `grid` (profiles and cells), `command` (the command line and the loop over cells),
+`hoststream` (the second process's entry point),
 `report` (curves, tables, figures), `findings` (the paper's claims and their verdicts),
 `stats` (bootstrap intervals).
 """

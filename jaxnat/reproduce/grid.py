@@ -43,9 +43,13 @@ from jaxnat.atari.games import AUTHORS_GAMES
 from jaxnat.datasets import DatasetNotFoundError, locate
 from jaxnat.datasets.cityscapes import find_files as cityscapes_files
 
-__all__ = ["EXPERIMENTS", "PROFILES", "Budget", "Profile", "Cell", "build_grid", "dataset_choice"]
+__all__ = ["EXPERIMENTS", "HOST_EXPERIMENTS", "PROFILES", "Budget", "Profile", "Cell", "build_grid", "dataset_choice"]
 
 EXPERIMENTS = ("classify", "localize", "atari", "mujoco")
+# The experiments whose cells `jaxnat train` runs on its host backend (host-batched envs: ALE
+# emulates on the host's cores, the policy runs on the accelerator); the others' cells run all
+# seeds in one program on the accelerator. `jaxnat reproduce` runs the two kinds side by side.
+HOST_EXPERIMENTS = ("atari",)
 ALGOS = ("ppo", "a2c", "acktr")
 TRUNKS = {"cnn": None, "resnet18": "resnet18"}  # None: the paper's 3-layer CNN for the image size
 SWEEP_WINDOWS, SWEEP_STEPS = (2, 5, 7), (10, 20, 40)
@@ -166,6 +170,11 @@ class Cell:
     labels: dict  # what the report groups by: dataset, trunk, w, M, game, background, robot, observation
     note: str = ""  # a stand-in dataset, or another departure from the paper
     skip: str = ""  # why the cell cannot run on this machine ("" = runnable)
+
+    @property
+    def host(self) -> bool:
+        """Whether the cell trains on the host backend (`HOST_EXPERIMENTS`)."""
+        return self.experiment in HOST_EXPERIMENTS
 
     def train_argv(self, seeds: int, run_dir) -> list[str]:
         """The `jaxnat train` command line of this cell."""

@@ -212,6 +212,18 @@ def _timings(out: Path) -> list[dict]:
     return [row for cell_rows in kept.values() for row in cell_rows]
 
 
+def _elapsed(timings: list[dict]) -> float:
+    """The seconds during which at least one cell ran: the union of the sessions' intervals
+    (`start`, `start + seconds`), so cells run side by side count once (rows written before
+    `start` was recorded count in full)."""
+    spans = sorted((t["start"], t["start"] + t["seconds"]) for t in timings if "start" in t)
+    elapsed, end = sum(t["seconds"] for t in timings if "start" not in t), float("-inf")
+    for lo, hi in spans:
+        elapsed += max(0.0, hi - max(lo, end))
+        end = max(end, hi)
+    return elapsed
+
+
 def write_report(plan, outcomes: dict[str, str]) -> Path:
     """Write `<out>/report.md` and its figures for the cells of `plan`; returns the report's path."""
     from jaxnat.training import TrainError, run_status
@@ -236,7 +248,9 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
             missing[cell.name] = f"not run: {err}"
             continue
         if not result.complete:
-            missing[cell.name] = "incomplete (interrupted; rerun the command to finish it)"
+            failed = outcomes.get(cell.name, "")
+            missing[cell.name] = (f"incomplete ({failed})" if failed.startswith("failed") else
+                                  "incomplete (interrupted; rerun the command to finish it)")
         results.append(result)
     finished = [r for r in results if r.complete]
 
@@ -255,7 +269,11 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
             by_experiment[t["experiment"]] = by_experiment.get(t["experiment"], 0.0) + t["seconds"]
         total = sum(by_experiment.values())
         lines += ["## Wall time", "", "| experiment | seconds (training sessions, resumed ones included) |", "|---|---|"]
-        lines += [f"| {k} | {v:.0f} |" for k, v in by_experiment.items()] + [f"| total | {total:.0f} |", ""]
+        lines += [f"| {k} | {v:.0f} |" for k, v in by_experiment.items()] + [f"| total | {total:.0f} |"]
+        if any(t.get("overlapped") for t in timings):
+            lines += [f"| elapsed (host cells alongside device cells: overlapping times counted once) | "
+                      f"{_elapsed(timings):.0f} |"]
+        lines += [""]
 
     notes = sorted({(c.name, c.note) for c in plan.cells if c.note})
     departures = {k: {**v, **plan.profile.env_kwargs.get(k, {})} for k, v in plan.profile.overrides.items() if v}
