@@ -31,6 +31,7 @@ def _setup(args: TrainArgs, console):
     check_counts(args)
     if args.shard is not None and args.devices is None:
         raise TrainError(f"--shard {args.shard} places work on devices: give --devices N (or all) too")
+    devices = None if args.devices is None else device_count(args.devices)
     if is_host_env(args.env_id):
         if args.devices is not None:
             raise TrainError(f"--devices places JAX envs on devices; {args.env_id} is emulated on the host, one ALE "
@@ -50,8 +51,8 @@ def _setup(args: TrainArgs, console):
         spec = dataclasses.replace(spec, config=config)
     except (TypeError, ValueError) as err:
         raise TrainError(str(err)) from None
-    if args.devices is not None:
-        spec = dataclasses.replace(spec, devices=device_count(args.devices), shard=args.shard or "envs")
+    if devices is not None:
+        spec = dataclasses.replace(spec, devices=devices, shard=args.shard or "envs")
         Placement.resolve(spec.algo, spec.config, spec.seeds, spec.devices, spec.shard)  # one-line errors now
     return with_eval_every(spec, args), new_run_dir(args), None, envs
 

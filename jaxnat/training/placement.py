@@ -29,6 +29,7 @@ import functools
 import inspect
 
 import jax
+import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxnat.agents import ALGORITHMS
@@ -128,8 +129,24 @@ class Placement:
         return jax.jit(mapped, in_shardings=self.shardings(in_specs), out_shardings=self.shardings(out_specs))
 
     def put(self, tree, specs):
-        """`tree` placed as `specs` say (unchanged on one device)."""
-        return tree if self.mesh is None else jax.device_put(tree, self.shardings(specs))
+        """`tree` placed as `specs` say (unchanged on one device). With several processes
+        (`jaxnat.sharding.initialize_from_env`) every process passes the same values and
+        gives its own devices' parts."""
+        if self.mesh is None:
+            return tree
+        if jax.process_count() == 1:
+            return jax.device_put(tree, self.shardings(specs))
+        return jax.tree.map(lambda sharding, subtree: jax.tree.map(functools.partial(_put_global, sharding=sharding),
+                                                                   subtree),
+                            self.shardings(specs), tree)
+
+
+def _put_global(x, sharding):
+    """`x` (the same in every process) as a global array: each process fills its devices' parts."""
+    if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(_put_global(jax.random.key_data(x), sharding), impl=jax.random.key_impl(x))
+    value = np.asarray(x)
+    return jax.make_array_from_callback(value.shape, sharding, lambda index: value[index])
 
 
 def data_parallel(algo: str) -> bool:

@@ -136,8 +136,8 @@ class DeviceBackend:
             "init": self._lower(init_program, self.params, keys),
             "evaluate": self._lower(place.program(evaluate, (replicated, scored, place.specs("keys"), scored),
                                                   per_seed),
-                                    self.test_params, self.runner_shape.train_state.params, keys,
-                                    self.runner_shape.normalizer),
+                                    self.test_params, *_unplaced((self.runner_shape.train_state.params, keys,
+                                                                  self.runner_shape.normalizer))),
             "chance": self._lower(place.program(chance, (replicated, place.specs("keys")), per_seed),
                                   self.test_params, keys)}
         self._compiled: dict[Any, Any] = {}
@@ -285,6 +285,11 @@ def _structural_kwargs(env_id: str) -> set[str]:
     constructor arguments and `jaxnat.make`'s own (e.g. `observation_noise`, which wraps the env)."""
     own = {name for name, p in inspect.signature(jaxnat.make).parameters.items() if p.kind is p.KEYWORD_ONLY}
     return own | set(constructor_parameters(env_id))
+
+
+def _unplaced(tree):
+    """Shapes and dtypes of `tree` without their shardings (a program placing them its own way)."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), tree)
 
 
 def _signature(tree):
