@@ -11,6 +11,9 @@ import time
 from pathlib import Path
 from typing import Callable
 
+import jax
+
+from jaxnat.sharding import initialize_from_env
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
 from jaxnat.training.placement import Placement, device_count
@@ -113,6 +116,10 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     """
     from rich.console import Console
 
+    if initialize_from_env() and jax.process_count() > 1:
+        raise TrainError(f"jaxnat train writes its run directory from one process, and this is one of "
+                         f"{jax.process_count()} (JAX_NUM_PROCESSES): train over several processes with "
+                         "jaxnat.training.make_sharded_train (docs/api.md, 'Several devices and hosts')")
     console = console or Console()
     spec, run_dir, saved, envs = _setup(args, console)
     host = is_host_env(spec.env_id)  # NaturalAtari/*: emulated on the host, trained from a Python loop

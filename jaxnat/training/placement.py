@@ -33,6 +33,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxnat.agents import ALGORITHMS
+from jaxnat.agents.rollout import count_updates
 from jaxnat.sharding import AXIS, check_split, device_mesh, resolve_devices
 from jaxnat.training.args import TrainError
 
@@ -128,6 +129,31 @@ class Placement:
         mapped = jax.shard_map(fn, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
         return jax.jit(mapped, in_shardings=self.shardings(in_specs), out_shardings=self.shardings(out_specs))
 
+    def learner_programs(self, algo: str, config, env, env_params, seeds: int, callback=None):
+        """`(init, chunk)`: `init(params, keys [seeds]) -> runner`, jitted for this placement,
+        and `chunk(n)`, the jitted `(params, runner) -> (runner, metrics [seeds, n])` of `n`
+        more updates (`callback(update, metrics)` on the host after each). `params`: env
+        params (`put` them with `specs("replicated")`); every seed is vmapped."""
+        make = ALGORITHMS[algo].make
+        placed = self.learner_factory(make)
+        keys = jax.ShapeDtypeStruct((seeds,), jax.random.key(0).dtype)
+        # The runner's fields, from the unsharded learner (a sharded one traces only inside a
+        # shard_map): its specs.
+        runner = self.specs("runner", jax.eval_shape(jax.vmap(make(config, env, env_params).init), keys))
+        replicated = self.specs("replicated")
+
+        def init(params, keys):  # networks.init_params loops over seeds
+            return jax.vmap(placed(config, env, params).init)(keys)
+
+        def chunk(n: int):
+            def run(params, runner):
+                learner = placed(config, env, params)
+                return jax.vmap(functools.partial(learner.run, config=config, num_updates=n, callback=callback))(runner)
+
+            return self.program(run, (replicated, runner), (runner, self.specs("per_seed")))
+
+        return self.program(init, (replicated, self.specs("keys")), runner), chunk
+
     def put(self, tree, specs):
         """`tree` placed as `specs` say (unchanged on one device). With several processes
         (`jaxnat.sharding.initialize_from_env`) every process passes the same values and
@@ -142,7 +168,10 @@ class Placement:
 
 
 def _put_global(x, sharding):
-    """`x` (the same in every process) as a global array: each process fills its devices' parts."""
+    """`x` (the same in every process) as a global array: each process fills its devices' parts
+    (an array spanning the processes already is left as it is)."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:
+        return x
     if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
         return jax.random.wrap_key_data(_put_global(jax.random.key_data(x), sharding), impl=jax.random.key_impl(x))
     value = np.asarray(x)
@@ -166,16 +195,7 @@ def make_sharded_train(algo: str, config, env, env_params, *, seeds: int, device
     an algorithm without data parallel)."""
     count = device_count(devices) if devices is not None else 1
     placement = Placement.resolve(algo, config, seeds, count, shard if devices is not None else None)
-    make = placement.learner_factory(ALGORITHMS[algo].make)
-    keys = jax.ShapeDtypeStruct((seeds,), jax.random.key(0).dtype)
-    fields = jax.eval_shape(jax.vmap(ALGORITHMS[algo].make(config, env, env_params).init), keys)
-    runner = placement.specs("runner", fields)
-    replicated = placement.specs("replicated")
-
-    def train(params, keys):
-        learner = make(config, env, params)
-        return jax.vmap(lambda key: learner.train(key, config))(keys)
-
-    program = placement.program(train, (replicated, placement.specs("keys")), (runner, placement.specs("per_seed")))
-    params = placement.put(env_params, replicated)
-    return lambda keys: program(params, placement.put(keys, placement.specs("keys")))
+    init, chunk = placement.learner_programs(algo, config, env, env_params, seeds)
+    run = chunk(count_updates(config))
+    params = placement.put(env_params, placement.specs("replicated"))
+    return lambda keys: run(params, init(params, placement.put(keys, placement.specs("keys"))))

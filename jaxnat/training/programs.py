@@ -100,19 +100,15 @@ class DeviceBackend:
         # The env params (datasets, window, time limit, ...) are arguments of every program, not
         # constants baked into it: runs that differ only in traced params (the w/M sweep) can run
         # the same compiled programs (`may_serve`, `reuse_for`).
-        self._learner = lambda params: self.placement.learner_factory(make_learner)(spec.config, env, params)
         try:
             self.learner = make_learner(spec.config, env, params)
-            self._learner(params)
+            self.placement.learner_factory(make_learner)(spec.config, env, params)  # refuses what it cannot shard
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
             raise TrainError(str(err)) from None
         self.params, self.test_params = self._place_params(params, test_params)
         network, episodes = self.learner.network, spec.eval_episodes
         # A test episode's length bounds the evaluation's scan, whose length is static.
         max_steps = int(self.test_params.max_steps_in_episode)
-
-        def init(params, keys):  # networks.init_params loops over seeds
-            return jax.vmap(self._learner(params).init)(keys)
 
         def evaluate(test_params, *args):
             return jax.vmap(make_evaluate(network, test_env, test_params, episodes, max_steps))(*args)
@@ -122,14 +118,12 @@ class DeviceBackend:
 
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
         place = self.placement
-        # The runner's fields, from the unsharded learner (a sharded one traces only inside a
-        # shard_map), give the specs; its shape is then the init program's own trace, which
-        # lowering it reuses, so the chunks take exactly the tree init returns.
-        fields = jax.eval_shape(jax.vmap(self.learner.init), keys)
-        replicated, per_seed, runner = place.specs("replicated"), place.specs("per_seed"), place.specs(
-            "runner", fields)
-        init_program = place.program(init, (replicated, place.specs("keys")), runner)
+        init_program, self._chunk_program = place.learner_programs(spec.algo, spec.config, env, params, spec.seeds,
+                                                                   _update_callback)
+        # The runner's shape is the init program's own trace, which lowering it reuses, so the
+        # chunks take exactly the tree init returns.
         self.runner_shape = jax.eval_shape(init_program, self.params, keys)
+        replicated, per_seed = place.specs("replicated"), place.specs("per_seed")
         # Evaluation reads the parameters and the normaliser's moments: per seed, or replicated.
         scored = place.specs("per_seed" if place.shard == "seeds" else "replicated")
         self._lowered = {  # compiled on first use, or together by `prepare`
@@ -152,15 +146,7 @@ class DeviceBackend:
 
     def _lower_chunk(self, n: int) -> None:
         if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
-            def chunk(params, runner):
-                run = functools.partial(self._learner(params).run, config=self.spec.config, num_updates=n,
-                                        callback=_update_callback)
-                return jax.vmap(run)(runner)
-
-            place = self.placement
-            runner = place.specs("runner", self.runner_shape)
-            program = place.program(chunk, (place.specs("replicated"), runner), (runner, place.specs("per_seed")))
-            self._lowered[("chunk", n)] = self._lower(program, self.params, self.runner_shape)
+            self._lowered[("chunk", n)] = self._lower(self._chunk_program(n), self.params, self.runner_shape)
 
     def prepare(self, chunk_lengths=()) -> None:
         """Lower, then compile every program (init, evaluation, chance, a chunk of each length)
