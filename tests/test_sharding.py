@@ -92,3 +92,13 @@ def test_on_several_devices_and_processes(tmp_path):
     assert reference.files == distributed.files
     for name in reference.files:
         np.testing.assert_allclose(distributed[name], reference[name], atol=1e-5)
+
+
+def test_resuming_on_fewer_devices_names_the_flag():
+    from jaxnat.training import TrainError
+    from jaxnat.training.placement import resumed_devices
+
+    assert resumed_devices(1) == 1 and resumed_devices(8, "all") == 1
+    with pytest.raises(TrainError, match="^this run was on 8 devices and there is 1 here: continue on them with "
+                                         "--devices 1 "):
+        resumed_devices(8)

@@ -16,7 +16,7 @@ import jax
 from jaxnat.sharding import initialize_from_env
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
-from jaxnat.training.placement import Placement, device_count
+from jaxnat.training.placement import Placement, device_count, resumed_devices
 from jaxnat.training.programs import compiled_program, make_envs, split_argument
 from jaxnat.training.rundir import (TrainResult, args_json, check_counts, new_run_dir, open_resumed, versions,
                                     with_eval_every)
@@ -68,7 +68,7 @@ def _resumed_placement(spec: RunSpec, args: TrainArgs, console) -> RunSpec:
             raise TrainError("this run trained on one device without --devices; resume it without --devices "
                              "(a run started with --devices N may continue on another count)")
         return spec
-    devices = device_count(args.devices if args.devices is not None else spec.devices)
+    devices = resumed_devices(spec.devices, args.devices)
     if devices != spec.devices:
         console.print(f"continuing on {devices} device{'s' * (devices != 1)} (the run was on {spec.devices})")
     spec = dataclasses.replace(spec, devices=devices)

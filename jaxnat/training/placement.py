@@ -37,7 +37,7 @@ from jaxnat.agents.rollout import count_updates
 from jaxnat.sharding import AXIS, check_split, device_mesh, resolve_devices
 from jaxnat.training.args import TrainError
 
-__all__ = ["SHARDS", "Placement", "device_count", "data_parallel", "make_sharded_train"]
+__all__ = ["SHARDS", "Placement", "device_count", "resumed_devices", "data_parallel", "make_sharded_train"]
 
 SHARDS = ("envs", "seeds")
 # Per-env fields of the on-policy runner (`rollout.RunnerState`), split in data-parallel runs
@@ -51,6 +51,19 @@ def device_count(devices) -> int:
         return len(resolve_devices(devices, "--devices "))
     except (TypeError, ValueError) as err:
         raise TrainError(str(err)) from None
+
+
+def resumed_devices(recorded: int, requested=None) -> int:
+    """The device count a sharded run continues on: `requested` (`--devices`) if given, else
+    the run's own count, which this machine must have."""
+    if requested is not None:
+        return device_count(requested)
+    available = len(jax.devices())
+    if recorded > available:
+        raise TrainError(f"this run was on {recorded} devices and there {'is' if available == 1 else 'are'} "
+                         f"{available} here: continue on them with --devices {available} (a data-parallel run "
+                         "gives the same result on any count that divides num_envs)")
+    return recorded
 
 
 @dataclasses.dataclass(frozen=True)
