@@ -14,12 +14,15 @@ of updates, evaluation) into jitted programs:
 - `shard="seeds"`: whole seeds on different devices (`seeds / devices` each), each running
   the default learner; no communication at all, and each seed's result is the default's.
 
-    placement = Placement.of("ppo", config, seeds=4, devices=2, shard="envs")
-    make = placement.learner_factory(ALGORITHMS["ppo"].make)
-    init = placement.program(init_fn, ("replicated", "keys"), "runner")
+    placement = Placement.resolve("ppo", config, seeds=4, devices=2, shard="envs")
+    init, chunk = placement.learner_programs("ppo", config, env, env_params, seeds=4)
+    params = placement.put(env_params, placement.specs("replicated"))
+    runner = init(params, placement.put(keys, placement.specs("keys")))
+    runner, metrics = chunk(10)(params, runner)                 # 10 updates of every seed
 
-`resolve(...)` checks the request (device count, even splits, a data-parallel algorithm) with
-one-line `TrainError`s that name the fix.
+`Placement.resolve` checks the request (even splits, a data-parallel algorithm) and
+`device_count` the device count, with one-line `TrainError`s that name the fix;
+`make_sharded_train` is the whole run in one call.
 """
 
 from __future__ import annotations
