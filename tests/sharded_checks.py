@@ -138,7 +138,9 @@ def check_resume(reference) -> None:
 
 def check_errors() -> None:
     """Requests the devices cannot take: one line saying what is wrong and how to fix it."""
-    tiny = ["--env-id", "Probe/Factored-v0", "--seeds", "2", "--num-envs", "8", "--run-dir", "/nonexistent/never"]
+    # Refused before the run directory is made: it stays absent.
+    never = Path(tempfile.gettempdir(), "jaxnat-sharded-checks-never")
+    tiny = ["--env-id", "Probe/Factored-v0", "--seeds", "2", "--num-envs", "8", "--run-dir", str(never)]
     cases = {
         ("--num-envs", "10", "--devices", "4"): "num_envs=10 does not split evenly over 4 devices: use --num-envs 8 or 12",
         ("--devices", "5"): "--devices 5: there are only 4 cpu devices here; use at most 4 (or all)",
@@ -155,6 +157,7 @@ def check_errors() -> None:
             assert _run([*tiny, *extra]) == 2, extra
         message = stderr.getvalue()
         assert message.count("\n") == 1 and message.startswith("jaxnat train: error: ") and expected in message, message
+    assert not never.exists()
     print("ok errors")
 
 

@@ -48,12 +48,13 @@ def test_host_batched_envs_refuse_devices():
         jaxnat.make_vec("NaturalAtari/Breakout-v0", 8, devices=1)
 
 
-def test_train_refuses_devices_it_lacks(capsys):
-    assert main(["--devices", "3", "--run-dir", "/nonexistent/never"]) == 2
+def test_train_refuses_devices_it_lacks(capsys, tmp_path):
+    assert main(["--devices", "3", "--run-dir", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert err == "jaxnat train: error: --devices 3: there is only 1 cpu device here; use at most 1 (or all)\n"
     assert main(["--env-id", "NaturalAtari/Breakout-v0", "--devices", "1"]) == 2
     assert "one ALE batch per process: leave --devices out" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
 
 
 def test_distributed_environment(monkeypatch):
