@@ -131,7 +131,8 @@ def main() -> None:
                    "devices": devices, "num_envs": num_envs, **result,
                    "per_device": result["steps_per_s"] / devices,
                    "efficiency": result["steps_per_s"] / (devices * base) if counts[0] == 1 else None}
-            print(f"{workload} · {devices} device(s) · {num_envs} envs · {row['steps_per_s']:,.0f} steps/s", flush=True)
+            print(f"{workload} · {devices} device(s) · {num_envs} envs · {row['steps_per_s']:,.0f} steps/s",
+                  flush=True)
             rows.append(row)
 
     table = common.markdown_table(rows, [

@@ -142,7 +142,8 @@ def check_errors() -> None:
     never = Path(tempfile.gettempdir(), "jaxnat-sharded-checks-never")
     tiny = ["--env-id", "Probe/Factored-v0", "--seeds", "2", "--num-envs", "8", "--run-dir", str(never)]
     cases = {
-        ("--num-envs", "10", "--devices", "4"): "num_envs=10 does not split evenly over 4 devices: use --num-envs 8 or 12",
+        ("--num-envs", "10", "--devices", "4"):
+            "num_envs=10 does not split evenly over 4 devices: use --num-envs 8 or 12",
         ("--devices", "5"): "--devices 5: there are only 4 cpu devices here; use at most 4 (or all)",
         ("--devices", "two"): "--devices two: give a device count (e.g. 2) or all",
         ("--devices", "4", "--shard", "seeds"): "seeds=2 does not split evenly over 4 devices: use --seeds 4",
@@ -180,5 +181,6 @@ if __name__ == "__main__":
         check_env()
         check_errors()
         runner = check_ppo()
-        np.savez(Path(sys.argv[1], "reference.npz"), *[np.asarray(x) for x in jax.tree.leaves(runner.train_state.params)])
+        leaves = [np.asarray(x) for x in jax.tree.leaves(runner.train_state.params)]
+        np.savez(Path(sys.argv[1], "reference.npz"), *leaves)
         check_resume(runner)

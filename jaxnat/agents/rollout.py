@@ -50,8 +50,8 @@ __all__ = [
     "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box", "is_scalar_action", "env_action",
     "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_steps_pipelined",
     "host_updates", "TIMING_KEYS",
-    "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch", "make_evaluate", "make_chance",
-    "evaluate_host",
+    "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch",
+    "make_evaluate", "make_chance", "evaluate_host",
     "clipped_optimizer", "host_jit", "EPISODE_KEYS",
 ]
 
