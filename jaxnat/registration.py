@@ -206,7 +206,7 @@ def make(id: str, *, autoreset: bool = True, observation_noise: bool | str = Fal
     return env, params
 
 
-def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
+def make_vec(id: str, num_envs: int, *, autoreset: bool = True, devices=None, **kwargs: Any):
     """Build `num_envs` copies of an env behind one batched interface: one env object.
 
     Pure-JAX envs come back as a `VmapWrapper` (one key in, `num_envs` envs out) whose
@@ -215,11 +215,19 @@ def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
     registered with `batched=True` (host emulators: `NaturalAtari/*`) come back as their entry
     point built with `num_envs`: a `jaxnat.core.HostBatchedEnv`, with numpy
     `reset(seed=)`/`step(actions)` that autoreset themselves (`autoreset` does not apply).
+
+    `devices` (pure-JAX envs): a count, "all" or a list of devices; the batch is split over a
+    1-D mesh of them (`VmapWrapper`: each device steps its share, the same envs as unsharded).
+    `num_envs` must divide evenly. Host-batched envs refuse it: they run on the host's cores,
+    one batch per process (with several hosts, each process builds its own).
     """
     from jaxnat.wrappers import VmapWrapper
 
     env_spec = spec(id)
     if env_spec.batched:
+        if devices is not None:
+            raise TypeError(f"{id} is emulated on the host, not on devices: leave devices= out (with several "
+                            "hosts, each process builds its own batch)")
         if kwargs.get("observation_noise"):
             raise TypeError(f"observation_noise is the noise control of pure-JAX envs; {id}'s is "
                             "background='noise' (the game's pixels over Gaussian noise)")
@@ -228,4 +236,4 @@ def make_vec(id: str, num_envs: int, *, autoreset: bool = True, **kwargs: Any):
         return entry(num_envs=num_envs, **ctor_kwargs)
 
     env, params = make(id, autoreset=autoreset, **kwargs)  # (observation_noise too)
-    return VmapWrapper(env, num_envs, params)
+    return VmapWrapper(env, num_envs, params, devices=devices)

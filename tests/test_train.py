@@ -258,7 +258,7 @@ def test_progress_without_a_terminal_prints_plain_lines():
 
     from jaxnat.training.progress import Progress
 
-    spec = types.SimpleNamespace(num_updates=10, steps_per_update=64)
+    spec = types.SimpleNamespace(num_updates=10, steps_per_update=64, devices=1, shard=None)
     out = io.StringIO()
     progress = Progress(Console(file=out, width=80), spec, seeds=2, start_update=0, interval=0.0)
     for update in range(1, 4):

@@ -44,7 +44,10 @@ def _optimizer(config: A2CConfig, num_updates: int):
     )
 
 
-def _update(config: A2CConfig, network, train_state, transitions, advantages, targets, key):
+def _update(config: A2CConfig, network, train_state, transitions, advantages, targets, key, axis_name=None):
+    # Data parallel needs nothing here: the loss is a mean over the device's equal share of the
+    # batch, so the devices' mean gradient (`rollout.pmean_gradients`) is the whole batch's.
+    del axis_name
     def loss_fn(params):
         logits, value = replay(network, params, transitions.obs, transitions.memory)
         log_prob = distributions.log_prob(logits, transitions.action)
@@ -59,11 +62,13 @@ def _update(config: A2CConfig, network, train_state, transitions, advantages, ta
 
 
 RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,
-                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory})
+                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory},
+                  data_parallel=True)
 
 
-def make_a2c(config: A2CConfig, env, env_params) -> Learner:
-    return on_policy_learner(config, env, env_params, RULE)
+def make_a2c(config: A2CConfig, env, env_params, axis_name=None) -> Learner:
+    """The A2C learner; `axis_name`: data parallel over that mesh axis (`rollout.on_policy_learner`)."""
+    return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
 def make_host_a2c(config: A2CConfig, env, compiler_options: dict | None = None) -> HostLearner:

@@ -42,12 +42,18 @@ def init_moments(shape) -> Moments:
     return Moments(jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.zeros((), jnp.float32))
 
 
-def update_moments(moments: Moments, batch: jax.Array) -> Moments:
-    """Merge a batch `[N, *shape]` into the moments (Chan et al.'s update; exact for any split)."""
+def update_moments(moments: Moments, batch: jax.Array, axis_name=None) -> Moments:
+    """Merge a batch `[N, *shape]` into the moments (Chan et al.'s update; exact for any split).
+    `axis_name`: the batch is split over a mesh axis (data-parallel learners, equal shares);
+    its moments are the whole batch's."""
     batch = batch.astype(jnp.float32)
     batch_count = jnp.asarray(batch.shape[0], jnp.float32)
     batch_mean = batch.mean(axis=0)
     batch_var = batch.var(axis=0)
+    if axis_name is not None:
+        local_mean, batch_mean = batch_mean, jax.lax.pmean(batch_mean, axis_name)
+        batch_var = jax.lax.pmean(batch_var + (local_mean - batch_mean) ** 2, axis_name)
+        batch_count = batch_count * jax.lax.axis_size(axis_name)
     total = moments.count + batch_count
     delta = batch_mean - moments.mean
     mean = moments.mean + delta * batch_count / total
@@ -89,21 +95,24 @@ def normalize(normalizer: Normalizer | None, obs):
     return jnp.clip((obs - moments.mean) / jnp.sqrt(moments.var + EPSILON), -CLIP, CLIP)
 
 
-def observe(normalizer: Normalizer | None, obs) -> Normalizer | None:
-    """Merge a vector step's observations `[num_envs, D]` into the moments."""
+def observe(normalizer: Normalizer | None, obs, axis_name=None) -> Normalizer | None:
+    """Merge a vector step's observations `[num_envs, D]` into the moments (`axis_name`:
+    `update_moments`')."""
     if normalizer is None or normalizer.obs is None:
         return normalizer
-    return normalizer._replace(obs=update_moments(normalizer.obs, obs))
+    return normalizer._replace(obs=update_moments(normalizer.obs, obs, axis_name))
 
 
-def scale_rewards(normalizer: Normalizer | None, reward, done, gamma) -> tuple[Normalizer | None, jax.Array]:
+def scale_rewards(normalizer: Normalizer | None, reward, done, gamma,
+                  axis_name=None) -> tuple[Normalizer | None, jax.Array]:
     """One vector step's rewards `[num_envs]` as the learner trains on them, and the updated
-    normaliser (`done`: where an episode ended, its running return restarts)."""
+    normaliser (`done`: where an episode ended, its running return restarts; `axis_name`:
+    `update_moments`')."""
     reward = reward.astype(jnp.float32)
     if normalizer is None or normalizer.returns is None:
         return normalizer, reward
     running = normalizer.running_return * gamma + reward
-    returns = update_moments(normalizer.returns, running)
+    returns = update_moments(normalizer.returns, running, axis_name)
     scaled = jnp.clip(reward / jnp.sqrt(returns.var + EPSILON), -CLIP, CLIP)
     return normalizer._replace(returns=returns, running_return=jnp.where(done, 0.0, running)), scaled
 

@@ -12,6 +12,11 @@ Defaults are the authors' settings (`docs/environments.md` section 5): Adam lr 2
 
 `memory=N` makes the policy recurrent (a GRU of size N, `networks.ActorCritic`); its minibatches
 are then groups of whole env rollouts (`num_envs` must divide by `num_minibatches`).
+
+Data parallel (`make_ppo(..., axis_name=)`, inside a `jax.shard_map`; `rollout`'s docstring):
+each minibatch is an equal share of every env's steps (each env's steps shuffled with its own
+key), so it splits evenly over any device count (`num_steps` must divide by
+`num_minibatches`), and advantages are normalised with the whole minibatch's mean and std.
 """
 
 from __future__ import annotations
@@ -64,11 +69,33 @@ def _optimizer(config: PPOConfig, num_updates: int):
                              optax.adamw(schedule, eps=1e-5, weight_decay=config.weight_decay))
 
 
-def _update(config: PPOConfig, network, train_state, transitions, advantages, targets, key):
+def _per_env_minibatches(data, key, num_minibatches: int, axis_name):
+    """Data-parallel minibatches from time-major `[T, n, ...]` data: each env's `T` steps
+    shuffled with a key of its own (folded from its index among every device's envs), and
+    minibatch `m` the `m`-th of `num_minibatches` equal parts of every env's steps:
+    `[num_minibatches, n * T / num_minibatches, ...]`, whatever the device count."""
+    steps, envs = jax.tree_util.tree_leaves(data)[0].shape[:2]
+    first = jax.lax.axis_index(axis_name) * envs
+    orders = jax.vmap(lambda i: jax.random.permutation(jax.random.fold_in(key, first + i), steps))(jnp.arange(envs))
+
+    def split(x):
+        x = jax.vmap(lambda rollout, order: rollout[order])(jnp.swapaxes(x, 0, 1), orders)  # [n, T, ...]
+        x = x.reshape(envs, num_minibatches, steps // num_minibatches, *x.shape[2:])
+        return jnp.swapaxes(x, 0, 1).reshape(num_minibatches, -1, *x.shape[3:])
+
+    return jax.tree_util.tree_map(split, data)
+
+
+def _update(config: PPOConfig, network, train_state, transitions, advantages, targets, key, axis_name=None):
     batch = config.num_envs * config.num_steps
     data = (transitions.obs, transitions.action, transitions.log_prob, transitions.value, advantages, targets,
             transitions.memory)
-    if transitions.memory is None:  # minibatches of single steps
+    if axis_name is not None:  # data parallel: this device's envs, feed-forward (`rollout.on_policy_learner`)
+        if config.num_steps % config.num_minibatches:
+            raise ValueError(f"data-parallel PPO takes an equal share of every env's steps into each minibatch: "
+                             f"num_steps={config.num_steps} must be divisible by "
+                             f"num_minibatches={config.num_minibatches}")
+    elif transitions.memory is None:  # minibatches of single steps
         if batch % config.num_minibatches:
             raise ValueError(f"num_envs * num_steps = {batch} is not divisible by num_minibatches={config.num_minibatches}")
         data = jax.tree_util.tree_map(lambda x: x.reshape(batch, *x.shape[2:]), data)
@@ -88,7 +115,12 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         log_prob = distributions.log_prob(logits, action)
         value_clipped = old_value + jnp.clip(value - old_value, -config.clip_eps, config.clip_eps)
         value_loss = 0.5 * jnp.maximum((value - target) ** 2, (value_clipped - target) ** 2).mean()
-        advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+        if axis_name is None:
+            advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+        else:  # the whole minibatch's moments (every device holds an equal share)
+            mean = jax.lax.pmean(advantage.mean(), axis_name)
+            std = jnp.sqrt(jax.lax.pmean(jnp.mean((advantage - mean) ** 2), axis_name))
+            advantage = (advantage - mean) / (std + 1e-8)
         ratio = jnp.exp(log_prob - old_log_prob)
         policy_loss = -jnp.minimum(
             ratio * advantage, jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps) * advantage
@@ -107,6 +139,9 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         return train_state.apply_gradients(grads=grads), losses
 
     def epoch(train_state, key):
+        if axis_name is not None:
+            return jax.lax.scan(minibatch_step, train_state,
+                                _per_env_minibatches(data, key, config.num_minibatches, axis_name))
         order = jax.random.permutation(key, units)
         shuffled = jax.tree_util.tree_map(
             lambda x: x[order].reshape(config.num_minibatches, -1, *x.shape[1:]), data
@@ -118,12 +153,14 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
 
 
 RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,
-                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory})
+                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory},
+                  data_parallel=True)
 
 
-def make_ppo(config: PPOConfig, env, env_params) -> Learner:
-    """The PPO learner (`init`, `run`, `train`, `network`, `num_updates`)."""
-    return on_policy_learner(config, env, env_params, RULE)
+def make_ppo(config: PPOConfig, env, env_params, axis_name=None) -> Learner:
+    """The PPO learner (`init`, `run`, `train`, `network`, `num_updates`); `axis_name`: data
+    parallel over that mesh axis (`rollout.on_policy_learner`)."""
+    return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
 def make_host_ppo(config: PPOConfig, env, compiler_options: dict | None = None) -> HostLearner:

@@ -16,6 +16,13 @@ algorithm file (`ppo.py`, `a2c.py`, `acktr.py`, `dqn.py`) holds its config, loss
   runner; the update replays whole env rollouts from their first stored state (`replay`), so
   it sees the outputs the rollout saw (to float tolerance: the trunk runs on a bigger batch).
   The final observation of a truncated step is valued with the memory after that step.
+- **Data parallel** (`axis_name`, PPO and A2C on jitted envs): inside a `jax.shard_map` over
+  a mesh axis, each device steps its share of the envs (`shard_slice`) and the optimizer
+  applies the devices' mean gradient (`pmean_gradients`). Every random draw is per env (env `i`
+  of all `num_envs` gets the same keys on any device count) and every statistic over the batch
+  (normalisation moments, metrics, PPO's advantage normalisation and minibatches: an equal
+  share of every env's steps) is the whole batch's, so 1, 2, 4 ... devices train the same
+  parameters to float tolerance. It is not the default learner's stream of random draws.
 - **Evaluation.** `make_evaluate` (jitted: each env plays its first episode) and
   `evaluate_host` (whole games of a host env), greedy or sampled.
 """
@@ -43,8 +50,8 @@ __all__ = [
     "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box", "is_scalar_action", "env_action",
     "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_steps_pipelined",
     "host_updates", "TIMING_KEYS",
-    "on_policy_learner", "on_policy_host_learner", "check_host_batch", "make_evaluate", "make_chance",
-    "evaluate_host",
+    "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch",
+    "make_evaluate", "make_chance", "evaluate_host",
     "clipped_optimizer", "host_jit", "EPISODE_KEYS",
 ]
 
@@ -105,6 +112,9 @@ class UpdateRule(NamedTuple):
     update_step: Callable  # (config, network, train_state, transitions, advantages, targets, key)
     # config -> keyword arguments of `networks.make_actor_critic` (dtype, memory) beyond the trunk
     network_options: Callable = lambda config: {}
+    # `update_step` takes `axis_name=` and trains data parallel inside a shard_map (its
+    # gradient is a mean over the batch, made whole by `pmean_gradients`).
+    data_parallel: bool = False
 
     def train_state(self, config, network, observation_space, num_updates: int, key) -> TrainState:
         """Fresh parameters and optimizer state for a run of `num_updates` updates."""
@@ -149,13 +159,15 @@ def step_info(info: dict, terminated) -> dict:
     return {**{name: info[name] for name in EPISODE_KEYS}, "terminated": terminated}
 
 
-def episode_metrics(info: dict) -> dict:
-    """Means over the episodes that ended in this rollout (NaN when none did)."""
+def episode_metrics(info: dict, axis_name=None) -> dict:
+    """Means over the episodes that ended in this rollout (NaN when none did); with
+    `axis_name`, over every device's envs."""
     ended = info["returned_episode"]
-    count = jnp.sum(ended)
+    total = (lambda x: x) if axis_name is None else functools.partial(jax.lax.psum, axis_name=axis_name)
+    count = total(jnp.sum(ended))
 
     def mean(x):
-        return jnp.where(count > 0, jnp.sum(jnp.where(ended, x, 0.0)) / jnp.maximum(count, 1), jnp.nan)
+        return jnp.where(count > 0, total(jnp.sum(jnp.where(ended, x, 0.0))) / jnp.maximum(count, 1), jnp.nan)
 
     # A terminated episode ended by the env's own rule (classification: the right label).
     return {
@@ -195,6 +207,30 @@ def env_action(action, action_space):
 
 def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):
     return optax.chain(optax.clip_by_global_norm(max_grad_norm), optimizer)
+
+
+def pmean_gradients(tx: optax.GradientTransformation, axis_name) -> optax.GradientTransformation:
+    """`tx` applied to the mean of the devices' gradients over `axis_name` (before clipping),
+    with `tx`'s own state: a data-parallel run's checkpoints hold what a single device's do."""
+
+    def update(updates, state, params=None, **extra):
+        return tx.update(jax.lax.pmean(updates, axis_name), state, params, **extra)
+
+    return optax.GradientTransformation(tx.init, update)
+
+
+def shard_slice(x, axis_name):
+    """This device's share of `x` along its leading axis, inside a shard_map over `axis_name`
+    (e.g. its envs' keys out of `jax.random.split(key, num_envs)`)."""
+    size = x.shape[0] // jax.lax.axis_size(axis_name)
+    return jax.lax.dynamic_slice_in_dim(x, jax.lax.axis_index(axis_name) * size, size)
+
+
+def _sample_each(keys, logits):
+    """One action per env, each drawn with its own key."""
+    if isinstance(logits, distributions.Gaussian):  # a shared log-std, given to every env
+        logits = logits._replace(log_std=jnp.broadcast_to(logits.log_std, jnp.shape(logits.mean)))
+    return jax.vmap(distributions.sample)(keys, logits)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -247,16 +283,19 @@ def vector_env(env) -> tuple[Callable, Callable]:
 
 
 def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_steps: int,
-               policy: Callable, observe: Callable, carry, env_state, obs, key):
+               policy: Callable, observe: Callable, carry, env_state, obs, key, env_keys: Callable | None = None):
     """`num_steps` steps of `num_envs` JAX envs in one `lax.scan` (`step` from `vector_env`).
+    `env_keys(key) -> [num_envs] keys` (default: `jax.random.split(key, num_envs)`).
     Returns `((carry, env_state, obs, key), records stacked over time)`."""
+    if env_keys is None:
+        env_keys = functools.partial(jax.random.split, num=num_envs)
 
     def body(state, t):
         carry, env_state, obs, key = state
         key, key_act, key_env = jax.random.split(key, 3)
         action, aux = policy(carry, obs, key_act, t)
         next_obs, env_state, reward, terminated, done, final_obs, info = step(
-            jax.random.split(key_env, num_envs), env_state, env_action(action, action_space), env_params)
+            env_keys(key_env), env_state, env_action(action, action_space), env_params)
         carry, record = observe(carry, EnvStep(obs, action, next_obs, reward, terminated, done, final_obs, info),
                                 aux, t)
         return (carry, env_state, next_obs, key), record
@@ -287,7 +326,7 @@ def scan_updates(update: Callable, runner, config, num_updates: int, callback, t
     return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
 
 
-def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
+def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None) -> Learner:
     """The jitted on-policy learner: a `lax.scan` of updates, each a `lax.scan` rollout of
     `config.num_steps` steps of `config.num_envs` envs, GAE, then `rule.update_step`.
 
@@ -297,6 +336,10 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
         env, env_params: any env with the jaxnat/gymnax API; it should reset itself when an
             episode ends (`jaxnat.make` envs do).
         rule: the algorithm's optimizer, update and network options.
+        axis_name: train data parallel over this mesh axis (the functions then run inside a
+            `jax.shard_map` over it, the runner's per-env fields split along their env axis,
+            the rest replicated; `config.num_envs` counts every device's envs). See the
+            module docstring; None: one device, the default learner.
     """
     total_updates = count_updates(config)
     observation_space = env.observation_space(env_params)
@@ -304,21 +347,40 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
     network = make_actor_critic(observation_space, action_space, config.trunk, **rule.network_options(config))
     normalizing = normalize.switches(config, observation_space)
     reset, step = vector_env(env)
+    make_optimizer = rule.make_optimizer
+    if axis_name is not None:
+        if not rule.data_parallel:
+            raise ValueError("this algorithm does not train data parallel (its update needs the whole batch "
+                             "on one device): place whole seeds on devices instead")
+        if network.memory:
+            raise ValueError(f"memory={network.memory}: a recurrent policy's minibatches are whole env rollouts, "
+                             "which do not split evenly over devices: place whole seeds on devices instead")
+        make_optimizer = lambda config, num_updates: pmean_gradients(  # noqa: E731
+            rule.make_optimizer(config, num_updates), axis_name)
+
+    def env_keys(key, config):
+        """The keys of this device's envs (every env's without `axis_name`)."""
+        keys = jax.random.split(key, config.num_envs)
+        return keys if axis_name is None else shard_slice(keys, axis_name)
 
     def init(key, config=config) -> RunnerState:
         key, key_net, key_env = jax.random.split(key, 3)
         train_state = rule.train_state(config, network, observation_space, total_updates, key_net)
-        obs, env_state = reset(jax.random.split(key_env, config.num_envs), env_params)
+        keys = env_keys(key_env, config)
+        obs, env_state = reset(keys, env_params)
         memory = initial_memory(network, config.num_envs) if network.memory else None
-        normalizer = normalize.init_normalizer(*normalizing, observation_space, config.num_envs)
+        normalizer = normalize.init_normalizer(*normalizing, observation_space, len(keys))
         return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory, normalizer)
 
     def policy(carry, obs, key, t):
         params, memory, normalizer = carry
-        normalizer = normalize.observe(normalizer, obs)
+        normalizer = normalize.observe(normalizer, obs, axis_name)
         obs = normalize.normalize(normalizer, obs)
         logits, value, hidden = act(network, params, obs, memory)
-        action = distributions.sample(key, logits)
+        if axis_name is None:
+            action = distributions.sample(key, logits)
+        else:
+            action = _sample_each(env_keys(key, config), logits)
         return action, (obs, distributions.log_prob(logits, action), value, hidden, normalizer)
 
     def rollout(runner: RunnerState, config):
@@ -333,7 +395,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
             following = None if memory is None else Memory(hidden, s.action, s.reward.astype(jnp.float32),
                                                            jnp.zeros_like(s.done))
             _, final_value, _ = act(network, params, normalize.normalize(normalizer, s.final_obs), following)
-            normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma)
+            normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma, axis_name)
             transition = Transition(obs, s.action, log_prob, value, reward, s.done.astype(jnp.float32),
                                     bootstrap(final_value, s.terminated), step_info(s.info, s.terminated),
                                     None if memory is None else memory._replace(hidden=None))
@@ -342,7 +404,8 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
 
         ((_, memory, normalizer), env_state, obs, key), transitions = scan_steps(
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
-            (runner.train_state.params, runner.memory, runner.normalizer), runner.env_state, runner.obs, runner.key)
+            (runner.train_state.params, runner.memory, runner.normalizer), runner.env_state, runner.obs, runner.key,
+            None if axis_name is None else functools.partial(env_keys, config=config))
         if runner.memory is not None:  # the state before the rollout's first step (`replay`)
             transitions = transitions._replace(memory=transitions.memory._replace(hidden=runner.memory.hidden[None]))
         return runner._replace(env_state=env_state, obs=obs, key=key, memory=memory, normalizer=normalizer), transitions
@@ -351,15 +414,21 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule) -> Learner:
         runner, transitions = rollout(runner, config)
         advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
         key, key_update = jax.random.split(runner.key)
-        train_state, losses = rule.update_step(
-            config, network, runner.train_state, transitions, advantages, targets, key_update
-        )
+        if axis_name is None:
+            train_state, losses = rule.update_step(
+                config, network, runner.train_state, transitions, advantages, targets, key_update
+            )
+        else:  # on this device's envs; the losses reported are the whole batch's
+            local = config.replace(num_envs=transitions.reward.shape[1])
+            train_state, losses = rule.update_step(local, network, runner.train_state, transitions, advantages,
+                                                   targets, key_update, axis_name=axis_name)
+            losses = jax.lax.pmean(losses, axis_name)
         runner = runner._replace(train_state=train_state, key=key, update=runner.update + 1)
-        return runner, {**episode_metrics(transitions.info), **losses}
+        return runner, {**episode_metrics(transitions.info, axis_name), **losses}
 
     def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
         return scan_updates(update, runner, config, num_updates, callback,
-                            rule.make_optimizer(config, total_updates))
+                            make_optimizer(config, total_updates))
 
     def train(key, config=config):
         return run(init(key, config), config)

@@ -8,14 +8,16 @@ DQN on a jaxnat env over many seeds, into a run directory (`config.json`, `metri
 
 `trainer.py` is the one loop, over a backend: `programs.DeviceBackend` trains every seed at once
 in one compiled program (`jit(vmap(...))` over their keys) and resumes bit for bit (the state
-carries the PRNG keys); `host.HostBackend` trains host-batched envs (Natural Atari).
+carries the PRNG keys), on one device or split over several (`--devices`, `placement.py`);
+`host.HostBackend` trains host-batched envs (Natural Atari).
 """
 
 from jaxnat.training.args import ConfigOverrides, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.checkpoints import load_checkpoint
 from jaxnat.training.loop import TrainResult, main, prepare_programs, train
+from jaxnat.training.placement import make_sharded_train
 from jaxnat.training.rundir import RunRecord, read_run, run_status
 from jaxnat.training.spec import RunSpec
 
 __all__ = ["TrainArgs", "ConfigOverrides", "RunSpec", "TrainResult", "TrainError", "train",
-           "load_checkpoint", "main", "prepare_programs", "parse_args", "parse_env_kwargs", "RunRecord", "read_run", "run_status"]
+           "load_checkpoint", "main", "prepare_programs", "make_sharded_train", "parse_args", "parse_env_kwargs", "RunRecord", "read_run", "run_status"]

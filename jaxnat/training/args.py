@@ -82,6 +82,10 @@ class TrainArgs:
     trunk: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(TRUNKS) + "}",
                                                   help_behavior_hint="")] = None
     """Network trunk (unset: the paper's trunk for the observation size)."""
+    devices: Annotated[Optional[str], tyro.conf.arg(metavar="N|all", help_behavior_hint="")] = None
+    """Train on this many devices of this machine (all: every one). Unset: one device, the default learner. With --resume: the device count to continue on (unset: the run's). Several hosts: docs/api.md."""
+    shard: Annotated[Optional[str], tyro.conf.arg(metavar="{envs,seeds}", help_behavior_hint="")] = None
+    """With --devices: envs (the default) splits each seed's envs over the devices and averages gradients across them (data parallel; ppo and a2c; num_envs must divide evenly; the same result on any device count); seeds places whole seeds on the devices (seeds must divide evenly; each seed's result is the one-device run's)."""
     eval_every: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Updates per chunk: evaluate, log and checkpoint after every this many updates (unset: about 20 evaluations over the run). Host-emulated envs (NaturalAtari) checkpoint only; their seeds are evaluated when each finishes."""
     eval_episodes: int = 1000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxnat.training.args import TrainError
+from jaxnat.training.placement import resumed_devices
 from jaxnat.training.programs import compiled_program
 from jaxnat.training.spec import RunSpec
 
@@ -82,11 +84,14 @@ class Checkpoints:
         self.manager.close()
 
 
-def load_checkpoint(run_dir, step: int | None = None, *, compiler_options: dict | None = None):
+def load_checkpoint(run_dir, step: int | None = None, *, compiler_options: dict | None = None, devices=None):
     """`(runner, meta)` of a run directory's latest (or given) checkpoint: the vmapped
-    `RunnerState` (params at `runner.train_state.params`, one slice per seed)."""
+    `RunnerState` (params at `runner.train_state.params`, one slice per seed). A run trained
+    with `--devices` loads onto `devices` (a count or "all"; default: the run's count)."""
     run_dir = Path(run_dir)
     spec = RunSpec.from_json(json.loads((run_dir / "config.json").read_text())["spec"])
+    if spec.shard is not None:
+        spec = dataclasses.replace(spec, devices=resumed_devices(spec.devices, devices))
     program = compiled_program(spec, compiler_options)
     checkpoints = Checkpoints(run_dir / "checkpoints")
     try:

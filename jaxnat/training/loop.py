@@ -11,8 +11,12 @@ import time
 from pathlib import Path
 from typing import Callable
 
+import jax
+
+from jaxnat.sharding import initialize_from_env
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
+from jaxnat.training.placement import Placement, device_count, resumed_devices
 from jaxnat.training.programs import compiled_program, make_envs, split_argument
 from jaxnat.training.rundir import (TrainResult, args_json, check_counts, new_run_dir, open_resumed, versions,
                                     with_eval_every)
@@ -24,10 +28,17 @@ def _setup(args: TrainArgs, console):
     """(spec, run_dir, the saved config.json when resuming else None, the envs `make_envs` built
     for a new run on JAX envs else None)."""
     if args.resume is not None:
-        return (*open_resumed(args), None)
+        spec, run_dir, saved = open_resumed(args)
+        return _resumed_placement(spec, args, console), run_dir, saved, None
     check_algo(args.algo)
     check_counts(args)
+    if args.shard is not None and args.devices is None:
+        raise TrainError(f"--shard {args.shard} places work on devices: give --devices N (or all) too")
+    devices = None if args.devices is None else device_count(args.devices)
     if is_host_env(args.env_id):
+        if args.devices is not None:
+            raise TrainError(f"--devices places JAX envs on devices; {args.env_id} is emulated on the host, one ALE "
+                             "batch per process: leave --devices out")
         run_dir = new_run_dir(args)
         return with_eval_every(new_host_spec(args, console), args), run_dir, None, None
     if args.env_parts != 1:
@@ -43,7 +54,26 @@ def _setup(args: TrainArgs, console):
         spec = dataclasses.replace(spec, config=config)
     except (TypeError, ValueError) as err:
         raise TrainError(str(err)) from None
+    if devices is not None:
+        spec = dataclasses.replace(spec, devices=devices, shard=args.shard or "envs")
+        Placement.resolve(spec.algo, spec.config, spec.seeds, spec.devices, spec.shard)  # one-line errors now
     return with_eval_every(spec, args), new_run_dir(args), None, envs
+
+
+def _resumed_placement(spec: RunSpec, args: TrainArgs, console) -> RunSpec:
+    """The resumed run's spec on the devices it continues on: `--devices` if given, else the
+    run's own count (a data-parallel run gives the same result on any count)."""
+    if spec.shard is None:
+        if args.devices is not None:
+            raise TrainError("this run trained on one device without --devices; resume it without --devices "
+                             "(a run started with --devices N may continue on another count)")
+        return spec
+    devices = resumed_devices(spec.devices, args.devices)
+    if devices != spec.devices:
+        console.print(f"continuing on {devices} device{'s' * (devices != 1)} (the run was on {spec.devices})")
+    spec = dataclasses.replace(spec, devices=devices)
+    Placement.resolve(spec.algo, spec.config, spec.seeds, spec.devices, spec.shard)
+    return spec
 
 
 def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
@@ -61,6 +91,10 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
     if spec.env_parts > 1:
         parts = f"{spec.env_parts} of {spec.config.num_envs // spec.env_parts} envs, stepped in turn"
         table.add_row("env parts", parts)
+    if spec.shard is not None:
+        split = (f"{spec.config.num_envs // spec.devices} envs of each seed per device, gradients averaged"
+                 if spec.shard == "envs" else f"{spec.seeds // spec.devices} seeds per device")
+        table.add_row("devices", f"{spec.devices} ({split})")
     static = {f.name for f in dataclasses.fields(spec.config) if not f.metadata.get("pytree_node", True)}
     for field in dataclasses.fields(spec.config):
         tag = " (static)" if field.name in static else ""
@@ -82,6 +116,10 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     """
     from rich.console import Console
 
+    if initialize_from_env() and jax.process_count() > 1:
+        raise TrainError(f"jaxnat train writes its run directory from one process, and this is one of "
+                         f"{jax.process_count()} (JAX_NUM_PROCESSES): train over several processes with "
+                         "jaxnat.training.make_sharded_train (docs/api.md, 'Several devices and hosts')")
     console = console or Console()
     spec, run_dir, saved, envs = _setup(args, console)
     host = is_host_env(spec.env_id)  # NaturalAtari/*: emulated on the host, trained from a Python loop

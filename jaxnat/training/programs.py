@@ -19,6 +19,7 @@ from jaxnat.agents.rollout import make_chance, make_evaluate
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.training.args import TrainError, constructor_parameters
+from jaxnat.training.placement import Placement
 from jaxnat.training.spec import RunSpec
 
 EVAL_STREAM = 0x6576616C  # fold_in constant: evaluation keys never collide with training keys
@@ -84,30 +85,30 @@ def set_progress_sink(sink) -> None:
 class DeviceBackend:
     """`trainer.Backend` for pure-JAX envs: the compiled functions of one run spec (init, a chunk
     of updates, evaluation), every seed at once in one vmapped program; the test split is
-    scored after every chunk; checkpoints in `checkpoints/` hold the vmapped runner state."""
+    scored after every chunk; checkpoints in `checkpoints/` hold the vmapped runner state.
+    With `spec.shard`, the programs run on `spec.devices` devices (`placement.Placement`)."""
 
     evaluates_each_chunk = True
 
     def __init__(self, spec: RunSpec, compiler_options: dict | None, envs=None):
         self.spec = spec
         self.compiler_options = compiler_options
-        env, self.params, test_env, self.test_params, self.test_split = envs or make_envs(spec)
-        self.observation_space = env.observation_space(self.params)
+        self.placement = Placement.resolve(spec.algo, spec.config, spec.seeds, spec.devices, spec.shard)
+        env, params, test_env, test_params, self.test_split = envs or make_envs(spec)
+        self.observation_space = env.observation_space(params)
         make_learner = ALGORITHMS[spec.algo].make
         # The env params (datasets, window, time limit, ...) are arguments of every program, not
         # constants baked into it: runs that differ only in traced params (the w/M sweep) can run
         # the same compiled programs (`may_serve`, `reuse_for`).
-        self._learner = lambda params: make_learner(spec.config, env, params)
         try:
-            self.learner = self._learner(self.params)
+            self.learner = make_learner(spec.config, env, params)
+            self.placement.learner_factory(make_learner)(spec.config, env, params)  # refuses what it cannot shard
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
             raise TrainError(str(err)) from None
+        self.params, self.test_params = self._place_params(params, test_params)
         network, episodes = self.learner.network, spec.eval_episodes
         # A test episode's length bounds the evaluation's scan, whose length is static.
         max_steps = int(self.test_params.max_steps_in_episode)
-
-        def init(params, keys):  # networks.init_params loops over seeds
-            return jax.vmap(self._learner(params).init)(keys)
 
         def evaluate(test_params, *args):
             return jax.vmap(make_evaluate(network, test_env, test_params, episodes, max_steps))(*args)
@@ -116,12 +117,23 @@ class DeviceBackend:
             return jax.vmap(make_chance(test_env, test_params, episodes, max_steps))(keys)
 
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
-        self.runner_shape = jax.eval_shape(init, self.params, keys)
+        place = self.placement
+        init_program, self._chunk_program = place.learner_programs(spec.algo, spec.config, env, params, spec.seeds,
+                                                                   _update_callback)
+        # The runner's shape is the init program's own trace, which lowering it reuses, so the
+        # chunks take exactly the tree init returns.
+        self.runner_shape = jax.eval_shape(init_program, self.params, keys)
+        replicated, per_seed = place.specs("replicated"), place.specs("per_seed")
+        # Evaluation reads the parameters and the normaliser's moments: per seed, or replicated.
+        scored = place.specs("per_seed" if place.shard == "seeds" else "replicated")
         self._lowered = {  # compiled on first use, or together by `prepare`
-            "init": self._lower(jax.jit(init), self.params, keys),
-            "evaluate": self._lower(jax.jit(evaluate), self.test_params, self.runner_shape.train_state.params, keys,
-                                    self.runner_shape.normalizer),
-            "chance": self._lower(jax.jit(chance), self.test_params, keys)}
+            "init": self._lower(init_program, self.params, keys),
+            "evaluate": self._lower(place.program(evaluate, (replicated, scored, place.specs("keys"), scored),
+                                                  per_seed),
+                                    self.test_params, *_unplaced((self.runner_shape.train_state.params, keys,
+                                                                  self.runner_shape.normalizer))),
+            "chance": self._lower(place.program(chance, (replicated, place.specs("keys")), per_seed),
+                                  self.test_params, keys)}
         self._compiled: dict[Any, Any] = {}
         self.groups = [spec.seed_values]
 
@@ -134,12 +146,7 @@ class DeviceBackend:
 
     def _lower_chunk(self, n: int) -> None:
         if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
-            def chunk(params, runner):
-                run = functools.partial(self._learner(params).run, config=self.spec.config, num_updates=n,
-                                        callback=_update_callback)
-                return jax.vmap(run)(runner)
-
-            self._lowered[("chunk", n)] = self._lower(jax.jit(chunk), self.params, self.runner_shape)
+            self._lowered[("chunk", n)] = self._lower(self._chunk_program(n), self.params, self.runner_shape)
 
     def prepare(self, chunk_lengths=()) -> None:
         """Lower, then compile every program (init, evaluation, chance, a chunk of each length)
@@ -178,11 +185,22 @@ class DeviceBackend:
         """`runner -> (runner, metrics [seeds, num_updates])`, compiled once per length."""
         return functools.partial(self._program(("chunk", num_updates)), self.params)
 
+    def _place_params(self, *params):
+        """Env params on every device of the placement (as they are on one device)."""
+        return self.placement.put(params, self.placement.specs("replicated"))
+
     def keys(self):
-        return jax.vmap(jax.random.key)(jnp.asarray(self.spec.seed_values, jnp.uint32))
+        keys = jax.vmap(jax.random.key)(jnp.asarray(self.spec.seed_values, jnp.uint32))
+        return self.placement.put(keys, self.placement.specs("keys"))
 
     def eval_keys(self):
-        return jax.vmap(lambda k: jax.random.fold_in(k, EVAL_STREAM))(self.keys())
+        keys = jax.vmap(lambda k: jax.random.fold_in(k, EVAL_STREAM))(self.keys())
+        return self.placement.put(keys, self.placement.specs("keys"))
+
+    def place(self, state):
+        """A runner (e.g. restored from a checkpoint written on another device count) laid out as
+        this backend's programs take it."""
+        return self.placement.put(state, self.placement.specs("runner", state))
 
     # The trainer's interface (`trainer.Backend`): one group of every seed.
 
@@ -201,14 +219,15 @@ class DeviceBackend:
     def chunk(self, state, num_updates: int, progress):
         set_progress_sink(progress)
         try:
-            state, metrics = self.compiled_chunk(num_updates)(state)
+            state, metrics = self.compiled_chunk(num_updates)(self.place(state))
             return state, jax.device_get(metrics)
         finally:
             set_progress_sink(None)
 
     def evaluate(self, group, state) -> dict:
-        return jax.device_get(self._program("evaluate")(self.test_params, state.train_state.params, self.eval_keys(),
-                                                         state.normalizer))
+        scored = self.placement.specs("per_seed" if self.placement.shard == "seeds" else "replicated")
+        params, normalizer = self.placement.put((state.train_state.params, state.normalizer), scored)
+        return jax.device_get(self._program("evaluate")(self.test_params, params, self.eval_keys(), normalizer))
 
     def chance(self) -> dict:
         """The uniform random policy's test scores, over the seeds' evaluation keys."""
@@ -225,8 +244,9 @@ class DeviceBackend:
         serve it with these programs."""
         mine, theirs = dict(self.spec.env_kwargs), dict(spec.env_kwargs)
         differing = {k for k in mine.keys() | theirs.keys() if mine.get(k, _ABSENT) != theirs.get(k, _ABSENT)}
-        return (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes) == (
-            self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes) \
+        return (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes, spec.devices, spec.shard) == (
+            self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes,
+            self.spec.devices, self.spec.shard) \
             and compiler_options == self.compiler_options and not differing & _structural_kwargs(spec.env_id)
 
     def reuse_for(self, spec: RunSpec, envs) -> DeviceBackend | None:
@@ -238,7 +258,8 @@ class DeviceBackend:
                 _signature(self.params), _signature(self.test_params), int(self.test_params.max_steps_in_episode)):
             return None
         other = copy.copy(self)  # shares the lowered and compiled programs (dicts, not copies)
-        other.spec, other.params, other.test_params = spec, params, test_params
+        other.spec = spec
+        other.params, other.test_params = self._place_params(params, test_params)
         return other
 
 
@@ -250,6 +271,11 @@ def _structural_kwargs(env_id: str) -> set[str]:
     constructor arguments and `jaxnat.make`'s own (e.g. `observation_noise`, which wraps the env)."""
     own = {name for name, p in inspect.signature(jaxnat.make).parameters.items() if p.kind is p.KEYWORD_ONLY}
     return own | set(constructor_parameters(env_id))
+
+
+def _unplaced(tree):
+    """Shapes and dtypes of `tree` without their shardings (a program placing them its own way)."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), tree)
 
 
 def _signature(tree):

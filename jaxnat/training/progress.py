@@ -27,6 +27,9 @@ class Progress:
         from rich.text import Text
 
         self.seeds = seeds
+        # Calls per update: one per seed, and per device when each seed's envs are split over
+        # devices (every device runs the callback of its shard).
+        self._per_update = seeds * (spec.devices if spec.shard == "envs" else 1)
 
         class SpeedColumn(ProgressColumn):
             def render(self, task):
@@ -61,8 +64,8 @@ class Progress:
             self._calls += 1
             if math.isfinite(value):
                 self._returns.append(value)
-            if self._calls % self.seeds == 0:
-                done = self._start + self._calls // self.seeds
+            if self._calls % self._per_update == 0:
+                done = self._start + self._calls // self._per_update
                 train = f"{np.mean(self._returns):+.3f}" if self._returns else "—"
                 self.progress.update(self.task, completed=done * self.spec.steps_per_update, train=train)
                 if not self.live and time.monotonic() - self._last_line >= self.interval:
@@ -80,6 +83,6 @@ class Progress:
 
     def sync(self, update: int, test: str | None = None) -> None:
         with self._lock:
-            self._calls = (update - self._start) * self.seeds
+            self._calls = (update - self._start) * self._per_update
             fields = {} if test is None else {"test": test}
             self.progress.update(self.task, completed=update * self.spec.steps_per_update, **fields)

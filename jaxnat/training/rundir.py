@@ -45,7 +45,7 @@ def default_run_dir(env_id: str, algo: str) -> Path:
 
 
 # Run spec fields added since runs were first written: the value an older config.json means.
-SPEC_FIELDS_ADDED = {"env_parts": 1}
+SPEC_FIELDS_ADDED = {"env_parts": 1, "devices": 1, "shard": None}
 
 
 def check_resume_args(args: TrainArgs, saved: dict) -> None:
@@ -53,7 +53,8 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
     defaults = TrainArgs()
     conflicts = []
     for field in dataclasses.fields(TrainArgs):
-        if field.name in ("resume", "run_dir", "config", "given"):
+        # --devices may change on resume: where a run continues does not change its result.
+        if field.name in ("resume", "run_dir", "config", "given", "devices"):
             continue
         value, default = getattr(args, field.name), getattr(defaults, field.name)
         if field.name == "env_kwargs":

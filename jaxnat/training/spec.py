@@ -28,6 +28,11 @@ class RunSpec:
     eval_every: int
     eval_episodes: int
     env_parts: int = 1  # host-batched envs: the parts the batch is stepped in (`host.make_train_env`)
+    # Where it runs (`placement.Placement`): None, one device; "envs", each seed's envs split over
+    # `devices` devices (data parallel: a learner of its own); "seeds", whole seeds on each.
+    # `devices` is where the run is now: a resumed run may change it, never `shard`.
+    devices: int = 1
+    shard: str | None = None
 
     @property
     def num_updates(self) -> int:
@@ -45,7 +50,7 @@ class RunSpec:
     def program_key(self) -> tuple:
         """What the compiled programs depend on (not the seed values: keys are inputs)."""
         return (self.env_id, tuple(sorted(self.env_kwargs.items())), self.algo, self.config,
-                self.seeds, self.eval_episodes)
+                self.seeds, self.eval_episodes, self.devices, self.shard)
 
     def to_json(self) -> dict:
         return {
@@ -61,6 +66,8 @@ class RunSpec:
             "eval_every": self.eval_every,
             "eval_episodes": self.eval_episodes,
             "env_parts": self.env_parts,
+            "devices": self.devices,
+            "shard": self.shard,
             "num_updates": self.num_updates,
             "steps_per_update": self.steps_per_update,
         }
@@ -83,6 +90,8 @@ class RunSpec:
             eval_every=int(data["eval_every"]), eval_episodes=int(data["eval_episodes"]),
             # Written before env_parts existed: every host run stepped its envs as one batch.
             env_parts=int(data.get("env_parts", 1)),
+            # Written before --devices existed: one device.
+            devices=int(data.get("devices", 1)), shard=data.get("shard"),
         )
 
 

@@ -1,0 +1,112 @@
+"""Devices for sharded envs and training: a 1-D mesh, even splits, and several hosts.
+
+    mesh = jaxnat.sharding.device_mesh(4)          # the first 4 devices, axis `AXIS`
+    vec = jaxnat.make_vec("Classify/Digits-v0", 4096, devices=4)   # envs split over them
+
+Contract:
+
+- `resolve_devices(devices)` turns `None` (the default device), an int `N` (the first `N` of
+  `jax.devices()`), `"all"`, or a sequence of `jax.Device`s into a list of devices; a count the
+  machine (or, after `initialize_from_env`, the cluster) does not have is a `ValueError` that
+  says how many there are.
+- `device_mesh(devices)` is a 1-D `jax.sharding.Mesh` over them, its one axis named `AXIS`,
+  of `Auto` type (so `jax.shard_map` and jit's sharding propagation both accept it).
+- `check_split(count, shards, what)` refuses a batch that does not divide evenly, naming the
+  nearest counts that do.
+- `initialize_from_env()` starts `jax.distributed` from `JAX_COORDINATOR_ADDRESS`,
+  `JAX_NUM_PROCESSES` and `JAX_PROCESS_ID` (jax itself reads only the first), and does nothing
+  when they are unset; every process then sees every host's devices in `jax.devices()`.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Sequence
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+__all__ = ["AXIS", "ENV_VARS", "resolve_devices", "device_mesh", "check_split", "nearest_multiples", "sharded",
+           "replicated", "initialize_from_env"]
+
+AXIS = "devices"  # the mesh axis that envs (or seeds) are split along
+# What `initialize_from_env` reads: the coordinator's host:port, the process count, this process's id.
+ENV_VARS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
+
+
+def resolve_devices(devices, flag: str = "devices=") -> list:
+    """The devices `devices` names: None (the default device), N (the first N), "all", or
+    devices; `flag` names the argument in errors (e.g. "--devices ")."""
+    available = jax.devices()
+    if devices is None:
+        return available[:1]
+    if isinstance(devices, str):
+        if devices.strip().lower() == "all":
+            return list(available)
+        try:
+            devices = int(devices)
+        except ValueError:
+            raise ValueError(f"{flag}{devices}: give a device count (e.g. 2) or all") from None
+    if isinstance(devices, (int, np.integer)) and not isinstance(devices, bool):
+        if devices < 1:
+            raise ValueError(f"{flag}{devices}: give at least 1 device (or all)")
+        if devices > len(available):
+            count = len(available)
+            raise ValueError(f"{flag}{devices}: there {'is' if count == 1 else 'are'} only {count} "
+                             f"{available[0].platform} device{'s' * (count != 1)} here; use at most {count} (or all)")
+        return list(available[:devices])
+    if isinstance(devices, Sequence) and devices and all(isinstance(d, jax.Device) for d in devices):
+        return list(devices)
+    raise TypeError(f"{flag}{devices!r}: give a device count, all, or a list of jax devices")
+
+
+def device_mesh(devices) -> Mesh:
+    """A 1-D mesh (axis `AXIS`) over `resolve_devices(devices)`."""
+    if isinstance(devices, Mesh):
+        return devices
+    return Mesh(np.asarray(resolve_devices(devices)), (AXIS,))
+
+
+def nearest_multiples(count: int, shards: int) -> list[int]:
+    """The multiples of `shards` nearest to `count` (below and above; at least `shards`)."""
+    below = count // shards * shards
+    return sorted({max(below, shards), below + shards})
+
+
+def check_split(count: int, shards: int, what: str = "num_envs", fix: str | None = None) -> None:
+    """A `ValueError` unless `count` splits evenly over `shards` devices, naming the nearest
+    counts that do (`fix`: how to give one, e.g. "--num-envs"; default `what=`)."""
+    if count % shards:
+        options = " or ".join(str(n) for n in nearest_multiples(count, shards))
+        raise ValueError(f"{what}={count} does not split evenly over {shards} devices: use "
+                         f"{fix or what + '='}{options}")
+
+
+def sharded(mesh: Mesh, axis: int = 0) -> NamedSharding:
+    """Arrays split along `axis` over the mesh."""
+    return NamedSharding(mesh, PartitionSpec(*([None] * axis), AXIS))
+
+
+def replicated(mesh: Mesh) -> NamedSharding:
+    """Arrays copied whole onto every device of the mesh."""
+    return NamedSharding(mesh, PartitionSpec())
+
+
+def initialize_from_env() -> bool:
+    """`jax.distributed.initialize` from `ENV_VARS` when `JAX_NUM_PROCESSES` is set (returns
+    True), else nothing (False). Call it before anything touches a device."""
+    if not os.environ.get("JAX_NUM_PROCESSES"):
+        return False
+    missing = [name for name in ENV_VARS if not os.environ.get(name)]
+    if missing:
+        raise ValueError(f"JAX_NUM_PROCESSES is set but {', '.join(missing)} {'is' if len(missing) == 1 else 'are'} "
+                         "not: set all of " + ", ".join(ENV_VARS) + " (see docs/api.md, 'Several hosts')")
+    if jax.distributed.is_initialized():
+        return True
+    try:
+        count, index = int(os.environ["JAX_NUM_PROCESSES"]), int(os.environ["JAX_PROCESS_ID"])
+    except ValueError:
+        raise ValueError("JAX_NUM_PROCESSES and JAX_PROCESS_ID must be whole numbers") from None
+    jax.distributed.initialize(os.environ["JAX_COORDINATOR_ADDRESS"], count, index)
+    return True

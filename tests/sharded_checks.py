@@ -1,0 +1,186 @@
+"""Checks of sharded envs and training on several (simulated) CPU devices, run by
+`tests/test_sharding.py` in a fresh process: XLA reads the device count
+(`XLA_FLAGS=--xla_force_host_platform_device_count=4`) once, when JAX starts, so the rest of
+the suite keeps its one device.
+
+    XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_checks.py DIR
+    python tests/sharded_checks.py distributed DIR   # one process of a jax.distributed run
+
+The first runs every check on 4 devices and saves PPO's parameters after training on one
+device to `DIR/reference.npz`; each process of the second trains the same PPO over both
+processes' devices and process 0 saves `DIR/distributed.npz`. Each check prints `ok <name>`
+or raises. The training checks use a probe env (vector observations, an MLP: quick to
+compile) registered here as `Probe/Factored-v0`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import sys
+import tempfile
+from contextlib import redirect_stderr
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's jaxnat
+
+import jaxnat.sharding  # noqa: E402
+
+if __name__ == "__main__" and sys.argv[1:2] == ["distributed"]:
+    jaxnat.sharding.initialize_from_env()  # before anything touches a device
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import jaxnat  # noqa: E402
+from jaxnat.agents import A2CConfig, PPOConfig  # noqa: E402
+from jaxnat.agents.probes import make_probe  # noqa: E402
+from jaxnat.training import main, parse_args, train  # noqa: E402
+from jaxnat.training.placement import make_sharded_train  # noqa: E402
+
+FAST = {"xla_backend_optimization_level": 0}
+# `TINY`'s config as `jaxnat train` resolves it (vector observations: normalised).
+PPO = PPOConfig(total_timesteps=256, num_envs=8, num_steps=8, num_minibatches=2, update_epochs=2, trunk="mlp",
+                normalize_observations=True, normalize_rewards=True)
+TINY = ["--env-id", "Probe/Factored-v0", "--algo", "ppo", "--seeds", "2", "--num-envs", "8", "--num-steps", "8",
+        "--num-minibatches", "2", "--update-epochs", "2", "--total-timesteps", "256", "--eval-every", "2",
+        "--eval-episodes", "8"]
+COLLECTIVES = ("all-reduce", "all-gather", "all-to-all", "collective-permute", "reduce-scatter")
+
+jaxnat.register("Probe/Factored-v0", "jaxnat.agents.probes:FactoredProbe")
+
+
+def _keys(n: int):
+    return jax.vmap(jax.random.key)(jnp.arange(n, dtype=jnp.uint32))
+
+
+def _close(a, b, atol=1e-5) -> float:
+    """The largest difference between two pytrees of arrays (asserted below `atol`)."""
+    diff = max(float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64))))
+               for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+    assert diff <= atol, diff
+    return diff
+
+
+def check_env() -> None:
+    """A sharded batch steps exactly as the unsharded one, with no cross-device traffic."""
+    from jaxnat.datasets import DatasetNotFoundError
+
+    try:
+        plain = jaxnat.make_vec("Classify/Digits-v0", 8, w=5)
+    except DatasetNotFoundError:
+        print("skip env (Classify/Digits-v0 data not installed)")
+        return
+    split = jaxnat.make_vec("Classify/Digits-v0", 8, w=5, devices=4)
+    space = plain.action_space(plain.default_params)
+    key = jax.random.key(3)
+    results = []
+    for vec in (plain, split):
+        obs, state = jax.jit(vec.reset)(key)
+        trajectory = [obs]
+        step = jax.jit(vec.step)
+        for t in range(3):
+            k = jax.random.fold_in(key, t)
+            actions = jax.vmap(space.sample)(jax.random.split(k, 8))
+            obs, state, reward, terminated, truncated, _ = step(k, state, actions)
+            trajectory += [obs, reward, terminated, truncated, state]
+        results.append(trajectory)
+    for a, b in zip(jax.tree.leaves(results[0]), jax.tree.leaves(results[1]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert results[1][0].sharding == split.sharding and len(results[1][0].sharding.device_set) == 4
+    hlo = jax.jit(split.step).lower(key, state, actions).compile().as_text()
+    assert not [c for c in COLLECTIVES if c in hlo], "the sharded step moves data between devices"
+    print("ok env")
+
+
+def check_ppo():
+    """Data-parallel PPO trains the same parameters on 1, 2 and 4 devices (same global batch);
+    seeds placed on 2 devices train what one device does. Returns the 1-device runner."""
+    env, params = make_probe("factored")
+    trained = {d: make_sharded_train("ppo", PPO, env, params, seeds=2, devices=d)(_keys(2)) for d in (1, 2, 4)}
+    for d in (2, 4):
+        _close(trained[d][0].train_state.params, trained[1][0].train_state.params)
+        _close(trained[d][0].normalizer, trained[1][0].normalizer)
+        _close(trained[d][1], trained[1][1])
+    assert np.asarray(trained[4][0].obs).shape == (2, 8, 5)
+    plain = make_sharded_train("ppo", PPO, env, params, seeds=2)(_keys(2))
+    seeds = make_sharded_train("ppo", PPO, env, params, seeds=2, devices=2, shard="seeds")(_keys(2))
+    _close(seeds[0].train_state.params, plain[0].train_state.params)
+    # Gaussian actions, observation and reward normalisation: their statistics are the whole batch's.
+    env, params = make_probe("target")
+    a2c = A2CConfig(total_timesteps=3 * 8 * 5, num_envs=8, trunk="mlp", normalize_observations=True,
+                    normalize_rewards=True)
+    one, four = (make_sharded_train("a2c", a2c, env, params, seeds=1, devices=d)(_keys(1)) for d in (1, 4))
+    _close(four[0].train_state.params, one[0].train_state.params)
+    _close(four[0].normalizer, one[0].normalizer)
+    print("ok ppo")
+    return trained[1][0]
+
+
+def _run(argv, **options) -> int:
+    return main(argv, compiler_options=FAST, **options)
+
+
+def check_resume(reference) -> None:
+    """A `jaxnat train` run on 4 devices, stopped and resumed on 2, ends where the same PPO
+    trained on 1 device in one go does (`reference`: its runner)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        assert _run([*TINY, "--devices", "4", "--run-dir", tmp], stop_after_chunks=1) == 0
+        spec = json.loads(Path(tmp, "config.json").read_text())["spec"]
+        assert (spec["devices"], spec["shard"]) == (4, "envs") and spec["config"] == dataclasses.asdict(PPO)
+        resumed = train(parse_args(["--resume", tmp, "--devices", "2"]), compiler_options=FAST)
+        assert resumed.complete
+    _close(resumed.runner.train_state.params, reference.train_state.params)
+    print("ok resume")
+
+
+def check_errors() -> None:
+    """Requests the devices cannot take: one line saying what is wrong and how to fix it."""
+    # Refused before the run directory is made: it stays absent.
+    never = Path(tempfile.gettempdir(), "jaxnat-sharded-checks-never")
+    tiny = ["--env-id", "Probe/Factored-v0", "--seeds", "2", "--num-envs", "8", "--run-dir", str(never)]
+    cases = {
+        ("--num-envs", "10", "--devices", "4"):
+            "num_envs=10 does not split evenly over 4 devices: use --num-envs 8 or 12",
+        ("--devices", "5"): "--devices 5: there are only 4 cpu devices here; use at most 4 (or all)",
+        ("--devices", "two"): "--devices two: give a device count (e.g. 2) or all",
+        ("--devices", "4", "--shard", "seeds"): "seeds=2 does not split evenly over 4 devices: use --seeds 4",
+        ("--shard", "seeds"): "--shard seeds places work on devices: give --devices N (or all) too",
+        ("--devices", "2", "--shard", "batch"): "--shard batch: choose envs",
+        ("--devices", "2", "--algo", "dqn"): "--shard envs trains ppo and a2c data parallel; dqn needs the whole batch",
+        ("--devices", "2", "--memory", "8"): "--shard envs trains feed-forward policies",
+    }
+    for extra, expected in cases.items():
+        stderr = io.StringIO()
+        with redirect_stderr(stderr):
+            assert _run([*tiny, *extra]) == 2, extra
+        message = stderr.getvalue()
+        assert message.count("\n") == 1 and message.startswith("jaxnat train: error: ") and expected in message, message
+    assert not never.exists()
+    print("ok errors")
+
+
+def check_distributed(out: Path) -> None:
+    """One process of a `jax.distributed` run (`initialize_from_env`, one CPU device each):
+    data-parallel PPO over every process's devices; process 0 saves the parameters."""
+    assert jax.process_count() == 2 and jax.device_count() == 2, (jax.process_count(), jax.devices())
+    env, params = make_probe("factored")
+    runner, _ = make_sharded_train("ppo", PPO, env, params, seeds=2, devices="all")(_keys(2))
+    leaves = [np.asarray(x) for x in jax.tree.leaves(runner.train_state.params)]
+    if jax.process_index() == 0:
+        np.savez(out / "distributed.npz", *leaves)
+    print("ok distributed")
+
+
+if __name__ == "__main__":
+    if sys.argv[1] == "distributed":
+        check_distributed(Path(sys.argv[2]))
+    else:
+        check_env()
+        check_errors()
+        runner = check_ppo()
+        leaves = [np.asarray(x) for x in jax.tree.leaves(runner.train_state.params)]
+        np.savez(Path(sys.argv[1], "reference.npz"), *leaves)
+        check_resume(runner)

@@ -1,0 +1,107 @@
+"""Sharded envs and training (`jaxnat.sharding`, `make_vec(devices=)`, `jaxnat train --devices`).
+
+The checks on several devices run `tests/sharded_checks.py` in fresh processes: 4 simulated
+CPU devices (`XLA_FLAGS`, read once when JAX starts, so this process keeps its one device),
+then a two-process `jax.distributed` run over the loopback address. Here: what one device can
+check (bad input, the distributed set-up's environment variables).
+"""
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxnat
+from jaxnat import sharding
+from jaxnat.training import main
+
+CHECKS = Path(__file__).with_name("sharded_checks.py")
+# Backend optimisation off: these programs compile about 3x faster on a CPU (as tests/test_train.py).
+FAST_XLA = "--xla_backend_optimization_level=0"
+
+
+def _env(**extra) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_") and k != "XLA_FLAGS"}
+    return {**env, "JAX_PLATFORMS": "cpu", **extra}
+
+
+def test_uneven_splits_name_the_nearest_counts():
+    with pytest.raises(ValueError, match=r"^num_envs=10 does not split evenly over 4 devices: use num_envs=8 or 12$"):
+        sharding.check_split(10, 4)
+    with pytest.raises(ValueError, match=r"use --seeds 4$"):
+        sharding.check_split(3, 4, "seeds", "--seeds ")
+    assert sharding.nearest_multiples(1030, 8) == [1024, 1032]
+
+
+def test_more_devices_than_there_are():
+    with pytest.raises(ValueError, match=r"^devices=2: there is only 1 cpu device here; use at most 1 \(or all\)$"):
+        jaxnat.make_vec("Classify/Digits-v0", 8, devices=2)
+    assert len(sharding.resolve_devices("all")) == 1 and sharding.device_mesh(1).axis_names == (sharding.AXIS,)
+
+
+def test_host_batched_envs_refuse_devices():
+    with pytest.raises(TypeError, match="emulated on the host, not on devices: leave devices= out"):
+        jaxnat.make_vec("NaturalAtari/Breakout-v0", 8, devices=1)
+
+
+def test_train_refuses_devices_it_lacks(capsys, tmp_path):
+    assert main(["--devices", "3", "--run-dir", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err == "jaxnat train: error: --devices 3: there is only 1 cpu device here; use at most 1 (or all)\n"
+    assert main(["--env-id", "NaturalAtari/Breakout-v0", "--devices", "1"]) == 2
+    assert "one ALE batch per process: leave --devices out" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def test_distributed_environment(monkeypatch):
+    for name in sharding.ENV_VARS:
+        monkeypatch.delenv(name, raising=False)
+    assert sharding.initialize_from_env() is False  # a single process: nothing to start
+    monkeypatch.setenv("JAX_NUM_PROCESSES", "2")
+    with pytest.raises(ValueError, match="JAX_COORDINATOR_ADDRESS, JAX_PROCESS_ID are not: set all of"):
+        sharding.initialize_from_env()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_on_several_devices_and_processes(tmp_path):
+    """Sharded env steps equal unsharded ones; data-parallel PPO on 1, 2 and 4 devices, and a
+    run resumed on another device count, train the same parameters; bad input is refused in
+    one line (`sharded_checks.py`). Then two processes over loopback train what one does.
+    The time limits only catch a hang: the checks take about a minute on a free 2-core CPU,
+    many times that on one short of memory."""
+    flags = f"--xla_force_host_platform_device_count=4 {FAST_XLA}"
+    done = subprocess.run([sys.executable, str(CHECKS), str(tmp_path)], env=_env(XLA_FLAGS=flags),
+                          capture_output=True, text=True, timeout=1800)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert all(f"ok {name}" in done.stdout for name in ("errors", "ppo", "resume")), done.stdout[-3000:]
+
+    address = f"127.0.0.1:{_free_port()}"
+    processes = [subprocess.Popen([sys.executable, str(CHECKS), "distributed", str(tmp_path)],
+                                  env=_env(XLA_FLAGS=FAST_XLA, JAX_COORDINATOR_ADDRESS=address, JAX_NUM_PROCESSES="2",
+                                           JAX_PROCESS_ID=str(i)),
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(2)]
+    outputs = [p.communicate(timeout=900)[0] for p in processes]
+    assert [p.returncode for p in processes] == [0, 0], "\n".join(o[-2000:] for o in outputs)
+    reference, distributed = np.load(tmp_path / "reference.npz"), np.load(tmp_path / "distributed.npz")
+    assert reference.files == distributed.files
+    for name in reference.files:
+        np.testing.assert_allclose(distributed[name], reference[name], atol=1e-5)
+
+
+def test_resuming_on_fewer_devices_names_the_flag():
+    from jaxnat.training import TrainError
+    from jaxnat.training.placement import resumed_devices
+
+    assert resumed_devices(1) == 1 and resumed_devices(8, "all") == 1
+    with pytest.raises(TrainError, match="^this run was on 8 devices and there is 1 here: continue on them with "
+                                         "--devices 1 "):
+        resumed_devices(8)
