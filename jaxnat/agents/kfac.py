@@ -169,11 +169,8 @@ def _layers(params) -> dict[str, tuple[tuple | None, tuple]]:
         if key[-1] != "bias":
             continue
         siblings = {k[-1] for k in flat if k[:-1] == key[:-1]}
-        kernel = key[:-1] + ("kernel",)
-        if siblings == {"kernel", "bias"}:
-            layers[_name(key[1:-1])] = (kernel, key)
-        elif siblings == {"bias"}:
-            layers[_name(key[1:-1])] = (None, key)
+        if siblings in ({"kernel", "bias"}, {"bias"}):
+            layers[_name(key[1:-1])] = (key[:-1] + ("kernel",) if "kernel" in siblings else None, key)
     return layers
 
 

@@ -742,17 +742,14 @@ def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps:
     play = _first_episodes(env, env_params, num_episodes, max_steps)
 
     def evaluate(network_params, key, normalizer: normalize.Normalizer | None = None):
-        def policy(greedy):
-            def choose_action(obs, key, memory):
-                obs = normalize.normalize(normalizer, obs)
-                logits, _, hidden = act(network, network_params, obs, memory)
-                return choose(logits, key, greedy), hidden
-            return choose_action
+        def policy(obs, key, memory, greedy: bool):
+            logits, _, hidden = act(network, network_params, normalize.normalize(normalizer, obs), memory)
+            return choose(logits, key, greedy), hidden
 
         memory = initial_memory(network, num_episodes) if network.memory else None
         key_greedy, key_sampled = jax.random.split(key)
-        greedy = play(policy(True), memory, key_greedy)
-        sampled = play(policy(False), memory, key_sampled)
+        greedy = play(functools.partial(policy, greedy=True), memory, key_greedy)
+        sampled = play(functools.partial(policy, greedy=False), memory, key_sampled)
         return {**{f"greedy_{k}": v for k, v in greedy.items()},
                 **{f"sampled_{k}": v for k, v in sampled.items()}}
 

@@ -122,7 +122,8 @@ class PipelinedVecEnv:
 
     def step(self, actions):
         outs = [part.step(a) for part, a in zip(self.parts, self.split(np.asarray(actions)))]
-        return concat_steps(outs)
+        obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
+        return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
 
     def close(self) -> None:
         for part in self.parts:
@@ -130,12 +131,6 @@ class PipelinedVecEnv:
 
     def __repr__(self) -> str:
         return f"PipelinedVecEnv({self.parts!r})"
-
-
-def concat_steps(outs):
-    """The parts' `step` outcomes as one batch's."""
-    obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
-    return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
 
 
 def _concat_infos(infos):
