@@ -159,10 +159,11 @@ def test_pipelined_steps_act_on_each_part_s_latest_observation(halves):
 
     def observe(carry, s: EnvStep, aux, t, part):
         seen.append((t, part, aux[0], np.asarray(s.obs), s.action, s.reward, s.next_obs, aux[1]))
-        return carry + 1
+        return carry + 1, (t, part)
 
-    carry, obs, key = host_steps_pipelined(env, 3, policy, observe, 0, obs, jax.random.key(0))
+    (carry, obs, key), records = host_steps_pipelined(env, 3, policy, observe, 0, obs, jax.random.key(0))
     assert carry == 6 and [(t, p) for t, p, *_ in seen] == [(t, p) for t in range(3) for p in range(2)]
+    assert records == [(t, p) for t in range(3) for p in range(2)]  # in the order the steps ran
     np.testing.assert_array_equal(obs, 10 + np.arange(5) + 3)
     for t, part, policy_obs, step_obs, action, reward, next_obs, _ in seen:
         start = 10 + (np.arange(2) if part == 0 else 2 + np.arange(3))

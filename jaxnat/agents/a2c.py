@@ -15,7 +15,7 @@ from jaxnat.agents import distributions
 from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clipped_optimizer, on_policy_host_learner,
                                    on_policy_learner, replay, static)
 
-__all__ = ["A2CConfig", "make_train", "make_a2c", "make_host_a2c"]
+__all__ = ["A2CConfig", "actor_critic_loss", "make_train", "make_a2c", "make_host_a2c"]
 
 @struct.dataclass
 class A2CConfig:
@@ -44,18 +44,25 @@ def _optimizer(config: A2CConfig, num_updates: int):
     )
 
 
+def actor_critic_loss(config, logits, value, action, advantages, targets) -> tuple[jax.Array, dict]:
+    """A2C's loss, and ACKTR's: the policy gradient on `advantages`, plus `vf_coef` times half the
+    squared value error, minus `ent_coef` times the entropy; `(loss, metrics)`."""
+    log_prob = distributions.log_prob(logits, action)
+    policy_loss = -(jax.lax.stop_gradient(advantages) * log_prob).mean()
+    value_loss = 0.5 * ((targets - value) ** 2).mean()
+    entropy = distributions.entropy(logits).mean()
+    loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
+    return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy}
+
+
 def _update(config: A2CConfig, network, train_state, transitions, advantages, targets, key, axis_name=None):
     # Data parallel needs nothing here: the loss is a mean over the device's equal share of the
     # batch, so the devices' mean gradient (`rollout.pmean_gradients`) is the whole batch's.
     del axis_name
+
     def loss_fn(params):
         logits, value = replay(network, params, transitions.obs, transitions.memory)
-        log_prob = distributions.log_prob(logits, transitions.action)
-        policy_loss = -(jax.lax.stop_gradient(advantages) * log_prob).mean()
-        value_loss = 0.5 * ((targets - value) ** 2).mean()
-        entropy = distributions.entropy(logits).mean()
-        loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
-        return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy}
+        return actor_critic_loss(config, logits, value, transitions.action, advantages, targets)
 
     grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params)
     return train_state.apply_gradients(grads=grads), losses

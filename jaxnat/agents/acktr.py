@@ -23,6 +23,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions, kfac
+from jaxnat.agents.a2c import actor_critic_loss
 from jaxnat.agents.rollout import Learner, UpdateRule, on_policy_learner, static
 
 __all__ = ["ACKTRConfig", "make_train", "make_acktr"]
@@ -66,18 +67,13 @@ def _update(config: ACKTRConfig, network, train_state, transitions, advantages, 
 
     def losses(params, perturbations):
         (logits, value), inputs, _ = kfac.capture(network, params, obs, perturbations)
-        log_prob = distributions.log_prob(logits, transitions.action)
-        policy_loss = -(jax.lax.stop_gradient(advantages) * log_prob).mean()
-        value_loss = 0.5 * ((targets - value) ** 2).mean()
-        entropy = distributions.entropy(logits).mean()
-        loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
+        loss, metrics = actor_critic_loss(config, logits, value, transitions.action, advantages, targets)
         # The model's own log-likelihood of sampled outputs, summed over examples so that the
         # output gradients are per example (kfac.factor_statistics).
         sampled_action = distributions.sample(key_action, jax.lax.stop_gradient(logits))
         sampled_value = jax.lax.stop_gradient(value + jax.random.normal(key_value, value.shape))
         fisher = (distributions.log_prob(logits, sampled_action).sum()
                   - config.vf_fisher_coef * 0.5 * ((value - sampled_value) ** 2).sum())
-        metrics = {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy}
         return (loss, fisher), (metrics, inputs)
 
     zeros = kfac.zero_perturbations(network, train_state.params, obs)

@@ -1,17 +1,14 @@
 """VALID, strided 2-D convolutions for the paper's trunks, fast when vmapped over seeds.
 
 `jit(vmap(train))(keys)` gives every seed its own weights, and XLA turns a convolution vmapped
-over its weights into one *grouped* convolution, which trains PPO several times slower than the
-forms below (`bench/results/train_throughput.md` holds the measurements). Two forms avoid it:
+over its weights into one *grouped* convolution, several times slower than the forms below
+(`docs/design.md`, "Convolutions vmapped over seeds", says more):
 
-- `"im2col"`: strided slices and one matmul per layer (a vmapped matmul is a batched matmul).
-  Chosen on CPU, where XLA:CPU also runs the gradient of its own convolution much slower
-  inside training loops (non-canonical layouts in loop bodies, jax-ml/jax#12868). On a GPU it
-  writes every input patch to memory (the mnist trunk's first layer: 43 KB per sample).
+- `"im2col"`: strided slices and one matmul per layer (a vmapped matmul is a batched matmul),
+  chosen on CPU (XLA:CPU's conv gradients are slow inside loops, jax-ml/jax#12868);
 - `"native"`: XLA's own convolution, with a batching rule that runs one convolution per weight
-  set (one per seed, in a loop) when the weights are vmapped, and folds the batch into the
-  convolution's batch when only the inputs are. Chosen on GPU: cuDNN's kernels without the
-  patch copies are faster there.
+  set when the weights are vmapped and folds the batch into the convolution's batch when only
+  the inputs are; chosen on GPU, where im2col's patch copies cost more.
 
 Both compute the same function (tests check values and gradients under vmap); `"auto"` picks by
 the backend at trace time.

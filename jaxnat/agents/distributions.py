@@ -51,19 +51,12 @@ def log_prob(dist, actions: jax.Array) -> jax.Array:
     if isinstance(dist, Gaussian):
         z = (actions - dist.mean) * jnp.exp(-dist.log_std)
         return jnp.sum(-0.5 * z**2 - dist.log_std - 0.5 * _LOG_2PI, axis=-1)
-    total = 0.0
-    for i, l in enumerate(dist):
-        logp = jax.nn.log_softmax(l)
-        total = total + jnp.take_along_axis(logp, actions[..., i : i + 1], axis=-1)[..., 0]
-    return total
+    return sum(jnp.take_along_axis(jax.nn.log_softmax(l), actions[..., i : i + 1], axis=-1)[..., 0]
+               for i, l in enumerate(dist))
 
 
 def entropy(dist) -> jax.Array:
     if isinstance(dist, Gaussian):
         per_dim = jnp.broadcast_to(dist.log_std + 0.5 * (1.0 + _LOG_2PI), jnp.shape(dist.mean))
         return jnp.sum(per_dim, axis=-1)
-    total = 0.0
-    for l in dist:
-        logp = jax.nn.log_softmax(l)
-        total = total - jnp.sum(jnp.exp(logp) * logp, axis=-1)
-    return total
+    return sum(-jnp.sum(jnp.exp(logp) * logp, axis=-1) for logp in map(jax.nn.log_softmax, dist))

@@ -22,28 +22,22 @@ Settings: Nature DQN's (RMSprop lr 2.5e-4, decay 0.95, centered, batch 32, gamma
 `loss="huber"`, which `jaxnat train` keeps for Atari; see `DQNConfig`), and with the replay
 memory, exploration period, learning start and target period 10x shorter (100k, 100k, 10k env
 steps; 1k gradient steps) since the paper's tasks train for 1-10M steps rather than Atari's
-50M. RMSprop's epsilon is 1e-5 (Dopamine's), not DeepMind's 0.01: DeepMind summed the loss
-over the batch of 32, we average it, so our gradients are 32x smaller and their squares 1024x;
-0.01 under the square root then floors the denominator at 0.1 and all but stops learning (on
-Classify/Digits-v0 the greedy accuracy stayed at chance, 12.5%, after 5M env steps per seed).
+50M. RMSprop's epsilon is 1e-5 (Dopamine's, for a loss averaged over the batch), not
+DeepMind's 0.01 (`docs/design.md`, "Factored actions in DQN", says why).
 `optimizer="adam"` uses Adam (eps 1.5e-4, as Dopamine's DQN).
 Time limits: the target bootstraps from the final observation of a truncated episode and not
 from a terminated one (`rollout.bootstrap`'s rule).
 
 Factored actions (classification's `(move, label)`): one Q head per factor over the shared
-trunk ("action branching", Tavakoli et al. 2018) rather than one head over the product space
-(4 x 10 = 40 outputs for Digits, 4 x 100 for CIFAR-100, and a product that grows with every
-factor). Every head learns towards the same target, whose next-state value is the mean over
-the heads of each head's best value, `r + gamma * mean_f max_a Q_f(s', a)`, so each
-`Q_f(s, a_f)` estimates the return of taking `a_f` while the other factors follow the
-behaviour policy. For classification this is sensible: the label head learns
-`Q(s, right label) = 1` (terminal) and `Q(s, wrong label) = -0.1 + gamma V(s')`, and the move
-head learns which window to uncover next, averaged over the label guesses. The greedy action
-is the argmax of each head. The network is jaxnat's actor-critic whose "logits" are the Q
-values (its value head is unused), so evaluation's greedy policy is `argmax Q` per factor (its
-"sampled" policy is a Boltzmann one over Q); with `q_network=True`, its `mlp` trunk is
-CleanRL's and PureJaxRL's Q-network, one ReLU MLP of 120 and 84 units, rather than the
-actor-critic's two tanh MLPs of 64 (see `DQNConfig`).
+trunk ("action branching", Tavakoli et al. 2018; `docs/design.md`, "Factored actions in DQN",
+says why not one head over the product space). Every head learns towards the same target,
+`r + gamma * mean_f max_a Q_f(s', a)`, so each `Q_f(s, a_f)` estimates the return of taking
+`a_f` while the other factors follow the behaviour policy. The greedy action is the argmax of
+each head. The network is jaxnat's actor-critic whose "logits" are the Q values (its value
+head is unused), so evaluation's greedy policy is `argmax Q` per factor (its "sampled" policy
+is a Boltzmann one over Q); with `q_network=True`, its `mlp` trunk is CleanRL's and
+PureJaxRL's Q-network, one ReLU MLP of 120 and 84 units, rather than the actor-critic's two
+tanh MLPs of 64 (see `DQNConfig`).
 
 The pieces (`DQNParts`: init, act, store, learn) serve both drivers of `jaxnat.agents.rollout`:
 `make_dqn` (jitted, JAX envs) and `make_host_dqn` (host-batched envs such as Natural Atari,
@@ -64,15 +58,24 @@ from flax.training.train_state import TrainState
 from jaxnat.agents import distributions
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_batch, count_updates, episode_metrics,
-                                   host_jit, host_steps, host_updates, scan_steps, scan_updates,
+                                   host_jit, host_steps, host_updates, scan_learner, scan_steps,
                                    static, step_info, vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
 __all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_host_dqn", "make_dqn_parts",
            "make_train", "nstep_transition", "td_error_loss", "td_loss"]
 
-OPTIMIZERS = ("rmsprop", "adam")
-LOSSES = ("mse", "huber")
+OPTIMIZERS = {  # name -> (config -> the optax optimizer)
+    "rmsprop": lambda c: optax.rmsprop(c.lr, decay=c.rms_decay, eps=c.rms_eps, centered=True),
+    "adam": lambda c: optax.adam(c.lr, eps=c.adam_eps),
+}
+LOSSES = {"mse": jnp.square, "huber": lambda errors: optax.huber_loss(errors, delta=1.0)}  # of each TD error
+
+
+def _pick(table: dict, name: str, what: str):
+    if name not in table:
+        raise ValueError(f"DQN {what} {name!r} is not one of {tuple(table)}")
+    return table[name]
 
 
 @struct.dataclass
@@ -80,25 +83,11 @@ class DQNConfig:
     """DQN's settings (defaults: the module docstring).
 
     `loss` is the loss of the TD error: `"mse"` (the default) its square, as in PureJaxRL's and
-    CleanRL's DQN, or `"huber"`, Huber's with delta 1, Nature DQN's. Per family: NaturalAtari
-    uses `"huber"` (`jaxnat train` sets it unless `--loss` is given): its rewards are clipped
-    to [-1, 1], as Nature DQN's were, and Huber bounds the pull of rare large errors. Every
-    other family (Classify, Localize, gymnax-style vector envs) uses `"mse"`. On returns of
-    hundreds, as CartPole's, TD errors are far beyond delta and Huber becomes an absolute
-    error, which fits the median target: the ~10% of transitions that end an episode never
-    pull Q down, and the greedy policy collapsed (jaxnat on gymnax CartPole-v1 with
-    PureJaxRL's settings: median final return 12 with Huber, 500 with the squared error).
-    Where the errors stay near 1 or below, as in classification (rewards of 1 and -0.1), Huber
-    is half the squared error (exactly, within 1), and Adam's and RMSprop's steps, which do
-    not depend on the gradient's scale, differ little.
-
-    With the `mlp` trunk (vector observations) the Q-network is one ReLU MLP of 120 and 84
-    units (`networks.Q_MLP`, CleanRL's and PureJaxRL's). jaxnat's DQN first used the
-    actor-critic's 64x64 tanh MLP, which on CartPole (PureJaxRL's settings, squared error)
-    fell apart late in training on 9 of 16 seeds (a 5% window of training returns below 400
-    in the last 30% of the run); with this network 2 of 16, PureJaxRL itself 1 of 16 (0 of 16
-    with independent seeds). Neither ReLU at 64x64 (8 of 16) nor tanh at 120x84 (9 of 16)
-    alone was enough (`docs/design.md`).
+    CleanRL's DQN, or `"huber"`, Huber's with delta 1, Nature DQN's. NaturalAtari uses
+    `"huber"` (`jaxnat train` sets it unless `--loss` is given; its rewards are clipped to
+    [-1, 1]), every other family `"mse"`. With the `mlp` trunk (vector observations) the
+    Q-network is one ReLU MLP of 120 and 84 units (`networks.Q_MLP`, CleanRL's and
+    PureJaxRL's). Why both: `docs/design.md`, "Agents against the reference implementations".
     """
 
     total_timesteps: int = static(1_000_000)
@@ -188,11 +177,7 @@ def epsilon(config: DQNConfig, env_steps):
 
 
 def _optimizer(config: DQNConfig):
-    if config.optimizer == "rmsprop":
-        return optax.rmsprop(config.lr, decay=config.rms_decay, eps=config.rms_eps, centered=True)
-    if config.optimizer == "adam":
-        return optax.adam(config.lr, eps=config.adam_eps)
-    raise ValueError(f"DQN optimizer {config.optimizer!r} is not one of {OPTIMIZERS}")
+    return _pick(OPTIMIZERS, config.optimizer, "optimizer")(config)
 
 
 def nstep_transition(recent: dict, gamma) -> dict:
@@ -219,11 +204,7 @@ def nstep_transition(recent: dict, gamma) -> dict:
 def td_error_loss(errors, loss: str):
     """Per-element loss of TD errors: `"mse"` their square, `"huber"` Huber's with delta 1
     (`e^2 / 2` for `|e| <= 1`, `|e| - 1/2` beyond)."""
-    if loss == "mse":
-        return jnp.square(errors)
-    if loss == "huber":
-        return optax.huber_loss(errors, delta=1.0)
-    raise ValueError(f"DQN loss {loss!r} is not one of {LOSSES}")
+    return _pick(LOSSES, loss, "loss")(errors)
 
 
 def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[jax.Array, dict]:
@@ -246,15 +227,34 @@ def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[j
 
 
 def check_config(config: DQNConfig) -> None:
-    if config.optimizer not in OPTIMIZERS:
-        raise ValueError(f"DQN optimizer {config.optimizer!r} is not one of {OPTIMIZERS}")
-    if config.loss not in LOSSES:
-        raise ValueError(f"DQN loss {config.loss!r} is not one of {LOSSES}")
+    _pick(OPTIMIZERS, config.optimizer, "optimizer")
+    _pick(LOSSES, config.loss, "loss")
     if config.buffer_size < config.num_envs:
         raise ValueError(f"buffer_size={config.buffer_size} is smaller than one env step of "
                          f"num_envs={config.num_envs} envs")
     if config.n_step < 1:
         raise ValueError(f"n_step={config.n_step} must be at least 1")
+
+
+def _stored(s: EnvStep) -> dict:
+    """What `DQNParts.store` takes from an env step: its final observation as `next_obs`."""
+    return {"obs": s.obs, "action": s.action, "reward": s.reward, "next_obs": s.final_obs,
+            "terminated": s.terminated, "done": s.done}
+
+
+def _step_callbacks(config: DQNConfig, first_step, act: Callable, store: Callable, rate_of: Callable):
+    """Both drivers' `(policy, observe)` for one update whose first step (per env) is
+    `first_step`: epsilon-greedy actions at each step's rate (`rate_of(env steps)`), every step
+    `store`d; a step's record is `(episode info, rate)`."""
+
+    def policy(state: DQNState, obs, key, t, part=0):
+        rate = rate_of((first_step + t) * config.num_envs)
+        return act(state.train_state.params, obs, key, rate), rate
+
+    def observe(state: DQNState, s: EnvStep, rate, t, part=0):
+        return store(state, _stored(s), first_step + t), (step_info(s.info, s.terminated), rate)
+
+    return policy, observe
 
 
 def make_dqn_parts(config: DQNConfig, observation_space, action_space) -> DQNParts:
@@ -331,17 +331,8 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
 
     def update(runner: DQNRunner, config):
         first_step = runner.update * config.num_steps  # per env, before this update
-
-        def policy(state: DQNState, obs, key, t):
-            rate = epsilon(config, (first_step + t) * config.num_envs)
-            return parts.act(state.train_state.params, obs, key, rate), rate
-
-        def observe(state: DQNState, s: EnvStep, rate, t):
-            state = parts.store(state, {"obs": s.obs, "action": s.action, "reward": s.reward,
-                                        "next_obs": s.final_obs, "terminated": s.terminated, "done": s.done},
-                                first_step + t, config)
-            return state, (step_info(s.info, s.terminated), rate)
-
+        policy, observe = _step_callbacks(config, first_step, parts.act, functools.partial(parts.store, config=config),
+                                          functools.partial(epsilon, config))
         (state, env_state, obs, key), (infos, rates) = scan_steps(
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             runner.learner, runner.env_state, runner.obs, runner.key)
@@ -351,13 +342,7 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         runner = runner.with_learner(state, env_state=env_state, obs=obs, key=key, update=runner.update + 1)
         return runner, {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
 
-    def run(runner: DQNRunner, config=config, num_updates: int = total_updates, callback=None):
-        return scan_updates(update, runner, config, num_updates, callback, _optimizer(config))
-
-    def train(key, config=config):
-        return run(init(key, config), config)
-
-    return Learner(init, run, train, parts.network, total_updates)
+    return scan_learner(config, init, update, _optimizer, parts.network, total_updates)
 
 
 def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) -> HostLearner:
@@ -387,24 +372,12 @@ def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) 
         return parts.init(key, jnp.zeros((config.num_envs, *space.shape), space.dtype))
 
     def update(state: DQNState, obs, key, index):
-        first_step = index * config.num_steps  # per env, before this update
-
-        def policy(carry, obs, key, t):
-            rate = exploration((first_step + t) * config.num_envs)
-            return act(carry[0].train_state.params, obs, key, rate), rate
-
-        def observe(carry, s: EnvStep, rate, t):
-            state, infos, _ = carry
-            state = store(state, {"obs": s.obs, "action": s.action, "reward": s.reward, "next_obs": s.final_obs,
-                                  "terminated": s.terminated, "done": s.done}, first_step + t)
-            return state, [*infos, step_info(s.info, s.terminated)], rate
-
-        (state, infos, rate), obs, key = host_steps(env, config.num_steps,
-                                                    policy, observe, (state, [], None), obs, key)
+        policy, observe = _step_callbacks(config, index * config.num_steps, act, store, exploration)
+        (state, obs, key), records = host_steps(env, config.num_steps, policy, observe, state, obs, key)
         key, key_learn = jax.random.split(key)
         learning = (index + 1) * config.num_steps * config.num_envs >= config.learning_starts
-        state, metrics = learn(state, key_learn, learning, infos)
-        return state, obs, key, {**metrics, "epsilon": rate}
+        state, metrics = learn(state, key_learn, learning, [info for info, _ in records])
+        return state, obs, key, {**metrics, "epsilon": records[-1][1]}
 
     return host_updates(env, parts.network, num_updates, init, update, lambda s: s.learner.train_state.params, jit)
 

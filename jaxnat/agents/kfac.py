@@ -1,10 +1,9 @@
 """A compact K-FAC (Martens & Grosse 2015; KFC for convolutions, Grosse & Martens 2016) for the
 layers of jaxnat's networks, as an optax transformation.
 
-Why not kfac-jax: its newest release (0.0.8) fails on its first optimizer step with jax >= 0.9.2
-("too many values to unpack" in `tag_graph_matcher.py`; checked again with jax 0.10.2). The
-original ACKTR also shipped its own K-FAC. The pieces here are small so that a fixed kfac-jax
-can replace `kfac()` without touching the learner.
+Why not kfac-jax, and not Cholesky or eigh for the inverses: `docs/design.md`, "K-FAC of our
+own". The pieces here are small so that a fixed kfac-jax can replace `kfac()` without touching
+the learner.
 
 K-FAC layers are the ones whose parameters are exactly `{"kernel", "bias"}`: `nn.Dense` and
 `ValidConv` (an im2col matmul, so a conv is a dense layer applied at every output pixel), and
@@ -126,12 +125,8 @@ def damped_factors(a_factor, g_factor, damping):
 
 def refine_inverse(matrix, inverse, iterations: int, key):
     """Newton-Schulz steps `X <- X (2I - B X)` towards `B^-1` for a symmetric positive definite
-    `B`, warm-started from `inverse` (last update's, for slowly moving factors).
-
-    Why not Cholesky or eigh: XLA:CPU's triangular solves with many right-hand sides and its eigh
-    are orders of magnitude slower than these small matmuls (bench/results/offpolicy_throughput.md),
-    and on GPUs small matmuls are also far faster than cuSOLVER's factorizations. The iteration converges
-    when the spectral radius of `I - B X` is below 1, estimated here by power iteration; if the
+    `B`, warm-started from `inverse` (last update's, for slowly moving factors). The iteration
+    converges when the spectral radius of `I - B X` is below 1, estimated here by power iteration; if the
     warm start fails that test it restarts from `X = I / |B|_F` (eigenvalues of `BX` in (0, 1]),
     which converges from below: a partly converged inverse is a more strongly damped one.
     """
@@ -174,11 +169,8 @@ def _layers(params) -> dict[str, tuple[tuple | None, tuple]]:
         if key[-1] != "bias":
             continue
         siblings = {k[-1] for k in flat if k[:-1] == key[:-1]}
-        kernel = key[:-1] + ("kernel",)
-        if siblings == {"kernel", "bias"}:
-            layers[_name(key[1:-1])] = (kernel, key)
-        elif siblings == {"bias"}:
-            layers[_name(key[1:-1])] = (None, key)
+        if siblings in ({"kernel", "bias"}, {"bias"}):
+            layers[_name(key[1:-1])] = (key[:-1] + ("kernel",) if "kernel" in siblings else None, key)
     return layers
 
 

@@ -22,12 +22,10 @@ diagonal Gaussian (`distributions.Gaussian`): a linear mean and a learned, state
 log-std initialised at 0 (the authors' `DiagGaussian`, CleanRL, Brax); and a scalar value.
 The convolutional trunks are shared by both heads, as the authors' `CNNBase`; the `mlp` trunk
 is two networks, an actor MLP under the policy heads and a critic MLP under the value head, as
-the authors' `MLPBase`, PureJaxRL and CleanRL have for vector observations (on one shared MLP the value loss, with targets near 100
-on CartPole, dominates the features the policy reads: PPO with PureJaxRL's CartPole settings
-ended at a median return of 231 instead of 492). DQN's Q-network (`q_network=True`) has one
-MLP for its heads instead, `Q_MLP`. With `memory > 0` a GRU over the trunk's features (and the
-previous action and reward) makes the policy recurrent; the heads read features and GRU output
-side by side (`ActorCritic`).
+the authors' `MLPBase`, PureJaxRL and CleanRL have for vector observations (`docs/design.md`
+says why). DQN's Q-network (`q_network=True`) has one MLP for its heads instead, `Q_MLP`.
+With `memory > 0` a GRU over the trunk's features (and the previous action and reward) makes
+the policy recurrent; the heads read features and GRU output side by side (`ActorCritic`).
 The ResNet uses GroupNorm rather than BatchNorm: running batch statistics are mutable state that
 does not fit a pure, vmapped on-policy learner.
 """
@@ -307,11 +305,15 @@ def action_size(action_space) -> int:
     return int(shape[0])
 
 
+def _pixels(observation_space: spaces.Space) -> spaces.Space:
+    """The image (or vector) part of an observation space: a Dict's "pixels", else the space."""
+    return observation_space.spaces["pixels"] if isinstance(observation_space, spaces.Dict) else observation_space
+
+
 def default_trunk(observation_space: spaces.Space) -> str:
     """The paper's trunk for an observation shape: 28 -> mnist, 32 -> cifar, 256 -> cityscapes,
     84 -> atari, 1-D -> mlp; other image sizes get the atari trunk if it fits, else resnet18."""
-    pixels = observation_space.spaces["pixels"] if isinstance(observation_space, spaces.Dict) else observation_space
-    shape = tuple(pixels.shape)
+    shape = tuple(_pixels(observation_space).shape)
     if len(shape) == 1:
         return "mlp"
     side = min(shape[:2])
@@ -329,11 +331,8 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
         raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
     if dtype not in DTYPES:
         raise ValueError(f"Unknown network dtype {dtype!r}; choose one of {DTYPES}")
-    num_goals = 0
-    pixels = observation_space
-    if isinstance(observation_space, spaces.Dict):
-        pixels = observation_space.spaces["pixels"]
-        num_goals = int(observation_space.spaces["goal"].n)
+    pixels = _pixels(observation_space)
+    num_goals = int(observation_space.spaces["goal"].n) if pixels is not observation_space else 0
     if trunk in _PAPER_CNNS:
         if len(pixels.shape) != 3:
             raise ValueError(f"The {trunk!r} trunk needs [H, W, C] images; observations are {pixels.shape}. Use trunk='mlp'.")
@@ -368,8 +367,7 @@ def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.
     is the same stacked parameters, and init runs once per training run.
     """
     dummy = jax.tree_util.tree_map(jnp.zeros_like, observation_space.sample(jax.random.key(0)))
-    if not network.memory:
-        return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy))(key)
-    sequence = one_step_sequence(initial_memory(network, 1))
-    dummy = jax.tree_util.tree_map(lambda x: x[None, None], dummy)
-    return jax.custom_batching.sequential_vmap(lambda k: network.init(k, dummy, sequence))(key)
+    args = (dummy,)
+    if network.memory:  # a sequence of one step of one env
+        args = (jax.tree_util.tree_map(lambda x: x[None, None], dummy), one_step_sequence(initial_memory(network, 1)))
+    return jax.custom_batching.sequential_vmap(lambda k: network.init(k, *args))(key)

@@ -74,18 +74,35 @@ def _state(time, cue, first_action=0) -> ProbeState:
     )
 
 
+def _random_sign(key) -> ProbeState:
+    """A cue `c = +-1` at random, held as `(c > 0)` in `cue[0]`."""
+    return _state(0, jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
+
+
+def _squared_miss(action, target):
+    """`-(a - target)^2` for a `Box(-1, 1, (1,))` action `a` clipped to the bounds."""
+    action = jnp.clip(jnp.reshape(action, (1,)), -1.0, 1.0)
+    return -jnp.sum((action - target) ** 2).astype(jnp.float32)
+
+
 class _Probe(Environment):
+    """Defaults: observation `[1.0]` (`obs_size` floats in [-1, 1]), `Discrete(num_actions)`
+    actions, or `Box(-1, 1, (1,))` ones when `continuous`; a time limit of `time_limit` steps."""
+
     obs_size = 1
+    num_actions = 2
+    continuous = False
+    time_limit = 100
 
     @property
     def default_params(self) -> ProbeParams:
-        return ProbeParams()
+        return ProbeParams(max_steps_in_episode=self.time_limit)
 
     def observation_space(self, params) -> spaces.Box:
         return spaces.Box(-1.0, 1.0, (self.obs_size,), jnp.float32)
 
     def action_space(self, params) -> spaces.Space:
-        return spaces.Discrete(2)
+        return spaces.Box(-1.0, 1.0, (1,), jnp.float32) if self.continuous else spaces.Discrete(self.num_actions)
 
     def reset_env(self, key, params):
         state = self._initial_state(key)
@@ -94,17 +111,16 @@ class _Probe(Environment):
     def _initial_state(self, key) -> ProbeState:
         return _state(0, jnp.zeros(2, jnp.int32))
 
+    def get_obs(self, state, params):
+        return jnp.ones((1,), jnp.float32)
+
 
 class ConstantRewardProbe(_Probe):
     """Constant observation `[1.0]`, one action, reward `params.reward`, one-step episodes.
 
     The critic must output `params.reward` (no bootstrapping: the step terminates)."""
 
-    def action_space(self, params) -> spaces.Discrete:
-        return spaces.Discrete(1)
-
-    def get_obs(self, state, params):
-        return jnp.ones((1,), jnp.float32)
+    num_actions = 1
 
     def step_env(self, key, state, action, params):
         return self.get_obs(state, params), state, jnp.float32(params.reward), jnp.bool_(True), {}
@@ -114,8 +130,7 @@ class SignProbe(_Probe):
     """Observation `[c]`, `c = +1` or `-1` at random; `Discrete(2)`; reward 1 if
     `action == (c > 0)`, else 0; one-step episodes. The policy must read the observation."""
 
-    def _initial_state(self, key):
-        return _state(0, jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
+    _initial_state = staticmethod(_random_sign)
 
     def get_obs(self, state, params):
         return (2.0 * state.cue[:1] - 1.0).astype(jnp.float32)
@@ -133,9 +148,7 @@ class TwoStepProbe(_Probe):
     lambda > 0 over the non-terminal step) teaches the step-1 policy."""
 
     obs_size = 2
-
-    def _initial_state(self, key):
-        return _state(0, jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
+    _initial_state = staticmethod(_random_sign)
 
     def get_obs(self, state, params):
         first = state.time == 0
@@ -183,15 +196,8 @@ class EndlessProbe(_Probe):
     does not show the time), so a learner must bootstrap through truncation. Treating it as
     termination instead gives about the mean finite-horizon return, far lower."""
 
-    @property
-    def default_params(self) -> ProbeParams:
-        return ProbeParams(max_steps_in_episode=5)
-
-    def action_space(self, params) -> spaces.Discrete:
-        return spaces.Discrete(1)
-
-    def get_obs(self, state, params):
-        return jnp.ones((1,), jnp.float32)
+    num_actions = 1
+    time_limit = 5
 
     def step_env(self, key, state, action, params):
         return self.get_obs(state, params), state, jnp.float32(1.0), jnp.bool_(False), {}
@@ -208,13 +214,8 @@ class CostlyStartProbe(_Probe):
     (to about -10 at gamma 0.9; treating truncation as termination gives about 3)."""
 
     obs_size = 2
-
-    @property
-    def default_params(self) -> ProbeParams:
-        return ProbeParams(max_steps_in_episode=5)
-
-    def action_space(self, params) -> spaces.Discrete:
-        return spaces.Discrete(1)
+    num_actions = 1
+    time_limit = 5
 
     def get_obs(self, state, params):
         first = state.time == 0
@@ -245,8 +246,7 @@ class TargetProbe(_Probe):
     The Gaussian policy's mean must follow the observation (`mean = t`); a policy that ignores
     it scores `-var(t) = -0.213` at best."""
 
-    def action_space(self, params) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (1,), jnp.float32)
+    continuous = True
 
     def _initial_state(self, key):
         # The target in thousandths, held in the int32 cue.
@@ -256,8 +256,7 @@ class TargetProbe(_Probe):
         return (state.cue[:1] / 1000.0).astype(jnp.float32)
 
     def step_env(self, key, state, action, params):
-        action = jnp.clip(jnp.reshape(action, (1,)), -1.0, 1.0)
-        reward = -jnp.sum((action - state.cue[:1] / 1000.0) ** 2).astype(jnp.float32)
+        reward = _squared_miss(action, state.cue[:1] / 1000.0)
         return self.get_obs(state, params), state, reward, jnp.bool_(True), {}
 
 
@@ -268,9 +267,7 @@ class OpenLoopProbe(_Probe):
     learner must find it from noise: the policy has to learn to ignore its inputs."""
 
     obs_size = 4
-
-    def action_space(self, params) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (1,), jnp.float32)
+    continuous = True
 
     def _initial_state(self, key):
         # The noise's key, as int32 bits in the cue (fresh each episode).
@@ -282,8 +279,7 @@ class OpenLoopProbe(_Probe):
         return jax.random.normal(key, (self.obs_size,), jnp.float32)
 
     def step_env(self, key, state, action, params):
-        action = jnp.clip(jnp.reshape(action, (1,)), -1.0, 1.0)
-        reward = -jnp.sum((action - 0.5) ** 2).astype(jnp.float32)
+        reward = _squared_miss(action, 0.5)
         return self.get_obs(state, params), state, reward, jnp.bool_(True), {}
 
 

@@ -5,9 +5,11 @@ algorithm file (`ppo.py`, `a2c.py`, `acktr.py`, `dqn.py`) holds its config, loss
 - **Drivers.** `scan_steps` steps a vector of JAX envs inside `lax.scan`; `host_steps` steps a
   host-batched env (`jaxnat.core.HostBatchedEnv`: Natural Atari) from a Python loop around
   jitted calls. Both take the same callbacks, `policy(carry, obs, key, t) -> (action [B, F],
-  aux)` and `observe(carry, EnvStep, aux, t) -> (carry, record)`: the algorithm decides what a
-  step stores (PPO a `Transition`, DQN a replay-buffer write). `scan_updates` and
-  `host_updates` repeat an algorithm's update on the device or from Python.
+  aux)` and `observe(carry, EnvStep, aux, t) -> (carry, record)` (the host driver's also get
+  the part of a pipelined batch last), and hand back the records, stacked over time or as a
+  list: the algorithm decides what a step stores (PPO a `Transition`, DQN a replay-buffer
+  write). `scan_learner` and `host_updates` repeat an algorithm's update on the device or from
+  Python.
 - **Time limits.** A target bootstraps from the final observation of a truncated episode and
   not from a terminated one: `next_value_t = (1 - terminated_t) * V(final_obs_t)`
   (`bootstrap`); the GAE trace is cut at every episode end. Envs with the five-value step API
@@ -48,7 +50,7 @@ from jaxnat.wrappers import LogWrapper
 __all__ = [
     "static", "Transition", "EnvStep", "RunnerState", "UpdateRule", "Learner", "HostState", "HostLearner",
     "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box", "is_scalar_action", "env_action",
-    "act", "replay", "choose", "vector_env", "scan_steps", "scan_updates", "host_steps", "host_steps_pipelined",
+    "act", "replay", "choose", "vector_env", "scan_steps", "scan_learner", "host_steps", "host_steps_pipelined",
     "host_updates", "TIMING_KEYS",
     "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch",
     "make_evaluate", "make_chance", "evaluate_host",
@@ -94,6 +96,13 @@ class EnvStep(NamedTuple):
     final_obs: Any  # the episode's last observation where it ended, else next_obs
     info: dict
 
+    @classmethod
+    def after(cls, obs, action, next_obs, reward, terminated, truncated, info: dict) -> EnvStep:
+        """The step an env's outcome describes: `done` is either flag; `final_obs` the env's
+        `info["final_observation"]` where it reports one, else `next_obs`."""
+        return cls(obs, action, next_obs, reward, terminated, terminated | truncated,
+                   info.get("final_observation", next_obs), info)
+
 
 class RunnerState(NamedTuple):
     train_state: TrainState
@@ -120,6 +129,21 @@ class UpdateRule(NamedTuple):
         """Fresh parameters and optimizer state for a run of `num_updates` updates."""
         return TrainState.create(apply_fn=network.apply, params=init_params(network, observation_space, key),
                                  tx=self.make_optimizer(config, num_updates))
+
+    def learn(self, config, network, train_state: TrainState, transitions: Transition, key, axis_name=None):
+        """One update on a rollout, as both drivers make it: GAE, then `update_step`. Returns
+        `(train_state, metrics)`: the episode metrics and the losses. With `axis_name` (inside
+        a shard_map) the rollout is this device's envs and the metrics are the whole batch's."""
+        advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
+        if axis_name is None:
+            train_state, losses = self.update_step(config, network, train_state, transitions, advantages, targets,
+                                                   key)
+        else:
+            local = config.replace(num_envs=transitions.reward.shape[1])
+            train_state, losses = self.update_step(local, network, train_state, transitions, advantages, targets,
+                                                   key, axis_name=axis_name)
+            losses = jax.lax.pmean(losses, axis_name)
+        return train_state, {**episode_metrics(transitions.info, axis_name), **losses}
 
 
 class Learner(NamedTuple):
@@ -269,17 +293,9 @@ def choose(logits, key, greedy: bool):
 
 def vector_env(env) -> tuple[Callable, Callable]:
     """`(reset(keys, params), step(keys, states, actions, params))` over a batch of envs, with
-    episode statistics (`LogWrapper`, which also turns the five-value API into six values);
-    `step` returns `(next_obs, states, reward, terminated, done, final_obs, info)`."""
+    episode statistics (`LogWrapper`, which also turns the five-value API into six values)."""
     env = LogWrapper(env)
-
-    def one_step(key, state, action, params):
-        obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
-        final_obs = info.get("final_observation", obs)
-        return obs, state, reward, terminated, terminated | truncated, final_obs, info
-
-    reset = jax.vmap(env.reset, in_axes=(0, None))
-    return reset, jax.vmap(one_step, in_axes=(0, 0, 0, None))
+    return jax.vmap(env.reset, in_axes=(0, None)), jax.vmap(env.step, in_axes=(0, 0, 0, None))
 
 
 def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_steps: int,
@@ -294,36 +310,45 @@ def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_step
         carry, env_state, obs, key = state
         key, key_act, key_env = jax.random.split(key, 3)
         action, aux = policy(carry, obs, key_act, t)
-        next_obs, env_state, reward, terminated, done, final_obs, info = step(
+        next_obs, env_state, reward, terminated, truncated, info = step(
             env_keys(key_env), env_state, env_action(action, action_space), env_params)
-        carry, record = observe(carry, EnvStep(obs, action, next_obs, reward, terminated, done, final_obs, info),
+        carry, record = observe(carry, EnvStep.after(obs, action, next_obs, reward, terminated, truncated, info),
                                 aux, t)
         return (carry, env_state, next_obs, key), record
 
     return jax.lax.scan(body, (carry, env_state, obs, key), jnp.arange(num_steps))
 
 
-def scan_updates(update: Callable, runner, config, num_updates: int, callback, tx):
-    """`num_updates` times `update(runner, config) -> (runner, metrics)` in one `lax.scan`,
-    calling `callback(update count, metrics)` on the host after each; `runner` is a NamedTuple
-    with `train_state` and `update`.
+def scan_learner(config, init: Callable, update: Callable, optimizer: Callable, network, num_updates: int,
+                 rollout: Callable | None = None) -> Learner:
+    """The jitted `Learner` of `init(key, config) -> runner` and `update(runner, config) ->
+    (runner, metrics)` (`runner` a NamedTuple with `train_state` and `update`): `run` repeats
+    `update` in one `lax.scan`, calling `callback(update count, metrics)` on the host after
+    each; `train` is `init`, then `run`.
 
-    The optimizer `tx` closes over traced hyperparameters, so it is rebuilt from each call's
-    config: chunked runs (init and run jitted separately) use their own, live values. The
-    runner handed back keeps the caller's optimizer object (a static pytree field), so its
-    structure matches the input and a compiled `run` can be fed its own output.
+    The optimizer (`optimizer(config)`) closes over traced hyperparameters, so it is rebuilt
+    from each call's config: chunked runs (init and run jitted separately) use their own, live
+    values. The runner handed back keeps the caller's optimizer object (a static pytree
+    field), so its structure matches the input and a compiled `run` can be fed its own output.
     """
-    caller_tx = runner.train_state.tx
-    runner = runner._replace(train_state=runner.train_state.replace(tx=tx))
 
-    def body(runner, _):
-        runner, metrics = update(runner, config)
-        if callback is not None:
-            jax.debug.callback(callback, runner.update, metrics)
-        return runner, metrics
+    def run(runner, config=config, num_updates: int = num_updates, callback=None):
+        caller_tx = runner.train_state.tx
+        runner = runner._replace(train_state=runner.train_state.replace(tx=optimizer(config)))
 
-    runner, metrics = jax.lax.scan(body, runner, None, num_updates)
-    return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
+        def body(runner, _):
+            runner, metrics = update(runner, config)
+            if callback is not None:
+                jax.debug.callback(callback, runner.update, metrics)
+            return runner, metrics
+
+        runner, metrics = jax.lax.scan(body, runner, None, num_updates)
+        return runner._replace(train_state=runner.train_state.replace(tx=caller_tx)), metrics
+
+    def train(key, config=config):
+        return run(init(key, config), config)
+
+    return Learner(init, run, train, network, num_updates, rollout)
 
 
 def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None) -> Learner:
@@ -412,28 +437,13 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
 
     def update(runner: RunnerState, config):
         runner, transitions = rollout(runner, config)
-        advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
         key, key_update = jax.random.split(runner.key)
-        if axis_name is None:
-            train_state, losses = rule.update_step(
-                config, network, runner.train_state, transitions, advantages, targets, key_update
-            )
-        else:  # on this device's envs; the losses reported are the whole batch's
-            local = config.replace(num_envs=transitions.reward.shape[1])
-            train_state, losses = rule.update_step(local, network, runner.train_state, transitions, advantages,
-                                                   targets, key_update, axis_name=axis_name)
-            losses = jax.lax.pmean(losses, axis_name)
-        runner = runner._replace(train_state=train_state, key=key, update=runner.update + 1)
-        return runner, {**episode_metrics(transitions.info, axis_name), **losses}
+        train_state, metrics = rule.learn(config, network, runner.train_state, transitions, key_update,
+                                              axis_name)
+        return runner._replace(train_state=train_state, key=key, update=runner.update + 1), metrics
 
-    def run(runner: RunnerState, config=config, num_updates: int = total_updates, callback=None):
-        return scan_updates(update, runner, config, num_updates, callback,
-                            make_optimizer(config, total_updates))
-
-    def train(key, config=config):
-        return run(init(key, config), config)
-
-    return Learner(init, run, train, network, total_updates, rollout)
+    return scan_learner(config, init, update, lambda config: make_optimizer(config, total_updates), network,
+                        total_updates, rollout)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -481,25 +491,12 @@ def host_steps(env, num_steps: int, policy: Callable, observe: Callable, carry, 
                timings: dict | None = None):
     """`num_steps` steps of a host-batched env from Python: per step one jitted `policy` call
     (observations to the device, actions back to the host) and `observe` with the outcome.
-    Returns `(carry, obs, key)` (records are the carry's business). `timings`, when given,
-    adds up where the time went (`TIMING_KEYS`)."""
-    clock = _Clock(timings)
-    for t in range(num_steps):
-        key, key_act = jax.random.split(key)
-        obs_device = jax.device_put(obs)
-        action, aux = policy(carry, obs_device, key_act, t)
-        action = np.asarray(action)
-        clock.lap("policy_s")
-        next_obs, reward, terminated, truncated, info = env.step(env_action(action, env.single_action_space))
-        clock.lap("env_s")
-        done = terminated | truncated
-        final_obs = info.get("final_observation", next_obs)
-        carry = observe(carry, EnvStep(obs_device, action, next_obs, reward, terminated, done, final_obs, info),
-                        aux, t)
-        obs = next_obs
-        clock.lap("observe_s")
-    clock.done(num_steps)
-    return carry, obs, key
+    The callbacks are the scan driver's with the part of the batch last, always 0 here:
+    `policy(carry, obs, key, t, part)`, `observe(carry, EnvStep, aux, t, part) -> (carry,
+    record)`. Returns `((carry, obs, key), records)`, the records a list, one per step.
+    `timings`, when given, adds up where the time went (`TIMING_KEYS`)."""
+    (carry, obs_parts, key), records = _step_parts([env], num_steps, policy, observe, carry, [obs], key, timings)
+    return (carry, obs_parts[0], key), records
 
 
 def host_steps_pipelined(env, num_steps: int, policy: Callable, observe: Callable, carry, obs, key,
@@ -511,19 +508,30 @@ def host_steps_pipelined(env, num_steps: int, policy: Callable, observe: Callabl
         policy call; then fetch part p+1's actions (computed meanwhile) and send them ...
 
     Every action is the current policy's on its env's latest observation, as in `host_steps`;
-    only the sampling keys differ (one split of `key` per part and step, in that order).
-    `policy(carry, obs, key, t, part)` and `observe(carry, EnvStep, aux, t, part)` see one
-    part's envs. Parts with `step_async`/`step_wait` emulate while the driver finishes the
-    previous part (its host pass, `observe`, the next policy call); others step in `send`.
-    Returns `(carry, obs of the whole batch, key)`."""
-    parts = env.parts
-    count = len(parts)
-    if count < 2:
+    only the sampling keys differ (one split of `key` per part and step, in that order). The
+    callbacks see one part's envs. Parts with `step_async`/`step_wait` emulate while the driver
+    finishes the previous part (its host pass, `observe`, the next policy call); others step in
+    `send`. Returns `((carry, obs of the whole batch, key), records)`, the records a list in
+    the order the steps ran: step `t` of part `p` at `t * len(env.parts) + p`."""
+    if len(env.parts) < 2:
         raise ValueError("host_steps_pipelined needs an env of two or more parts")
+    (carry, obs_parts, key), records = _step_parts(env.parts, num_steps, policy, observe, carry, env.split(obs),
+                                                   key, timings)
+    return (carry, np.concatenate(obs_parts), key), records
+
+
+def _step_parts(parts: list, num_steps: int, policy: Callable, observe: Callable, carry, obs_parts: list, key,
+                timings: dict | None):
+    """The host driver over `parts` stepped in turn (events `e = t * len(parts) + part`):
+    `((carry, each part's last observations, key), records in event order)`. With one part a
+    step's outcome is needed before the next action; with more, part p's outcome is awaited
+    after part p+1's actions are sent, so its emulation overlaps the driver's work."""
+    count = len(parts)
+    overlap = count > 1
     clock = _Clock(timings)
-    obs_parts = env.split(obs)
-    total = num_steps * count  # events e = t * count + part, in this order
-    queued, in_flight = {}, {}
+    obs_parts = list(obs_parts)
+    total = num_steps * count
+    queued, in_flight, records = {}, {}, []
 
     def dispatch(e, part_obs):
         nonlocal key
@@ -536,11 +544,12 @@ def host_steps_pipelined(env, num_steps: int, policy: Callable, observe: Callabl
         action = np.asarray(action)
         clock.lap("policy_s")
         part = parts[e % count]
-        if hasattr(part, "step_async"):
-            part.step_async(env_action(action, env.single_action_space))
+        env_actions = env_action(action, part.single_action_space)
+        if overlap and hasattr(part, "step_async"):
+            part.step_async(env_actions)
             outcome = None
         else:
-            outcome = part.step(env_action(action, env.single_action_space))
+            outcome = part.step(env_actions)
         in_flight[e] = obs_device, action, aux, outcome
         clock.lap("env_s")
 
@@ -552,9 +561,9 @@ def host_steps_pipelined(env, num_steps: int, policy: Callable, observe: Callabl
             outcome = parts[part].step_wait()
         clock.lap("env_s")
         next_obs, reward, terminated, truncated, info = outcome
-        final_obs = info.get("final_observation", next_obs)
-        carry = observe(carry, EnvStep(obs_device, action, next_obs, reward, terminated, terminated | truncated,
-                                       final_obs, info), aux, e // count, part)
+        carry, record = observe(carry, EnvStep.after(obs_device, action, next_obs, reward, terminated, truncated,
+                                                     info), aux, e // count, part)
+        records.append(record)
         obs_parts[part] = next_obs
         clock.lap("observe_s")
         if e + count < total:
@@ -564,13 +573,15 @@ def host_steps_pipelined(env, num_steps: int, policy: Callable, observe: Callabl
     for e in range(count):
         dispatch(e, obs_parts[e])
     clock.lap("policy_s")
+    lag = 1 if overlap else 0  # how many steps are sent ahead of the one finished
     for e in range(total):
         send(e)
-        if e:
-            finish(e - 1)
-    finish(total - 1)
+        if e >= lag:
+            finish(e - lag)
+    if lag:
+        finish(total - 1)
     clock.done(num_steps)
-    return carry, np.concatenate(obs_parts), key
+    return (carry, obs_parts, key), records
 
 
 # What `host_steps` and `host_updates` add up in a learner's `timings` (seconds and counts):
@@ -606,13 +617,8 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
     one `update` hands its `host_steps`, if any) also gets each update's seconds."""
     timings = {} if timings is None else timings
 
-    @jit
-    def greedy(params, obs, key):
-        return choose(network.apply(params, obs)[0], key, greedy=True)
-
-    @jit
-    def sample(params, obs, key):
-        return choose(network.apply(params, obs)[0], key, greedy=False)
+    greedy, sample = (jit(lambda params, obs, key, g=g: choose(network.apply(params, obs)[0], key, g))
+                      for g in (True, False))
 
     def init(key) -> HostState:
         key, key_init = jax.random.split(key)
@@ -682,13 +688,7 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     def value_of(params, obs):
         return network.apply(params, obs)[1]
 
-    @jit
-    def learn(train_state, transitions: Transition, key):
-        advantages, targets = gae(transitions, config.gamma, config.gae_lambda)
-        train_state, losses = rule.update_step(
-            config, network, train_state, transitions, advantages, targets, key
-        )
-        return train_state, {**episode_metrics(transitions.info), **losses}
+    learn = jit(lambda train_state, transitions, key: rule.learn(config, network, train_state, transitions, key))
 
     # One compiled program, not hundreds of small eager ones.
     init = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
@@ -701,32 +701,24 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
         del index  # on-policy updates do not depend on the update count (schedules are in the optimizer)
         params = train_state.params
 
-        def observe(rollout, s: EnvStep, aux, t, part=0):
+        def observe(carry, s: EnvStep, aux, t, part):
             log_prob, value = aux
             # V(final observation) where an episode ended; elsewhere the next step's value serves.
             final_value = (value_of(params, jax.device_put(s.final_obs)) if s.done.any()
                            else np.zeros(len(s.done), np.float32))
-            for name, x in (("obs", s.obs), ("action", s.action), ("log_prob", log_prob), ("value", value),
-                            ("reward", s.reward), ("done", s.done), ("terminated", s.terminated),
-                            ("final_value", final_value), *((k, s.info[k]) for k in EPISODE_KEYS)):
-                rollout[name][part].append(x)
-            return rollout
+            return carry, {"obs": s.obs, "action": s.action, "log_prob": log_prob, "value": value, "reward": s.reward,
+                           "done": s.done, "terminated": s.terminated, "final_value": final_value,
+                           **{k: s.info[k] for k in EPISODE_KEYS}}
 
-        # name -> one list of steps per part of the batch (one part unless pipelined)
-        rollout = {name: [[] for _ in range(len(parts) if pipelined else 1)]
-                   for name in ("obs", "action", "log_prob", "value", "reward", "done", "terminated",
-                                "final_value", *EPISODE_KEYS)}
-        if pipelined:
-            rollout, obs, key = host_steps_pipelined(
-                env, config.num_steps, lambda carry, o, k, t, part: policy(params, o, k), observe, rollout, obs,
-                key, timings)
-            last_value = [value_of(params, jax.device_put(o)) for o in env.split(obs)]
-        else:
-            rollout, obs, key = host_steps(env, config.num_steps, lambda carry, o, k, t: policy(params, o, k),
-                                           observe, rollout, obs, key, timings)
-            last_value = [value_of(params, jax.device_put(obs))]
-        # Host arrays (actions, rewards, flags, episode statistics) stacked here go to the device
-        # as one transfer per name and part, not one per step.
+        steps = host_steps_pipelined if pipelined else host_steps
+        (_, obs, key), records = steps(env, config.num_steps, lambda carry, o, k, t, part: policy(params, o, k),
+                                       observe, None, obs, key, timings)
+        last_value = [value_of(params, jax.device_put(o)) for o in (env.split(obs) if pipelined else [obs])]
+        # name -> one entry per part of the batch: its steps. Host arrays (actions, rewards,
+        # flags, episode statistics) stacked here go to the device as one transfer per name and
+        # part, not one per step.
+        count = len(parts) if pipelined else 1
+        rollout = {name: [[r[name] for r in records[p::count]] for p in range(count)] for name in records[0]}
         rollout = {name: [np.stack(steps) if all(isinstance(x, np.ndarray) for x in steps) else steps
                           for steps in part_steps] for name, part_steps in rollout.items()}
         transitions = _host_transitions(rollout, last_value)
@@ -822,17 +814,14 @@ def make_evaluate(network, env, env_params, num_episodes: int = 1000, max_steps:
     play = _first_episodes(env, env_params, num_episodes, max_steps)
 
     def evaluate(network_params, key, normalizer: normalize.Normalizer | None = None):
-        def policy(greedy):
-            def choose_action(obs, key, memory):
-                obs = normalize.normalize(normalizer, obs)
-                logits, _, hidden = act(network, network_params, obs, memory)
-                return choose(logits, key, greedy), hidden
-            return choose_action
+        def policy(obs, key, memory, greedy: bool):
+            logits, _, hidden = act(network, network_params, normalize.normalize(normalizer, obs), memory)
+            return choose(logits, key, greedy), hidden
 
         memory = initial_memory(network, num_episodes) if network.memory else None
         key_greedy, key_sampled = jax.random.split(key)
-        greedy = play(policy(True), memory, key_greedy)
-        sampled = play(policy(False), memory, key_sampled)
+        greedy = play(functools.partial(policy, greedy=True), memory, key_greedy)
+        sampled = play(functools.partial(policy, greedy=False), memory, key_sampled)
         return {**{f"greedy_{k}": v for k, v in greedy.items()},
                 **{f"sampled_{k}": v for k, v in sampled.items()}}
 
@@ -860,13 +849,12 @@ def evaluate_host(learner: HostLearner, params, env, num_episodes: int, key,
     policy = learner.greedy if greedy else learner.sample
     returns: list[float] = []
 
-    def observe(returns, s: EnvStep, aux, t):
-        returns.extend(s.info["returned_episode_returns"][s.info["returned_episode"]].tolist())
-        return returns
+    def observe(carry, s: EnvStep, aux, t, part):
+        return carry, s.info["returned_episode_returns"][s.info["returned_episode"]].tolist()
 
     obs, _ = env.reset()
     while len(returns) < num_episodes:
-        returns, obs, key = host_steps(env, 1,
-                                       lambda carry, o, k, t: (policy(params, o, k), None), observe,
-                                       returns, obs, key)
+        (_, obs, key), ended = host_steps(env, 1, lambda carry, o, k, t, part: (policy(params, o, k), None),
+                                          observe, None, obs, key)
+        returns += ended[0]
     return np.asarray(returns[:num_episodes], np.float32)

@@ -6,20 +6,13 @@ scalar float loop: most of Natural Atari's host work, which ale-py itself does i
 emulation threads (the "host pieces" lines of bench/results/natural_atari.md time OpenCV's
 resize and this kernel side by side).
 
-How. Area weights are rational. With an axis of `n` source pixels shrunk to `m`, output pixel `j`
-covers `[j n/m, (j+1) n/m)`; counted in units of `1/m` source pixel every overlap is an integer,
-so (after dividing out their common factor) an output pixel is `N / D` for an integer
-`N = sum(wy * wx * pixel)`: `D = 5 * 40 = 200` at 210x160 -> 84x84, and `N <= 255 * 200` fits in
-uint16. The kernel computes `N` exactly, rows first (weighted sums of whole source rows, which
-vectorise), then columns (on the transposed rows, which vectorise too), and rounds `N / D` to the
-nearest integer. OpenCV computes the same mean in float32, off by at most `E`, a bound of its
-rounding errors (`_opencv_error_bound`). Where `N / D` is not a tie it is at least `1 / (2D)` from
-the nearest half-integer, so when `E < 1 / (2D)` both round alike. At ties (`N mod D = D/2`, ~1%
-of pixels of random images, ~2% on video frames) OpenCV's float error decides: there the kernel
-redoes OpenCV's float32 sums for that pixel in OpenCV's order (its `computeResizeAreaTab`
-weights, row by row, rounded half to even), which reproduces OpenCV bit for bit
-(tests/test_atari_area.py compares with `cv2.resize` for every plan of images up to 10x10 and on
-random, quantised and tie-heavy 210x160 images; tests/test_atari.py on real game frames).
+How (`docs/design.md`, "Compositing and resizing", has the argument): area weights are
+rational, so an output pixel is `N / D` for an integer `N = sum(wy * wx * pixel)` (`D = 200` at
+210x160 -> 84x84, `N` exact in uint16). The kernel computes `N` rows first, then columns on the
+transposed rows (both vectorise), and rounds; OpenCV's float32 mean is within `E`
+(`_opencv_error_bound`) of `N / D`, so both round alike but at exact ties (`N mod D = D/2`),
+where the kernel redoes OpenCV's float32 sums for that pixel in OpenCV's order. Tested against
+`cv2.resize` (tests/test_atari_area.py, tests/test_atari.py).
 
 The plan applies where OpenCV takes that generic path and the argument above holds: downscaling
 on both axes, not by integer factors on both (OpenCV's fast integer path rounds differently),
@@ -41,7 +34,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["AreaPlan", "area_plan", "composite_resize", "kernel_arguments"]
+__all__ = ["AreaPlan", "area_plan", "check_screens", "composite_resize", "kernel_arguments"]
 
 _MAX_SIDE = 1000  # OpenCV drops overlaps under 1e-3 source pixel; 1/m stays above that
 
@@ -158,17 +151,24 @@ def composite_resize(screens: np.ndarray, backgrounds: np.ndarray, out: np.ndarr
     """`out[i] = cv2.resize(where(screens[i] == 0, backgrounds[i], screens[i]), INTER_AREA)`,
     bit for bit, for `uint8[B, H, W]` screens and backgrounds (`backgrounds=screens`: no
     compositing) into C-contiguous `uint8[B, h, w]` `out`. Releases the GIL."""
-    b, h_in, w_in = screens.shape
-    if ((h_in, w_in) != plan.src_shape or backgrounds.shape != screens.shape
-            or screens.dtype != np.uint8 or backgrounds.dtype != np.uint8):
-        raise ValueError(f"screens and backgrounds must be uint8[B, {plan.src_shape[0]}, "
-                         f"{plan.src_shape[1]}], got {screens.dtype} {screens.shape} and "
-                         f"{backgrounds.dtype} {backgrounds.shape}")
+    b = check_screens(screens, backgrounds, plan)
     if out.shape != (b, *plan.dst_shape) or out.dtype != np.uint8 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous uint8 array of shape {(b, *plan.dst_shape)}, "
                          f"got {out.dtype} {out.shape}")
     _kernel(screens, backgrounds, out, *kernel_arguments(plan))
     return out
+
+
+def check_screens(screens: np.ndarray, backgrounds: np.ndarray, plan: AreaPlan, batch: int | None = None) -> int:
+    """The batch size of `screens` and `backgrounds`, which must both be `uint8[batch, H, W]`
+    at the plan's source size (any batch for None); raises `ValueError` otherwise."""
+    b = screens.shape[0] if batch is None and screens.ndim == 3 else batch
+    if (screens.shape != (b, *plan.src_shape) or backgrounds.shape != screens.shape
+            or screens.dtype != np.uint8 or backgrounds.dtype != np.uint8):
+        raise ValueError(f"screens and backgrounds must be uint8[{'B' if batch is None else batch}, "
+                         f"{plan.src_shape[0]}, {plan.src_shape[1]}], got {screens.dtype} {screens.shape} "
+                         f"and {backgrounds.dtype} {backgrounds.shape}")
+    return b
 
 
 def kernel_arguments(plan: AreaPlan) -> tuple:

@@ -11,23 +11,14 @@ on about 1% of colours. Grayscale acts pixel by pixel, so `gray(where(mask, bg, 
 `where(mask, gray(bg), gray(frame))`: backgrounds are turned gray (videos once, when loaded) and
 composited in gray, which is exact.
 
-Two pooling orders (the env's `pool`):
-
-- "gray" (default): ale-py pools ALE's gray screens, `max(gray(a), gray(b))`, as ale-py, Gymnasium's
-  `AtariPreprocessing` and DQN do, and the mask is `gray == 0`. That mask is exactly the RGB
-  definition: in ALE's NTSC, PAL and SECAM palettes only black has gray level 0 (the darkest
-  other colour has 16), so a pooled gray pixel is 0 exactly when both pooled RGB pixels are
-  black (`tests/test_atari.py` checks the palettes and real screens). Composited pixels are then
-  exactly the RGB definition's; other pixels follow ale-py's own preprocessing (bit-identical
-  with background "none"), which differs from `gray(max(a, b))` only where two different colours
-  flicker on the same pixel.
-- "rgb": ale-py returns the max-pooled RGB screen and we turn it gray: the literal order of the
-  spec, with the RGB mask (`background_mask`). It moves three times the bytes.
+Two pooling orders (the env's `pool`; `docs/design.md`, "Pooling order", says why the mask is
+exact): "gray" (default), ale-py pools ALE's gray screens, `max(gray(a), gray(b))`, and the mask
+is `gray == 0`, which in ALE's palettes is exactly the all-channels-black RGB mask
+(`tests/test_atari.py` checks the palettes and real screens); "rgb", ale-py returns the
+max-pooled RGB screen and we turn it gray with the RGB mask (`background_mask`).
 
 Compositing and resizing run fused in one pass (`composite_and_resize`): jaxnat.atari.area's
-numba kernel, bit-identical to OpenCV's INTER_AREA and cheaper (resizing is most of the host
-work per step; the "host pieces" lines of bench/results/natural_atari.md time both);
-`cv2.resize` for sizes the kernel has no plan for.
+numba kernel, bit-identical to OpenCV's INTER_AREA; `cv2.resize` for sizes it has no plan for.
 
 The OpenCV calls take a batch `[B, H, W(, C)]` as one tall image `[B*H, W(, C)]`: every
 operation here is per pixel, and INTER_AREA shrinking by the same factor keeps the images' rows
@@ -43,6 +34,7 @@ import cv2
 import numpy as np
 
 from jaxnat.atari.area import area_plan, composite_resize
+from jaxnat.natural.noise import NoiseLaw
 
 __all__ = [
     "ALE_GRAY_WEIGHTS",
@@ -245,9 +237,7 @@ class GrayNoiseSampler:
     @staticmethod
     def channel_probabilities(scale: float = 50.0, mean: float = 0.0) -> np.ndarray:
         """P(value = k), k = 0..255, of one channel, `uint8(clip(mean + N(0,1) * scale, 0, 255))`."""
-        phi = np.array([0.5 * (1 + math.erf((k - mean) / scale / math.sqrt(2)))
-                        for k in range(1, 256)])
-        return np.diff(np.concatenate([[0.0], phi, [1.0]]))
+        return NoiseLaw("channel", mean, scale).probabilities()
 
     @classmethod
     def law_probabilities(cls, scale: float = 50.0, mean: float = 0.0) -> np.ndarray:

@@ -77,19 +77,15 @@ class NaturalAtariVecEnv:
     Deterministic given `seed` (env `i`'s emulator is seeded with `seed + i`), the actions, and
     `sticky_actions=0` or not: ALE's sticky actions use the emulator's own seeded generator.
 
-    Threads: ALE emulates on `num_threads` C++ threads (0: one per env, at most one per CPU, as
-    ale-py). The next video frames are gathered, and the noise drawn, while ALE emulates. The
-    host work after it (compositing, resizing, stacking) is split into `host_threads` chunks of
-    envs run in parallel, as are the noise draws (0: as many as ALE's threads but at most 8 on
-    numba's threads, 4 on the Python pool, at least 4 envs a chunk; 1: the calling thread
-    alone). With gray pooling at a size the exact resize kernel covers (84x84 does) the whole
-    pass is one parallel numba call on numba's own threads (jaxnat.atari.hostpass, which
-    explains their OpenMP wait policy); otherwise, and for the noise draws, a pool of Python
-    threads runs whole-chunk numba/OpenCV calls that release the GIL. `host_pass="pool"` takes
-    the Python pool even where numba's call applies (`bench/natural_atari.py` compares the
-    two). The attributes `host_pass` ("numba", "pool", or "inline" where ALE resized and only
-    the stacking is left, on the calling thread) and `host_threads` say what was chosen.
-    Observations depend on neither choice nor count: each env draws its noise from its own
+    Threads (`docs/design.md`, "Host threads", says why): ALE emulates on `num_threads` C++
+    threads (0: one per env, at most one per CPU, as ale-py). The host work after it and the
+    noise draws are split into `host_threads` chunks of envs run in parallel (0: as many as
+    ALE's threads but at most 8 on numba's threads, 4 on the Python pool, at least 4 envs a
+    chunk; 1: the calling thread alone): one parallel numba call (jaxnat.atari.hostpass) with
+    gray pooling at a size the exact resize kernel covers (84x84 does) unless
+    `host_pass="pool"`, else a pool of Python threads. The attributes `host_pass` ("numba",
+    "pool", or "inline" where ALE resized and only the stacking is left) and `host_threads` say
+    what was chosen. Observations depend on neither: each env draws its noise from its own
     generator. `step_timings`
     adds up, over steps, the seconds spent in ALE's send and recv (`ale_s`: handing over the
     actions, then waiting for the emulation), on the background while ALE emulates
@@ -121,16 +117,11 @@ class NaturalAtariVecEnv:
         noise_scale: float | None = None,
         seed: int = 0,
     ):
-        if background not in BACKGROUNDS:
-            raise ValueError(f"background must be one of {BACKGROUNDS}, got {background!r}")
-        if split not in ("train", "test", "all"):
-            raise ValueError(f"split must be 'train', 'test' or 'all', got {split!r}")
-        if autoreset_mode not in _AUTORESET_MODES:
-            raise ValueError(f"autoreset_mode must be one of {sorted(_AUTORESET_MODES)}, got {autoreset_mode!r}")
-        if pool not in ("gray", "rgb"):
-            raise ValueError(f"pool must be 'gray' or 'rgb', got {pool!r}")
-        if host_pass not in _HOST_PASSES:
-            raise ValueError(f"host_pass must be one of {_HOST_PASSES}, got {host_pass!r}")
+        for name, value, choices in (("background", background, BACKGROUNDS), ("split", split, ("train", "test", "all")),
+                                     ("autoreset_mode", autoreset_mode, tuple(_AUTORESET_MODES)),
+                                     ("pool", pool, ("gray", "rgb")), ("host_pass", host_pass, _HOST_PASSES)):
+            if value not in choices:
+                raise ValueError(f"{name} must be one of {choices}, got {value!r}")
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         if not 0.0 <= float(sticky_actions) <= 1.0:
@@ -284,7 +275,7 @@ class NaturalAtariVecEnv:
             alongside=lambda: self._record_episodes(reward, done, restarted, info))
         if same_step:
             info["final_observation"] = final
-        if not same_step:
+        else:
             self._ended = done
         timings = self.step_timings
         timings["steps"] += 1

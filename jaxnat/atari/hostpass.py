@@ -3,25 +3,17 @@ screen over its background, shrink it with jaxnat.atari.area's exact INTER_AREA 
 frame stack's newest slot, and interleave the stack into the channels-last observation
 (`composite_resize_stack`; the numba code is `jaxnat.atari.area.parallel_pass`).
 
-Why one numba call and not a pool of Python threads: split over Python pool threads
-(jaxnat.atari.chunks), the kernel's short chunks of work cost much more than the work itself
-beside a busy emulator, most of it waking the threads and passing the GIL between them and the
-caller. numba's own threads (`parallel=True`) need no GIL, and an empty round trip through them
-is a small fraction of the pool's. (`host_pass="pool"` keeps the pool, for comparison; the
-host ms per step of both are in bench/results/natural_atari.md.)
+Why one numba call and not a pool of Python threads (`host_pass="pool"` keeps the pool, for
+comparison), and why idle threads must sleep: `docs/design.md`, "Host threads".
 
 `threads` sets how many of numba's threads the call uses (`numba.set_num_threads`, which only
 affects the calling thread, restored afterwards); envs are split into that many contiguous
 chunks. The output does not depend on `threads`.
 
-Idle threads must sleep, not spin: ALE's threads need every core as soon as the pass returns.
-numba's usual threading layer is OpenMP (GNU libgomp), whose idle threads spin for a while after
-each call by default, taking those cores from the emulation (the spinning and passive
-throughputs are compared in bench/results/natural_atari.md). libgomp reads `OMP_WAIT_POLICY`
-once, when it is loaded, so the first pass starts numba's threads with `OMP_WAIT_POLICY=PASSIVE`
-set for that moment only (unless you set it yourself; the process's environment is restored at
-once, so libraries that load their own OpenMP later are not affected). If libgomp was already
-loaded by then, its policy stays as it was; `GOMP_SPINCOUNT`, if set, overrides the policy.
+The first pass starts numba's threads (OpenMP's libgomp, which reads `OMP_WAIT_POLICY` once,
+when loaded) with `OMP_WAIT_POLICY=PASSIVE` set for that moment only, unless you set it
+yourself. If libgomp was already loaded by then, its policy stays as it was; `GOMP_SPINCOUNT`,
+if set, overrides the policy.
 
 `usable()` says whether the pass may be used: not on numba's `workqueue` layer (chosen when
 neither OpenMP nor TBB is available), which aborts the process when two threads call parallel
@@ -40,7 +32,7 @@ import threading
 import numba
 import numpy as np
 
-from jaxnat.atari.area import AreaPlan, kernel_arguments, parallel_pass
+from jaxnat.atari.area import AreaPlan, check_screens, kernel_arguments, parallel_pass
 
 __all__ = ["composite_resize_stack", "usable"]
 
@@ -68,11 +60,7 @@ def composite_resize_stack(screens: np.ndarray, backgrounds: np.ndarray, ring: n
     `ring`: a frame stack's ring buffer `uint8[depth, B, h, w]`; `obs`: C-contiguous
     `uint8[B, h, w, depth]`. Releases the GIL. Returns `obs`."""
     depth, b = ring.shape[:2]
-    if (screens.shape != (b, *plan.src_shape) or backgrounds.shape != screens.shape
-            or screens.dtype != np.uint8 or backgrounds.dtype != np.uint8):
-        raise ValueError(f"screens and backgrounds must be uint8[{b}, {plan.src_shape[0]}, "
-                         f"{plan.src_shape[1]}], got {screens.dtype} {screens.shape} and "
-                         f"{backgrounds.dtype} {backgrounds.shape}")
+    check_screens(screens, backgrounds, plan, b)
     if (ring.shape[2:] != plan.dst_shape or ring.dtype != np.uint8 or not ring.flags.c_contiguous
             or obs.shape != (b, *plan.dst_shape, depth) or obs.dtype != np.uint8
             or not obs.flags.c_contiguous or sorted(slots) != list(range(depth))):

@@ -15,7 +15,8 @@ __all__ = ["HostVecWrapper", "ClipRewardWrapper", "DeviceArraysWrapper", "Pipeli
 
 
 class HostVecWrapper:
-    """Base: forwards `reset`, `step` and every other attribute to the wrapped env."""
+    """Base: forwards `reset`, `step` and every other attribute to the wrapped env; a wrapper
+    changes the actions going in (`_actions`) and the outcome of a step coming out (`_outcome`)."""
 
     def __init__(self, env):
         self.env = env
@@ -24,15 +25,21 @@ class HostVecWrapper:
         return self.env.reset(**kwargs)
 
     def step(self, actions):
-        return self.env.step(actions)
+        return self._outcome(self.env.step(self._actions(actions)))
 
     def step_async(self, actions) -> None:
         """`step` in two halves, where the env has them (`NaturalAtariVecEnv`): named here so
         that a wrapper's `step_wait` is not bypassed by the attribute forwarding below."""
-        self.env.step_async(actions)
+        self.env.step_async(self._actions(actions))
 
     def step_wait(self):
-        return self.env.step_wait()
+        return self._outcome(self.env.step_wait())
+
+    def _actions(self, actions):
+        return actions
+
+    def _outcome(self, outcome):
+        return outcome
 
     def __getattr__(self, name):
         return getattr(self.env, name)
@@ -52,13 +59,8 @@ class ClipRewardWrapper(HostVecWrapper):
         super().__init__(env)
         self.bound = float(bound)
 
-    def step(self, actions):
-        return self._clip(*self.env.step(actions))
-
-    def step_wait(self):
-        return self._clip(*self.env.step_wait())
-
-    def _clip(self, obs, reward, terminated, truncated, info):
+    def _outcome(self, outcome):
+        obs, reward, terminated, truncated, info = outcome
         info = {**info, "unclipped_reward": reward}
         return obs, np.clip(reward, -self.bound, self.bound), terminated, truncated, info
 
@@ -78,15 +80,11 @@ class DeviceArraysWrapper(HostVecWrapper):
     def reset(self, **kwargs):
         return jax.device_put(self.env.reset(**kwargs), self.device)
 
-    def step(self, actions):
-        out = self.env.step(np.asarray(actions))
-        return jax.device_put(out, self.device)
+    def _actions(self, actions):
+        return np.asarray(actions)
 
-    def step_async(self, actions) -> None:
-        self.env.step_async(np.asarray(actions))
-
-    def step_wait(self):
-        return jax.device_put(self.env.step_wait(), self.device)
+    def _outcome(self, outcome):
+        return jax.device_put(outcome, self.device)
 
 
 class PipelinedVecEnv:
@@ -124,7 +122,8 @@ class PipelinedVecEnv:
 
     def step(self, actions):
         outs = [part.step(a) for part, a in zip(self.parts, self.split(np.asarray(actions)))]
-        return concat_steps(outs)
+        obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
+        return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
 
     def close(self) -> None:
         for part in self.parts:
@@ -132,12 +131,6 @@ class PipelinedVecEnv:
 
     def __repr__(self) -> str:
         return f"PipelinedVecEnv({self.parts!r})"
-
-
-def concat_steps(outs):
-    """The parts' `step` outcomes as one batch's."""
-    obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
-    return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
 
 
 def _concat_infos(infos):
