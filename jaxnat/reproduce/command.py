@@ -532,36 +532,41 @@ def host_stream_main(argv=None) -> int:
     parser.add_argument("--events-fd", required=True, type=int)
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
 
+    parent_gone = threading.Event()
+
     def watch_parent() -> None:
         # The raw descriptor, not sys.stdin: a daemon thread blocked in a buffered read holds
         # its lock, which the interpreter's shutdown then cannot take.
         while os.read(0, 4096):  # b"": the parent closed the pipe or died
             pass
+        parent_gone.set()
         os.kill(os.getpid(), signal.SIGINT)
 
-    threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
-    os.set_inheritable(args.events_fd, False)  # the pipe ends with this process, not with a child of it
-    if hasattr(os, "nice"):
-        os.nice(HOST_STREAM_NICE)
-    profile = PROFILES[args.profile]
-    grid = {c.name: c for c in build_grid(profile)}
-    names = args.cells.split(",")
-    unknown = [name for name in names if name not in grid]
-    if unknown:
-        parser.error(f"no cell {unknown[0]!r} in the {args.profile} grid")
-    cells = [grid[name] for name in names]
-    plan = Plan(profile, tuple(dict.fromkeys(c.experiment for c in cells)), args.seeds, args.out, cells)
-    from jaxnat.training import run_status
-
-    resumed = {c.name: run_status(args.out / c.name) == "partial" for c in cells}
     console = Console()
-    try:
+    threading.Thread(target=watch_parent, name="parent-watch", daemon=True).start()
+    try:  # from here: an interrupt may come at any point, setup included
+        os.set_inheritable(args.events_fd, False)  # the pipe ends with this process, not a child of it
+        if hasattr(os, "nice"):
+            os.nice(HOST_STREAM_NICE)
+        profile = PROFILES[args.profile]
+        grid = {c.name: c for c in build_grid(profile)}
+        names = args.cells.split(",")
+        unknown = [name for name in names if name not in grid]
+        if unknown:
+            parser.error(f"no cell {unknown[0]!r} in the {args.profile} grid")
+        cells = [grid[name] for name in names]
+        plan = Plan(profile, tuple(dict.fromkeys(c.experiment for c in cells)), args.seeds, args.out, cells)
+        from jaxnat.training import run_status
+
+        resumed = {c.name: run_status(args.out / c.name) == "partial" for c in cells}
         _train_cells(cells, plan, resumed, _Events(args.events_fd, console), platform=_platform(), compile_ahead=False,
                      overlapped=True)
     except KeyboardInterrupt:
         console.print("interrupted (checkpointed)")
         return 130
-    return 0
+    # An interrupt the trainer took itself (it checkpoints and stops the cell) still ends the
+    # stream as interrupted: the parent is gone, so nothing more may be trained or reported.
+    return 130 if parent_gone.is_set() else 0
 
 
 def _check_same_run(cell: Cell, plan: Plan, config: dict) -> None:
