@@ -51,7 +51,10 @@ def log_prob(dist, actions: jax.Array) -> jax.Array:
     if isinstance(dist, Gaussian):
         z = (actions - dist.mean) * jnp.exp(-dist.log_std)
         return jnp.sum(-0.5 * z**2 - dist.log_std - 0.5 * _LOG_2PI, axis=-1)
-    return sum(jnp.take_along_axis(jax.nn.log_softmax(l), actions[..., i : i + 1], axis=-1)[..., 0]
+    # The chosen entry picked by a comparison, not an indexed gather: its gradient is then a
+    # select, where a gather's is a scatter (a kernel of its own per minibatch on a GPU).
+    return sum(jnp.sum(jnp.where(jnp.arange(l.shape[-1]) == actions[..., i : i + 1], jax.nn.log_softmax(l), 0.0),
+                       axis=-1)
                for i, l in enumerate(dist))
 
 

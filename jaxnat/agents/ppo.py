@@ -58,6 +58,10 @@ class PPOConfig:
     weight_decay: float = 0.0  # decoupled (AdamW), scaled by the learning rate; 0: the authors' Adam
 
 
+# What each update reports beside the episode metrics: means over its minibatches.
+LOSS_NAMES = ("policy_loss", "value_loss", "entropy", "approx_kl", "clip_fraction")
+
+
 def _optimizer(config: PPOConfig, num_updates: int):
     steps_per_update = config.update_epochs * config.num_minibatches
 
@@ -129,10 +133,10 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         loss = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
         # How far the policy moved from the one that collected the data (0 on the first
         # minibatch of the first epoch): CleanRL's `approx_kl` (k3 estimator) and clip fraction.
+        # One vector, not five scalars: the scans stack it in one write per minibatch.
         log_ratio = log_prob - old_log_prob
-        return loss, {"policy_loss": policy_loss, "value_loss": value_loss, "entropy": entropy,
-                      "approx_kl": jnp.mean(ratio - 1.0 - log_ratio),
-                      "clip_fraction": jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps)}
+        return loss, jnp.stack([policy_loss, value_loss, entropy, jnp.mean(ratio - 1.0 - log_ratio),
+                                jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps)])
 
     def minibatch_step(train_state, minibatch):
         grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params, *minibatch)
@@ -149,7 +153,7 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         return jax.lax.scan(minibatch_step, train_state, shuffled)
 
     train_state, losses = jax.lax.scan(epoch, train_state, jax.random.split(key, config.update_epochs))
-    return train_state, jax.tree_util.tree_map(jnp.mean, losses)
+    return train_state, dict(zip(LOSS_NAMES, jnp.mean(losses, axis=(0, 1))))
 
 
 RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,

@@ -54,7 +54,7 @@ __all__ = [
     "host_updates", "TIMING_KEYS",
     "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch",
     "make_evaluate", "make_chance", "evaluate_host",
-    "clipped_optimizer", "host_jit", "EPISODE_KEYS",
+    "clip_by_global_norm", "clipped_optimizer", "host_jit", "EPISODE_KEYS",
 ]
 
 # What a host-batched env's `info` carries about episodes that ended (PureJaxRL's keys).
@@ -229,8 +229,25 @@ def env_action(action, action_space):
     return action[..., 0] if is_scalar_action(action_space) else action
 
 
+def clip_by_global_norm(max_norm) -> optax.GradientTransformation:
+    """`optax.clip_by_global_norm` (the same rule and the same, empty, state) with the norm
+    taken in one reduction over every gradient at once: optax reduces each parameter array on
+    its own, one kernel per array on a GPU, which a small network's update (bound by kernel
+    launches, not arithmetic) pays on every minibatch."""
+
+    def update(updates, state, params=None):
+        del params
+        leaves = jax.tree_util.tree_leaves(updates)
+        norm = jnp.sqrt(jnp.sum(jnp.concatenate([jnp.ravel(g).astype(jnp.float32) for g in leaves]) ** 2))
+        keep = norm < max_norm
+        return jax.tree_util.tree_map(
+            lambda g: jnp.where(keep, g, (g / norm.astype(g.dtype)) * max_norm).astype(g.dtype), updates), state
+
+    return optax.GradientTransformation(lambda params: optax.EmptyState(), update)
+
+
 def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):
-    return optax.chain(optax.clip_by_global_norm(max_grad_norm), optimizer)
+    return optax.chain(clip_by_global_norm(max_grad_norm), optimizer)
 
 
 def pmean_gradients(tx: optax.GradientTransformation, axis_name) -> optax.GradientTransformation:
