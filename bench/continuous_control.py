@@ -25,6 +25,10 @@ PixelMuJoCo training throughput against the env alone, and the paper's open-loop
   floor) / pixels (video floor) / pure noise, the same env steps each; the final training
   return (last 10% of updates) with a 95% CI, and the learning curves
   (bench/results/open_loop.png, laid out as the paper's PixelMuJoCo figure: one panel per robot).
+  It prints, per robot and algorithm, whether noise lies within the CI of pixels (the claim).
+
+Every mode takes `--physics default|fast` (the robots' `physics=` setting; `fast` trades
+fidelity for speed, docs/environments.md); rows record which one ran.
 """
 
 from __future__ import annotations
@@ -83,18 +87,18 @@ def state_bench(args) -> None:
 
     rows = []
     for robot in args.robots:
-        env, params = jaxnat.make(f"MuJoCo/{robot}-v0")
+        env, params = jaxnat.make(f"MuJoCo/{robot}-v0", physics=args.physics)
         overrides = defaults.family_defaults("ppo", env.observation_space(params), env.action_space(params))
         config = PPOConfig(**{**overrides, "num_envs": args.num_envs, "num_steps": args.num_steps,
                               "total_timesteps": args.total_timesteps, "trunk": "mlp"})
         runner, metrics, learner, compile_s, train_s = train_seeds(env, params, config, make_ppo, args.seeds)
-        test_env, test_params = jaxnat.make(f"MuJoCo/{robot}-v0", autoreset=False)
+        test_env, test_params = jaxnat.make(f"MuJoCo/{robot}-v0", autoreset=False, physics=args.physics)
         evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, args.eval_episodes)))
         scores = jax.device_get(evaluate(runner.train_state.params,
                                          jax.random.split(jax.random.key(1), args.seeds), runner.normalizer))
         train_mean, train_ci = common.mean_ci(final_training_return(metrics, 0.05))
         sampled_mean, sampled_ci = common.mean_ci(scores["sampled_return"])
-        row = {"robot": robot, "seeds": args.seeds, "steps_per_seed": learner.num_updates * config.num_envs
+        row = {"robot": robot, "physics": args.physics, "seeds": args.seeds, "steps_per_seed": learner.num_updates * config.num_envs
                * config.num_steps, "split": f"{config.num_envs}x{config.num_steps}",
                "train_return": train_mean, "train_ci": train_ci, "eval_sampled": sampled_mean,
                "eval_sampled_ci": sampled_ci, "eval_greedy": float(np.mean(scores["greedy_return"])),
@@ -109,7 +113,7 @@ def state_bench(args) -> None:
         rows.append(row)
         print(json.dumps(row), flush=True)
     table = common.markdown_table(rows, [
-        ("robot", "robot", ""), ("split", "envs x steps", ""), ("steps_per_seed", "steps/seed", ",d"),
+        ("robot", "robot", ""), ("physics", "physics", ""), ("split", "envs x steps", ""), ("steps_per_seed", "steps/seed", ",d"),
         ("train_return", "final train return", ".1f"), ("train_ci", "± 95% CI", ".1f"),
         ("eval_sampled", "eval sampled", ".1f"), ("eval_sampled_ci", "± CI", ".1f"), ("eval_greedy", "eval greedy", ".1f"),
         ("cleanrl", "CleanRL 1M", ".1f"), ("cleanrl_ci", "± CI", ".1f"), ("ratio", "ratio", ".2f"), ("verdict", "vs CI", ""),
@@ -194,7 +198,7 @@ def open_loop_bench(args) -> None:
         for algo in args.algos:
             for name in args.observations:
                 kwargs = OBSERVATIONS[name]
-                env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", **kwargs)
+                env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, **kwargs)
                 algorithm = ALGORITHMS[algo]
                 overrides = defaults.family_defaults(algo, env.observation_space(params), env.action_space(params))
                 overrides.update(total_timesteps=args.total_timesteps, num_envs=args.num_envs)
@@ -205,7 +209,7 @@ def open_loop_bench(args) -> None:
                                                                            args.seeds)
                 mean, half = common.mean_ci(final_training_return(metrics, 0.1))
                 steps = config.num_envs * config.num_steps
-                row = {"robot": robot, "algo": algo, "observation": name, "seeds": args.seeds,
+                row = {"robot": robot, "algo": algo, "observation": name, "physics": args.physics, "seeds": args.seeds,
                        "steps_per_seed": learner.num_updates * steps, "final_return": mean, "ci": half,
                        "train_s": train_s, "compile_s": compile_s,
                        "curve_steps": (np.arange(1, learner.num_updates + 1) * steps).tolist(),
@@ -216,14 +220,34 @@ def open_loop_bench(args) -> None:
                     with open(out, "a") as f:
                         f.write(json.dumps({"machine": common.machine(), **row}) + "\n")
     table = common.markdown_table(rows, [
-        ("robot", "robot", ""), ("algo", "algo", ""), ("observation", "observation", ""),
+        ("robot", "robot", ""), ("algo", "algo", ""), ("observation", "observation", ""), ("physics", "physics", ""),
         ("steps_per_seed", "steps/seed", ",d"), ("final_return", "final return", ".1f"), ("ci", "± 95% CI", ".1f"),
         ("train_s", "train s", ".1f")])
+    claims = open_loop_claims(rows)
+    for line in claims:
+        print(line, flush=True)
     common.record("continuous_control", common.machine(), table, {
-        "mode": f"open-loop: PixelMuJoCo, {args.seeds} seeds, state / pixels / pixels with a video floor / pure noise",
+        "mode": f"open-loop: PixelMuJoCo, {args.seeds} seeds, state / pixels / pixels with a video floor / pure noise, "
+                f"physics={args.physics!r}, {args.num_envs} envs x {args.num_steps} steps per update",
+        "the paper's claim (noise within the CI of pixels)": "; ".join(claims) or "no pixels and noise pair run",
         "final return": "mean training episode return over the last 10% of the updates in which an episode ended; CI: Student's t over seeds",
         "curves": "bench/results/open_loop.jsonl; python bench/continuous_control.py plot",
     }, [{k: v for k, v in r.items() if not k.startswith("curve")} for r in rows], save=not args.no_record)
+
+
+def open_loop_claims(rows) -> list[str]:
+    """Per robot and algorithm: whether the pure-noise policy's final return lies within the
+    95% CI of the pixel policy's (checker floor), the paper's open-loop claim."""
+    found = {(r["robot"], r["algo"], r["observation"]): r for r in rows}
+    claims = []
+    for (robot, algo, name), noise in found.items():
+        pixels = found.get((robot, algo, "pixels"))
+        if name != "noise" or pixels is None:
+            continue
+        within = abs(noise["final_return"] - pixels["final_return"]) <= pixels["ci"]
+        claims.append(f"{robot} {algo}: noise {noise['final_return']:.1f} vs pixels {pixels['final_return']:.1f} "
+                      f"± {pixels['ci']:.1f}: {'within' if within else 'not within'}")
+    return claims
 
 
 def plot(args) -> None:
@@ -257,7 +281,8 @@ def plot(args) -> None:
             ax.set_ylabel("training episode return")
             ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize="small")
-    fig.suptitle("PixelMuJoCo: state, pixels and pure noise (mean ± std over seeds)")
+    physics = sorted({row.get("physics", "default") for row in latest.values()})
+    fig.suptitle(f"PixelMuJoCo: state, pixels and pure noise (mean ± std over seeds; physics {', '.join(physics)})")
     path = common.RESULTS / "open_loop.png"
     fig.savefig(path, dpi=100)
     print(path)
@@ -275,8 +300,6 @@ def main(argv=None):
     state.add_argument("--eval-episodes", type=int, default=10)
     pixels = sub.add_parser("pixels")
     pixels.add_argument("--robot", default="Hopper")
-    pixels.add_argument("--physics", default="default", choices=["default", "fast"],
-                        help="the robot's physics= setting (mjx_pixel/base.py)")
     pixels.add_argument("--env-counts", type=int, nargs="*", default=[1024, 2048, 4096, 8192])
     pixels.add_argument("--num-steps", type=int, default=16)
     pixels.add_argument("--updates", type=int, default=3)
@@ -291,6 +314,8 @@ def main(argv=None):
     loop.add_argument("--num-steps", type=int, default=32)
     sub.add_parser("plot")
     for p in (state, pixels, loop):
+        p.add_argument("--physics", default="default", choices=["default", "fast"],
+                       help="the robot's physics= setting (mjx_pixel/base.py)")
         p.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     {"state": state_bench, "pixels": pixels_bench, "open-loop": open_loop_bench, "plot": plot}[args.mode](args)
