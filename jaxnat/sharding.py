@@ -13,6 +13,12 @@ Contract:
   of `Auto` type (so `jax.shard_map` and jit's sharding propagation both accept it).
 - `check_split(count, shards, what)` refuses a batch that does not divide evenly, naming the
   nearest counts that do.
+- `process_share(count, devices)` is this process's contiguous part `(first, size)` of a batch
+  split over the mesh: all of it in one process; with several (`jax.distributed`), the entries
+  its devices hold (a host-batched env, Natural Atari, builds that many envs per process).
+- `put_global(tree, shardings)` places values that are the same in every process;
+  `shard_program(fn, mesh, in_specs, out_specs)` is `fn` under `jax.shard_map`, jitted with
+  the matching shardings; `local_copy(tree)` is this process's copy of replicated arrays.
 - `initialize_from_env()` starts `jax.distributed` from `JAX_COORDINATOR_ADDRESS`,
   `JAX_NUM_PROCESSES` and `JAX_PROCESS_ID` (jax itself reads only the first), and does nothing
   when they are unset; every process then sees every host's devices in `jax.devices()`.
@@ -23,12 +29,15 @@ from __future__ import annotations
 import os
 from typing import Sequence
 
+import functools
+
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 __all__ = ["AXIS", "ENV_VARS", "resolve_devices", "device_mesh", "check_split", "nearest_multiples", "sharded",
-           "replicated", "initialize_from_env"]
+           "replicated", "shardings", "process_share", "put_global", "shard_program", "local_copy",
+           "initialize_from_env"]
 
 AXIS = "devices"  # the mesh axis that envs (or seeds) are split along
 # What `initialize_from_env` reads: the coordinator's host:port, the process count, this process's id.
@@ -74,12 +83,14 @@ def nearest_multiples(count: int, shards: int) -> list[int]:
     return sorted({max(below, shards), below + shards})
 
 
-def check_split(count: int, shards: int, what: str = "num_envs", fix: str | None = None) -> None:
+def check_split(count: int, shards: int, what: str = "num_envs", fix: str | None = None,
+                over: str | None = None) -> None:
     """A `ValueError` unless `count` splits evenly over `shards` devices, naming the nearest
-    counts that do (`fix`: how to give one, e.g. "--num-envs"; default `what=`)."""
+    counts that do (`fix`: how to give one, e.g. "--num-envs"; default `what=`; `over`: what
+    the shards are, default "N devices")."""
     if count % shards:
         options = " or ".join(str(n) for n in nearest_multiples(count, shards))
-        raise ValueError(f"{what}={count} does not split evenly over {shards} devices: use "
+        raise ValueError(f"{what}={count} does not split evenly over {over or f'{shards} devices'}: use "
                          f"{fix or what + '='}{options}")
 
 
@@ -91,6 +102,65 @@ def sharded(mesh: Mesh, axis: int = 0) -> NamedSharding:
 def replicated(mesh: Mesh) -> NamedSharding:
     """Arrays copied whole onto every device of the mesh."""
     return NamedSharding(mesh, PartitionSpec())
+
+
+def shardings(mesh: Mesh, specs):
+    """A tree of `PartitionSpec`s (a prefix of some tree) as `NamedSharding`s over `mesh`."""
+    return jax.tree.map(lambda s: NamedSharding(mesh, s), specs, is_leaf=lambda x: isinstance(x, PartitionSpec))
+
+
+def process_share(count: int, devices, what: str = "num_envs") -> tuple[int, int]:
+    """`(first, size)`: the entries `first .. first + size - 1` of a batch of `count` split along
+    `AXIS` over `device_mesh(devices)` that this process's devices hold (with one process,
+    `(0, count)`). A `ValueError` when `count` does not split evenly, when this process holds
+    none of the devices, or holds parts that are not adjacent (list devices process by process)."""
+    mesh = device_mesh(devices)
+    processes = len({d.process_index for d in mesh.devices.flat})
+    over = f"{mesh.size} devices of {processes} processes" if processes > 1 else None
+    check_split(count, mesh.size, what, over=over)
+    starts = sorted(index[0].start or 0 for index in sharded(mesh).addressable_devices_indices_map((count,)).values())
+    if not starts:
+        raise ValueError(f"process {jax.process_index()} holds none of the {mesh.size} devices: give every "
+                         "process's devices (devices='all')")
+    size = count // mesh.size
+    if starts != list(range(starts[0], starts[0] + size * len(starts), size)):
+        raise ValueError(f"process {jax.process_index()}'s devices are not adjacent in the mesh: list the devices "
+                         "process by process (as jax.devices() does)")
+    return starts[0], size * len(starts)
+
+
+def put_global(tree, placement):
+    """`tree` placed as `placement` (a sharding, or a tree of them that is a prefix of `tree`)
+    says. With several processes every process passes the same values and fills its devices'
+    parts (an array spanning the processes already is left as it is)."""
+    if jax.process_count() == 1:
+        return jax.device_put(tree, placement)
+    return jax.tree.map(lambda sharding, subtree: jax.tree.map(functools.partial(_put_global, sharding=sharding),
+                                                               subtree),
+                        placement, tree, is_leaf=lambda x: isinstance(x, jax.sharding.Sharding))
+
+
+def _put_global(x, sharding):
+    if isinstance(x, jax.Array) and not x.is_fully_addressable:
+        return x
+    if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(_put_global(jax.random.key_data(x), sharding), impl=jax.random.key_impl(x))
+    value = np.asarray(x)
+    return jax.make_array_from_callback(value.shape, sharding, lambda index: value[index])
+
+
+def shard_program(fn, mesh: Mesh, in_specs: tuple, out_specs, jit=jax.jit):
+    """`fn` under `jax.shard_map` over `mesh` with these specs, compiled by `jit` (e.g. with
+    compiler options) with the matching shardings: its arguments and results are global arrays."""
+    # check_vma off: env code mixes per-env values and replicated params in lax.cond and scan
+    # carries; what stays replicated is made so by the learners' pmeans.
+    mapped = jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
+    return jit(mapped, in_shardings=shardings(mesh, in_specs), out_shardings=shardings(mesh, out_specs))
+
+
+def local_copy(tree):
+    """This process's copy of replicated global arrays: each leaf on its first device."""
+    return jax.tree.map(lambda x: x.addressable_data(0), tree)
 
 
 def initialize_from_env() -> bool:

@@ -5,12 +5,16 @@ the suite keeps its one device.
 
     XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_checks.py DIR
     python tests/sharded_checks.py distributed DIR   # one process of a jax.distributed run
+    XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_checks.py atari DIR
+    python tests/sharded_checks.py atari-distributed DIR   # one process of a jax.distributed run
 
 The first runs every check on 4 devices and saves PPO's parameters after training on one
 device to `DIR/reference.npz`; each process of the second trains the same PPO over both
-processes' devices and process 0 saves `DIR/distributed.npz`. Each check prints `ok <name>`
-or raises. The training checks use a probe env (vector observations, an MLP: quick to
-compile) registered here as `Probe/Factored-v0`.
+processes' devices and process 0 saves `DIR/distributed.npz`. The training checks use a probe
+env (vector observations, an MLP: quick to compile) registered here as `Probe/Factored-v0`.
+The last two do the same for Natural Atari's data-parallel host learner (ale-py): one process
+steps the whole ALE batch (`DIR/atari_reference.npz`), then each of two processes steps its
+half and saves `DIR/atari_process_<i>.npz`. Each check prints `ok <name>` or raises.
 """
 
 from __future__ import annotations
@@ -27,7 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 import jaxnat.sharding  # noqa: E402
 
-if __name__ == "__main__" and sys.argv[1:2] == ["distributed"]:
+DISTRIBUTED = ("distributed", "atari-distributed")  # the modes that run as one of several processes
+if __name__ == "__main__" and sys.argv[1] in DISTRIBUTED:
     jaxnat.sharding.initialize_from_env()  # before anything touches a device
 
 import jax  # noqa: E402
@@ -35,7 +40,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxnat  # noqa: E402
-from jaxnat.agents import A2CConfig, PPOConfig  # noqa: E402
+from jaxnat.agents import A2CConfig, DQNConfig, PPOConfig  # noqa: E402
 from jaxnat.agents.probes import make_probe  # noqa: E402
 from jaxnat.training import main, parse_args, train  # noqa: E402
 from jaxnat.training.placement import make_sharded_train  # noqa: E402
@@ -47,6 +52,13 @@ PPO = PPOConfig(total_timesteps=256, num_envs=8, num_steps=8, num_minibatches=2,
 TINY = ["--env-id", "Probe/Factored-v0", "--algo", "ppo", "--seeds", "2", "--num-envs", "8", "--num-steps", "8",
         "--num-minibatches", "2", "--update-epochs", "2", "--total-timesteps", "256", "--eval-every", "2",
         "--eval-episodes", "8"]
+# Natural Atari's data-parallel host learner: 4 envs of Breakout, 3 updates. Tiny 10-step games
+# end inside the rollouts (episode metrics summed over processes); no background, so every
+# env's frames depend on its seed and actions only, however the batch is split.
+ATARI_ENV = ("NaturalAtari/Breakout-v0", {"obs_size": 36, "num_threads": 1, "max_episode_steps": 10,
+                                          "background": "none"})
+ATARI_PPO = PPOConfig(total_timesteps=96, num_envs=4, num_steps=8, num_minibatches=2, update_epochs=2,
+                      trunk="atari", lr=1e-2)
 COLLECTIVES = ("all-reduce", "all-gather", "all-to-all", "collective-permute", "reduce-scatter")
 
 jaxnat.register("Probe/Factored-v0", "jaxnat.agents.probes:FactoredProbe")
@@ -174,9 +186,84 @@ def check_distributed(out: Path) -> None:
     print("ok distributed")
 
 
+def _train_atari(devices):
+    """The data-parallel host PPO on this process's share of `ATARI_ENV`: `(params, history,
+    the initial params)`."""
+    from jaxnat.training.host import make_learner, make_train_env
+
+    env = make_train_env(ATARI_ENV[0], ATARI_PPO.num_envs, ATARI_ENV[1], devices=devices)
+    try:
+        learner = make_learner("ppo", ATARI_PPO, env, FAST, devices=devices)
+        state, history = learner.train(jax.random.key(7))
+        return learner.params(state), history, learner.params(learner.init(jax.random.key(7)))
+    finally:
+        env.close()
+
+
+def _atari_results(params, history, _) -> dict:
+    """What the Natural Atari checks compare: parameters, every update's metrics."""
+    return {**{f"param_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(params))},
+            **{f"metric_{name}": np.asarray([row[name] for row in history]) for name in sorted(history[0])}}
+
+
+def _one_line_error(error, expected: str, call, *args, **kwargs) -> None:
+    try:
+        call(*args, **kwargs)
+    except error as err:
+        assert str(err).count("\n") == 0 and expected in str(err), str(err)
+    else:
+        raise AssertionError(f"no {error.__name__}: {expected}")
+
+
+def check_atari(out: Path) -> None:
+    """Natural Atari's data-parallel host learner in one process: the whole batch on 1 and on
+    4 devices trains the same parameters (`DIR/atari_reference.npz`: 1 device); bad input is
+    refused in one line."""
+    from jaxnat.training.host import make_learner, make_train_env
+
+    _one_line_error(ValueError, "num_envs=6 does not split evenly over 4 devices: use num_envs=4 or 8",
+                    make_train_env, ATARI_ENV[0], 6, ATARI_ENV[1], devices=4)
+    env = make_train_env(ATARI_ENV[0], 4, ATARI_ENV[1])
+    try:
+        _one_line_error(ValueError, "config.num_envs=8 is split over the devices: this process steps envs 0..7 (8) "
+                        "but the env has 4", make_learner, "ppo", ATARI_PPO.replace(num_envs=8), env, devices=4)
+        _one_line_error(ValueError, "dqn's host learner needs the whole batch on one device: leave devices out",
+                        make_learner, "dqn", DQNConfig(num_envs=4, trunk="atari"), env, devices=2)
+    finally:
+        env.close()
+    one, four = _train_atari(1), _train_atari(4)
+    reference = _atari_results(*one)
+    for name, value in _atari_results(*four).items():  # (metrics NaN where no episode ended, alike)
+        np.testing.assert_allclose(value, reference[name], atol=1e-5, err_msg=name)
+    moved = _close(one[0], one[2], atol=np.inf)
+    assert moved > 1e-3, moved  # training moves the parameters far beyond the tolerance
+    np.savez(out / "atari_reference.npz", **reference)
+    print("ok atari")
+
+
+def check_atari_distributed(out: Path) -> None:
+    """One process of a `jax.distributed` run: its half of the Natural Atari batch (one ALE
+    batch per process), the update data parallel over both processes' devices; each process
+    saves its parameters and metrics. Bad splits are refused in one line."""
+    assert jax.process_count() == 2 and jax.device_count() == 2, (jax.process_count(), jax.devices())
+    index = jax.process_index()
+    assert jaxnat.sharding.process_share(4, "all") == (2 * index, 2)
+    _one_line_error(ValueError, "num_envs=9 does not split evenly over 2 devices of 2 processes: use num_envs=8 or 10",
+                    jaxnat.sharding.process_share, 9, "all")
+    if index == 1:  # the first device is process 0's
+        _one_line_error(ValueError, "process 1 holds none of the 1 devices: give every process's devices",
+                        jaxnat.sharding.process_share, 4, 1)
+    np.savez(out / f"atari_process_{index}.npz", **_atari_results(*_train_atari("all")))
+    print("ok atari-distributed")
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "distributed":
         check_distributed(Path(sys.argv[2]))
+    elif sys.argv[1] == "atari":
+        check_atari(Path(sys.argv[2]))
+    elif sys.argv[1] == "atari-distributed":
+        check_atari_distributed(Path(sys.argv[2]))
     else:
         check_env()
         check_errors()

@@ -2,7 +2,8 @@
 
 The checks on several devices run `tests/sharded_checks.py` in fresh processes: 4 simulated
 CPU devices (`XLA_FLAGS`, read once when JAX starts, so this process keeps its one device),
-then a two-process `jax.distributed` run over the loopback address. Here: what one device can
+then a two-process `jax.distributed` run over the loopback address; for the jitted learners
+and for Natural Atari's host learner (one ALE batch per process). Here: what one device can
 check (bad input, the distributed set-up's environment variables).
 """
 
@@ -84,17 +85,43 @@ def test_on_several_devices_and_processes(tmp_path):
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert all(f"ok {name}" in done.stdout for name in ("errors", "ppo", "resume")), done.stdout[-3000:]
 
+    _two_processes("distributed", tmp_path)
+    reference, distributed = np.load(tmp_path / "reference.npz"), np.load(tmp_path / "distributed.npz")
+    assert reference.files == distributed.files
+    for name in reference.files:
+        np.testing.assert_allclose(distributed[name], reference[name], atol=1e-5)
+
+
+def _two_processes(mode: str, tmp_path) -> None:
+    """`sharded_checks.py <mode> tmp_path` as both processes of a `jax.distributed` run."""
     address = f"127.0.0.1:{_free_port()}"
-    processes = [subprocess.Popen([sys.executable, str(CHECKS), "distributed", str(tmp_path)],
+    processes = [subprocess.Popen([sys.executable, str(CHECKS), mode, str(tmp_path)],
                                   env=_env(XLA_FLAGS=FAST_XLA, JAX_COORDINATOR_ADDRESS=address, JAX_NUM_PROCESSES="2",
                                            JAX_PROCESS_ID=str(i)),
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(2)]
     outputs = [p.communicate(timeout=900)[0] for p in processes]
     assert [p.returncode for p in processes] == [0, 0], "\n".join(o[-2000:] for o in outputs)
-    reference, distributed = np.load(tmp_path / "reference.npz"), np.load(tmp_path / "distributed.npz")
-    assert reference.files == distributed.files
+    assert all(f"ok {mode}" in o for o in outputs), "\n".join(o[-2000:] for o in outputs)
+
+
+def test_natural_atari_one_ale_batch_per_process(tmp_path):
+    """Natural Atari's data-parallel host learner: the whole ALE batch in one process, on 1 and
+    4 devices, then half of it in each of two processes (update data parallel over both) train
+    the same parameters and metrics; the two processes hold identical ones; bad splits are
+    refused in one line (`sharded_checks.py atari`, `atari-distributed`). About a minute on a
+    free 2-core CPU; the time limits only catch a hang."""
+    pytest.importorskip("ale_py")
+    flags = f"--xla_force_host_platform_device_count=4 {FAST_XLA}"
+    done = subprocess.run([sys.executable, str(CHECKS), "atari", str(tmp_path)], env=_env(XLA_FLAGS=flags),
+                          capture_output=True, text=True, timeout=1200)
+    assert done.returncode == 0 and "ok atari" in done.stdout, done.stdout[-3000:] + done.stderr[-3000:]
+    _two_processes("atari-distributed", tmp_path)
+    reference = np.load(tmp_path / "atari_reference.npz")
+    first, second = (np.load(tmp_path / f"atari_process_{i}.npz") for i in range(2))
+    assert reference.files == first.files == second.files
     for name in reference.files:
-        np.testing.assert_allclose(distributed[name], reference[name], atol=1e-5)
+        np.testing.assert_array_equal(second[name], first[name], err_msg=name)  # the same update in both
+        np.testing.assert_allclose(first[name], reference[name], atol=1e-5, err_msg=name)
 
 
 def test_resuming_on_fewer_devices_names_the_flag():

@@ -17,7 +17,9 @@ from jaxnat.agents.ppo import PPOConfig, make_host_ppo, make_ppo
 class Algorithm(NamedTuple):
     config: type  # the config dataclass
     make: Callable  # (config, env, env_params) -> rollout.Learner (jitted, JAX envs)
-    make_host: Callable | None  # (config, env, compiler_options=None) -> rollout.HostLearner
+    # (config, env, compiler_options=None) -> rollout.HostLearner; data-parallel ones also take
+    # devices= (`rollout.on_policy_host_learner`)
+    make_host: Callable | None
 
 
 ALGORITHMS = {

@@ -78,9 +78,10 @@ def make_a2c(config: A2CConfig, env, env_params, axis_name=None) -> Learner:
     return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
-def make_host_a2c(config: A2CConfig, env, compiler_options: dict | None = None) -> HostLearner:
-    """The A2C learner on a host-batched env (Natural Atari): `rollout.on_policy_host_learner`."""
-    return on_policy_host_learner(config, env, RULE, compiler_options)
+def make_host_a2c(config: A2CConfig, env, compiler_options: dict | None = None, devices=None) -> HostLearner:
+    """The A2C learner on a host-batched env (Natural Atari): `rollout.on_policy_host_learner`
+    (`devices`: data parallel over them and every process, one env batch per process)."""
+    return on_policy_host_learner(config, env, RULE, compiler_options, devices)
 
 
 def make_train(config: A2CConfig, env, env_params):

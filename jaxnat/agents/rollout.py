@@ -25,6 +25,8 @@ algorithm file (`ppo.py`, `a2c.py`, `acktr.py`, `dqn.py`) holds its config, loss
   (normalisation moments, metrics, PPO's advantage normalisation and minibatches: an equal
   share of every env's steps) is the whole batch's, so 1, 2, 4 ... devices train the same
   parameters to float tolerance. It is not the default learner's stream of random draws.
+  The host learner does the same across processes (`on_policy_host_learner(devices=)`): each
+  process steps its share of a host-batched env (one ALE batch per host).
 - **Evaluation.** `make_evaluate` (jitted: each env plays its first episode) and
   `evaluate_host` (whole games of a host env), greedy or sampled.
 """
@@ -42,9 +44,11 @@ import numpy as np
 import optax
 from flax import struct
 from flax.training.train_state import TrainState
+from jax.sharding import PartitionSpec
 
 from jaxnat.agents import distributions, normalize
 from jaxnat.agents.networks import Memory, init_params, initial_memory, is_box, make_actor_critic, one_step_sequence
+from jaxnat.sharding import AXIS, device_mesh, local_copy, process_share, put_global, replicated, shard_program, sharded
 from jaxnat.wrappers import LogWrapper
 
 __all__ = [
@@ -493,10 +497,16 @@ class HostLearner(NamedTuple):
     timings: dict | None = None
 
 
-def check_host_batch(config, env, memory: int = 0) -> int:
+def check_host_batch(config, env, memory: int = 0, share: tuple[int, int] | None = None) -> int:
     """The run's update count; `config.num_envs` must equal `env.num_envs` (a host-batched env
-    is built with its batch size), and the policy must be feed-forward (`memory` 0)."""
-    if config.num_envs != env.num_envs:
+    is built with its batch size), or with `share` (`(first, size)`, a data-parallel run's
+    `jaxnat.sharding.process_share`) `size`; the policy must be feed-forward (`memory` 0)."""
+    if share is not None and share[1] != env.num_envs:
+        first, size = share
+        raise ValueError(f"config.num_envs={config.num_envs} is split over the devices: this process steps envs "
+                         f"{first}..{first + size - 1} ({size}) but the env has {env.num_envs} (build it with "
+                         "jaxnat.sharding.process_share)")
+    if share is None and config.num_envs != env.num_envs:
         raise ValueError(f"config.num_envs={config.num_envs} but the env has {env.num_envs} envs")
     if memory:
         raise ValueError(f"memory={memory}: recurrent policies train on jitted envs only; a host-batched env "
@@ -628,10 +638,12 @@ class _Clock:
 
 
 def host_updates(env, network, num_updates: int, init_learner: Callable, update: Callable,
-                 params: Callable, jit: Callable, timings: dict | None = None) -> HostLearner:
+                 params: Callable, jit: Callable, timings: dict | None = None, first_env: int = 0) -> HostLearner:
     """The Python loop of updates on a host-batched env. `update(learner, obs, key, update_index)
     -> (learner, obs, key, metrics)` does one update's env steps and learning; `timings` (the
-    one `update` hands its `host_steps`, if any) also gets each update's seconds."""
+    one `update` hands its `host_steps`, if any) also gets each update's seconds. `first_env`:
+    the index of the env's first env in a batch split over processes (its games are seeded
+    as that batch's)."""
     timings = {} if timings is None else timings
 
     greedy, sample = (jit(lambda params, obs, key, g=g: choose(network.apply(params, obs)[0], key, g))
@@ -645,7 +657,7 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
         """Updates `state.update + 1, ...` (up to `num_updates`) on freshly reset envs, one
         `(state, metrics, seconds)` per update; a consumer may stop anywhere (a chunk)."""
         key, key_env = jax.random.split(state.key)
-        obs, _ = env.reset(seed=int(jax.random.randint(key_env, (), 0, 2**31 - 1)))
+        obs, _ = env.reset(seed=int(jax.random.randint(key_env, (), 0, 2**31 - 1)) + first_env)
         learner = state.learner
         for index in range(int(state.update), num_updates):
             start = time.perf_counter()
@@ -676,7 +688,8 @@ def host_jit(compiler_options: dict | None) -> Callable:
     return functools.partial(jax.jit, compiler_options=compiler_options)
 
 
-def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict | None = None) -> HostLearner:
+def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict | None = None,
+                           devices=None) -> HostLearner:
     """The host-loop on-policy learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched
     host env: per env step one jitted policy call, and one value call on final observations
     when an episode ended; per update the rollout goes to the device once and one jitted
@@ -685,9 +698,25 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     On a `jaxnat.atari.wrappers.PipelinedVecEnv` of two or more parts the steps run through
     `host_steps_pipelined`: each part's policy call overlaps the other parts' emulation. Same
     policy, same update; the action samples use other keys, so the run is not the one-batch
-    run bit for bit (with one batch, it is the run it always was)."""
+    run bit for bit (with one batch, it is the run it always was).
+
+    `devices` (a count, "all", devices or a mesh: `jaxnat.sharding.device_mesh`): train data
+    parallel over them, and over every process of a `jax.distributed` run (one ALE batch per
+    host). `env` then holds this process's share of the `config.num_envs` envs
+    (`jaxnat.sharding.process_share`), whose games are seeded as that share of one batch; env
+    `i` of the whole batch samples its actions with key `i` of each step's `num_envs` keys; the
+    update runs under `jax.shard_map` over the mesh on every process's rollouts (`rule.learn`
+    with `axis_name`: the gradients averaged by `pmean_gradients`, batch statistics whole), so
+    every process holds the same parameters and any process or device count trains the same
+    ones to float tolerance (with env parts: given the same parts per process, whose turns
+    the step keys follow). Its random draws are not the default learner's (`devices=None`,
+    unchanged)."""
     options = rule.network_options(config)
-    num_updates = check_host_batch(config, env, options.get("memory", 0))
+    mesh = None if devices is None else device_mesh(devices)
+    if mesh is not None and not rule.data_parallel:
+        raise ValueError("this algorithm does not train data parallel: leave devices out")
+    share = None if mesh is None else process_share(config.num_envs, mesh)
+    num_updates = check_host_batch(config, env, options.get("memory", 0), share)
     observation_space = env.single_observation_space
     if config.normalize_observations or config.normalize_rewards:  # (None, the default, is off here)
         raise ValueError("normalize_observations and normalize_rewards apply to jitted envs; a host-batched "
@@ -695,28 +724,30 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     network = make_actor_critic(observation_space, env.single_action_space, config.trunk, **options)
     jit = host_jit(compiler_options)
 
-    @jit
-    def policy(params, obs, key):
+    @functools.partial(jit, static_argnames="first")
+    def policy(params, obs, key, first=None):
         logits, value = network.apply(params, obs)
-        action = distributions.sample(key, logits)
+        if first is None:
+            action = distributions.sample(key, logits)
+        else:  # data parallel: env i of the whole batch draws with key i (`first`: this call's first env)
+            action = _sample_each(jax.random.split(key, config.num_envs)[first:first + len(obs)], logits)
         return action, (distributions.log_prob(logits, action), value)
 
     @jit
     def value_of(params, obs):
         return network.apply(params, obs)[1]
 
-    learn = jit(lambda train_state, transitions, key: rule.learn(config, network, train_state, transitions, key))
-
-    # One compiled program, not hundreds of small eager ones.
-    init = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
-
+    init, learn, local_params = _host_programs(config, network, rule, observation_space, num_updates, jit, mesh)
     parts = getattr(env, "parts", None)
     pipelined = parts is not None and len(parts) > 1
+    offsets = env.offsets[:-1] if pipelined else [0]
+    # Each part's first env in the whole batch (data parallel), or None: the default sampling.
+    starts = [None if share is None else share[0] + int(offset) for offset in offsets]
     timings = {}
 
     def update(train_state, obs, key, index):
         del index  # on-policy updates do not depend on the update count (schedules are in the optimizer)
-        params = train_state.params
+        params = local_params(train_state)
 
         def observe(carry, s: EnvStep, aux, t, part):
             log_prob, value = aux
@@ -728,7 +759,8 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
                            **{k: s.info[k] for k in EPISODE_KEYS}}
 
         steps = host_steps_pipelined if pipelined else host_steps
-        (_, obs, key), records = steps(env, config.num_steps, lambda carry, o, k, t, part: policy(params, o, k),
+        (_, obs, key), records = steps(env, config.num_steps,
+                                       lambda carry, o, k, t, part: policy(params, o, k, first=starts[part]),
                                        observe, None, obs, key, timings)
         last_value = [value_of(params, jax.device_put(o)) for o in (env.split(obs) if pipelined else [obs])]
         # name -> one entry per part of the batch: its steps. Host arrays (actions, rewards,
@@ -743,7 +775,39 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
         train_state, metrics = learn(train_state, transitions, key_update)
         return train_state, obs, key, metrics
 
-    return host_updates(env, network, num_updates, init, update, lambda s: s.learner.params, jit, timings)
+    return host_updates(env, network, num_updates, init, update, lambda s: local_params(s.learner), jit, timings,
+                        0 if share is None else share[0])
+
+
+def _host_programs(config, network, rule: UpdateRule, observation_space, num_updates: int, jit: Callable, mesh):
+    """`(init, learn, local_params)` of an on-policy host learner: `init(key) -> TrainState`,
+    `learn(train_state, transitions, key) -> (train_state, metrics)` on this process's rollout,
+    and `local_params(train_state)`, the parameters its policy calls read. Without `mesh`,
+    programs of one device. With it, data parallel: the train state replicated over the mesh
+    (its optimizer applying the mean gradient, `pmean_gradients`), and `learn` runs `rule.learn`
+    with `AXIS` under `jax.shard_map` on every process's rollouts side by side (each process
+    gives its own: `jax.make_array_from_process_local_data`) with the same key in every
+    process; the policy reads this process's copy of the parameters."""
+    if mesh is None:
+        learn = jit(lambda train_state, transitions, key: rule.learn(config, network, train_state, transitions, key))
+        # One compiled program, not hundreds of small eager ones.
+        init = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
+        return init, learn, lambda train_state: train_state.params
+    whole, per_env = PartitionSpec(), PartitionSpec(None, AXIS)  # replicated; split along the env axis
+    program = shard_program(lambda train_state, transitions, key: rule.learn(
+        config, network, train_state, transitions, key, AXIS), mesh, (whole, per_env, whole), (whole, whole), jit)
+    averaged = rule._replace(make_optimizer=lambda config, num_updates: pmean_gradients(
+        rule.make_optimizer(config, num_updates), AXIS))
+    make_state = jit(lambda key: averaged.train_state(config, network, observation_space, num_updates, key))
+
+    def init(key):
+        return put_global(make_state(key), replicated(mesh))
+
+    def learn(train_state, transitions, key):
+        transitions = jax.make_array_from_process_local_data(sharded(mesh, 1), transitions)
+        return program(train_state, transitions, put_global(key, replicated(mesh)))
+
+    return init, learn, lambda train_state: local_copy(train_state.params)
 
 
 @jax.jit

@@ -14,6 +14,11 @@ steps in turn (`rollout.host_steps_pipelined`): the policy's call for one part o
 emulation of the others. The actions are sampled with other keys than in one batch, so a run
 with parts differs from the one-batch run (N=1, the default, is that run unchanged).
 
+Several hosts (the API; `jaxnat train` runs in one process): `make_train_env(...,
+devices="all")` builds this process's share of the batch and `make_learner(..., devices="all")`
+its data-parallel learner (PPO, A2C; `rollout.on_policy_host_learner`): one ALE batch per
+process, the update data parallel over every process's devices, the same parameters in all.
+
 What a host checkpoint holds: params, optimizer state, DQN's target network and replay buffer,
 the update count and the PRNG key. The emulators' state cannot be saved, so a resumed seed
 starts new games (from a seed drawn from the restored key): unlike a resumed jitted run, the
@@ -23,6 +28,7 @@ result is not the uninterrupted one bit for bit.
 from __future__ import annotations
 
 import contextlib
+import inspect
 import itertools
 
 import jax
@@ -34,11 +40,13 @@ from jaxnat.agents.rollout import evaluate_host
 from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
+from jaxnat.sharding import process_share
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
-__all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env",
-           "new_host_spec", "check_env_parts", "observation_space", "make_learner", "make_train_env", "host_errors"]
+__all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend",
+           "is_host_env", "new_host_spec", "check_env_parts", "observation_space", "make_learner", "make_train_env",
+           "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
 EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_OFFSET + seed)
@@ -46,6 +54,9 @@ EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_O
 HOST_ALGORITHMS = tuple(name for name, algorithm in ALGORITHMS.items() if algorithm.make_host is not None)
 # The host learners that step a `PipelinedVecEnv` in turn (`rollout.on_policy_host_learner`).
 PIPELINED_ALGORITHMS = ("ppo", "a2c")
+# The host learners that train data parallel (`make_learner(..., devices=)`).
+DATA_PARALLEL_ALGORITHMS = tuple(name for name in HOST_ALGORITHMS
+                                 if "devices" in inspect.signature(ALGORITHMS[name].make_host).parameters)
 
 
 def observation_space(env_id: str, env_kwargs: dict):
@@ -57,11 +68,15 @@ def observation_space(env_id: str, env_kwargs: dict):
         probe.close()
 
 
-def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1):
+def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1, devices=None):
     """The env a host run trains on: `num_envs` envs of the train split, rewards clipped to
     [-1, 1]; with `parts` > 1 a `PipelinedVecEnv` of that many equal batches, each with the
     same env kwargs (ALE threads included: the parts mostly emulate in turn), which the
-    on-policy learners step in turn so that the policy calls overlap the emulation."""
+    on-policy learners step in turn so that the policy calls overlap the emulation. With
+    `devices` (for `make_learner(..., devices=)`) only this process's share of the `num_envs`
+    envs (`jaxnat.sharding.process_share`; all of them in one process)."""
+    if devices is not None:
+        num_envs = process_share(num_envs, devices)[1]
     if parts < 1 or num_envs % parts:
         raise ValueError(f"parts={parts} must be >= 1 and divide num_envs={num_envs}")
     if parts == 1:
@@ -70,9 +85,17 @@ def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1)
                                                               **env_kwargs)) for _ in range(parts)])
 
 
-def make_learner(algo: str, config, env, compiler_options: dict | None = None):
-    """The host learner of `algo` (one of `HOST_ALGORITHMS`) for `config` on `env`."""
-    return ALGORITHMS[algo].make_host(config, env, compiler_options)
+def make_learner(algo: str, config, env, compiler_options: dict | None = None, devices=None):
+    """The host learner of `algo` (one of `HOST_ALGORITHMS`) for `config` on `env`; with
+    `devices` (a count, "all", devices) data parallel over them and every process, `env` this
+    process's share (`make_train_env(..., devices=)`)."""
+    make = ALGORITHMS[algo].make_host
+    if devices is None:
+        return make(config, env, compiler_options)
+    if algo not in DATA_PARALLEL_ALGORITHMS:
+        raise ValueError(f"{algo}'s host learner needs the whole batch on one device: leave devices out, or "
+                         f"train {' or '.join(DATA_PARALLEL_ALGORITHMS)} data parallel")
+    return make(config, env, compiler_options, devices=devices)
 
 
 def is_host_env(env_id: str) -> bool:

@@ -119,7 +119,8 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     if initialize_from_env() and jax.process_count() > 1:
         raise TrainError(f"jaxnat train writes its run directory from one process, and this is one of "
                          f"{jax.process_count()} (JAX_NUM_PROCESSES): train over several processes with "
-                         "jaxnat.training.make_sharded_train (docs/api.md, 'Several devices and hosts')")
+                         "jaxnat.training.make_sharded_train, Natural Atari with jaxnat.training.host.make_learner"
+                         "(..., devices='all') (docs/api.md, 'Several devices and hosts')")
     console = console or Console()
     spec, run_dir, saved, envs = _setup(args, console)
     host = is_host_env(spec.env_id)  # NaturalAtari/*: emulated on the host, trained from a Python loop

@@ -32,12 +32,11 @@ import functools
 import inspect
 
 import jax
-import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh, PartitionSpec
 
 from jaxnat.agents import ALGORITHMS
 from jaxnat.agents.rollout import count_updates
-from jaxnat.sharding import AXIS, check_split, device_mesh, resolve_devices
+from jaxnat.sharding import AXIS, check_split, device_mesh, put_global, resolve_devices, shard_program, shardings
 from jaxnat.training.args import TrainError
 
 __all__ = ["SHARDS", "Placement", "device_count", "resumed_devices", "data_parallel", "make_sharded_train"]
@@ -132,18 +131,14 @@ class Placement:
         return PartitionSpec()
 
     def shardings(self, specs):
-        return jax.tree.map(lambda s: NamedSharding(self.mesh, s), specs,
-                            is_leaf=lambda x: isinstance(x, PartitionSpec))
+        return shardings(self.mesh, specs)
 
     def program(self, fn, in_specs: tuple, out_specs):
         """`fn` jitted for this placement: as it is on one device; else a `jax.shard_map` of it
         over the mesh with these specs, and jit's shardings to match."""
         if self.mesh is None:
             return jax.jit(fn)
-        # check_vma off: env code mixes per-env values and replicated params in lax.cond and
-        # scan carries; what stays replicated is made so by the learner's pmeans.
-        mapped = jax.shard_map(fn, mesh=self.mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)
-        return jax.jit(mapped, in_shardings=self.shardings(in_specs), out_shardings=self.shardings(out_specs))
+        return shard_program(fn, self.mesh, in_specs, out_specs)
 
     def learner_programs(self, algo: str, config, env, env_params, seeds: int, callback=None):
         """`(init, chunk)`: `init(params, keys [seeds]) -> runner`, jitted for this placement,
@@ -176,22 +171,7 @@ class Placement:
         gives its own devices' parts."""
         if self.mesh is None:
             return tree
-        if jax.process_count() == 1:
-            return jax.device_put(tree, self.shardings(specs))
-        return jax.tree.map(lambda sharding, subtree: jax.tree.map(functools.partial(_put_global, sharding=sharding),
-                                                                   subtree),
-                            self.shardings(specs), tree)
-
-
-def _put_global(x, sharding):
-    """`x` (the same in every process) as a global array: each process fills its devices' parts
-    (an array spanning the processes already is left as it is)."""
-    if isinstance(x, jax.Array) and not x.is_fully_addressable:
-        return x
-    if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
-        return jax.random.wrap_key_data(_put_global(jax.random.key_data(x), sharding), impl=jax.random.key_impl(x))
-    value = np.asarray(x)
-    return jax.make_array_from_callback(value.shape, sharding, lambda index: value[index])
+        return put_global(tree, self.shardings(specs))
 
 
 def data_parallel(algo: str) -> bool:
