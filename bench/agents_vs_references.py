@@ -34,11 +34,11 @@ the reference or above on every task, at equal or better wall time."
   `eval_freq` is the whole run), so both sides take exactly the same env steps and time
   nothing but training.
 - Final return: the same code (`evaluate`) plays `--eval-episodes` fresh episodes per seed with
-  each side's final parameters, greedily (argmax of the policy's logits, of Q for DQN; rejax's
-  PPO reads observations through its running normalisation where its config turns that on), on
-  the plain gymnax env; seed i of both sides plays the same episodes (the same keys). Mean
-  over seeds with a 95% t-interval over the per-seed means. A
-  uniformly random policy is scored by the same code ("random"), for the ratio of returns
+  each side's final parameters, greedily (argmax of the policy's logits, of Q for DQN; where
+  the config turns observation normalisation on, each side's PPO reads observations through
+  its own final running moments, frozen), on the plain gymnax env; seed i of both sides plays
+  the same episodes (the same keys). Mean over seeds with a 95% t-interval over the per-seed
+  means. A uniformly random policy is scored by the same code ("random"), for the ratio of returns
   above random: `(jaxnat - random) / (rejax - random)` (the plain ratio misleads for Acrobot's
   negative returns).
 
@@ -47,9 +47,37 @@ the reference or above on every task, at equal or better wall time."
     python bench/agents_vs_references.py --envs CartPole-v1 --algos ppo --budget-scale 0.02
     python bench/agents_vs_references.py --envs Breakout-MinAtar --algos dqn --seeds 5
 
-TODO (not code yet): a continuous-action row, jaxnat's continuous PPO against rejax's PPO on
-a Brax or MuJoCo task (rejax: `PPO.create(env="brax/halfcheetah", ...)` with its
-configs/brax/halfcheetah.yaml), once jaxnat's agents take Box actions.
+Continuous actions (`--envs brax/halfcheetah --algos ppo`; not in the default `--envs`, brax
+being one more optional install: `pip install 'jaxnat[bench]'` brings it): jaxnat's Gaussian PPO
+against rejax's on Brax's HalfCheetah, with rejax v0.1.3's tuned configs/brax/halfcheetah.yaml
+(32 envs x 32 steps, 2 epochs x 2 minibatches, lr 1.72e-3 constant, GAE lambda 0.8, grad
+clip 5, observation normalisation on; 5,242,880 steps per seed). That is 163,840 sequential
+steps of brax's generalized HalfCheetah, whose step compiles to some 17,000 XLA ops (brax's
+positional Hopper's: 2,300), latency-bound at 32 envs x 5 seeds: on one GPU `--budget-scale`
+well below 1 is the practical setting.
+
+- The env is rejax's own, built by rejax: `rejax.compat.create("brax/halfcheetah",
+  auto_reset=False)`, i.e. brax's `envs.create` (brax's generalized backend, the env's
+  default; a 1000-step `EpisodeWrapper` that flags time limits in `info["truncation"]`) inside
+  rejax's `Brax2GymnaxEnv`. rejax wrote that adapter for gymnax 0.0.x, whose `step` reset the
+  env wherever `step_env` said done; gymnax 1.0's `step` also reads the time limit from
+  `state.time`, which a brax `State` has not, so rejax 0.1.3 cannot step a brax env under
+  gymnax 1.0 at all. Both sides train on `BraxSixValueStep(env)`, which steps it as gymnax
+  0.0.x did (`step_env`, then a fresh `reset_env` where done) and splits `done` into
+  terminated and truncated with brax's truncation flag (rejax again through `FiveValueStep`,
+  so it sees exactly what gymnax 0.0.x gave it). brax's own `AutoResetWrapper` (`create`'s
+  default, left out by `auto_reset=False`) would put the episode's first observation where
+  the final one belongs and be overridden by that fresh reset anyway: without it rejax sees
+  the same steps, and jaxnat bootstraps a time limit from the true final observation.
+  HalfCheetah never terminates: every episode ends at the 1000-step limit, so the two sides'
+  time-limit handling (the list below) differs on every episode end.
+- Both policies are diagonal Gaussians with a state-independent log-std starting at 0 over
+  64x64 tanh actor and critic MLPs; both clip the sampled action to the Box's [-1, 1] at the
+  env boundary and train on the log-prob of the unclipped sample; neither squashes.
+- Final return: the same `evaluate`, each side's deterministic policy (the Gaussian's mean,
+  clipped to [-1, 1]; observations through each side's running normalisation), 1000-step
+  episodes; "random" draws uniformly from the Box. (rejax's own `eval_callback` samples
+  instead; it is switched off here as on every row.)
 """
 
 from __future__ import annotations
@@ -105,9 +133,13 @@ except ImportError as err:  # pragma: no cover
 import jaxnat  # noqa: E402
 from jaxnat.agents import A2CConfig, DQNConfig, PPOConfig, distributions, make_a2c, make_dqn, make_ppo  # noqa: E402
 from jaxnat.agents.dqn import epsilon  # noqa: E402
+from jaxnat.agents.normalize import normalize  # noqa: E402
+from jaxnat.agents.rollout import env_action, is_box  # noqa: E402
 from jaxnat.wrappers import Wrapper  # noqa: E402
 
 ENVS = ("CartPole-v1", "Acrobot-v1", "Breakout-MinAtar", "SpaceInvaders-MinAtar")
+# Continuous rows (selectable with --envs, not in the default set): rejax's brax envs.
+BRAX_ENVS = ("brax/halfcheetah",)
 ALGOS = ("ppo", "a2c", "dqn")
 REJAX_VERSION = "0.1.3"
 
@@ -144,6 +176,11 @@ REJAX_CONFIGS = {
         fill_buffer=20_000, batch_size=100, max_grad_norm=10, learning_rate=0.0005, num_epochs=1,
         total_timesteps=1_000_000, target_update_freq=1000, polyak=0.0, eps_start=1.0, eps_end=0.05,
         exploration_fraction=0.5, gamma=1.0, ddqn=False),
+    # configs/brax/halfcheetah.yaml ("tuned")
+    ("brax/halfcheetah", "ppo"): dict(
+        agent_kwargs={"activation": "tanh"}, num_envs=32, num_steps=32, num_epochs=2, num_minibatches=2,
+        learning_rate=0.0017203361125365498, max_grad_norm=5, total_timesteps=5_242_880, gamma=0.99,
+        gae_lambda=0.8, clip_eps=0.2, ent_coef=0.01, vf_coef=0.5, normalize_observations=True),
 }
 
 
@@ -157,13 +194,14 @@ def config_key(env_id: str, algo: str) -> tuple[str, str]:
 
 class FiveValueStep:
     """A gymnax 1.0 env with gymnax 0.0.x's five-value `step` (`done = terminated | truncated`),
-    the form rejax 0.1.3 unpacks. Everything else is the wrapped env's."""
+    the form rejax 0.1.3 unpacks. Everything else is the wrapped env's (but dunders: rejax
+    deep-copies its config, and the wrapped env's `__deepcopy__` would return that env alone)."""
 
     def __init__(self, env):
         self._env = env
 
     def __getattr__(self, name):
-        if name == "_env":
+        if name == "_env" or name.startswith("__"):
             raise AttributeError(name)
         return getattr(self._env, name)
 
@@ -173,6 +211,58 @@ class FiveValueStep:
 
     def reset(self, key, params=None):
         return self._env.reset(key, params)
+
+
+class BraxSixValueStep:
+    """rejax's brax env (`rejax.compat.create("brax/<name>", auto_reset=False)`: brax's
+    `envs.create` in rejax's `Brax2GymnaxEnv`) with gymnax 1.0's six-value `step`, stepped as
+    gymnax 0.0.x's `Environment.step` stepped it: `step_env`, then where the episode ended a
+    fresh `reset_env` with the other half of the key. `done` splits into `truncated` (brax's
+    `EpisodeWrapper` time limit, `info["truncation"]`) and `terminated` (the rest); `info`
+    holds the final observation (the module docstring says why gymnax 1.0 cannot step the env
+    itself, and why brax's auto-reset is left out)."""
+
+    def __init__(self, env):
+        self.env = env
+        self.default_params = env.default_params
+
+    def __deepcopy__(self, memo):  # rejax deep-copies its config; a brax env cannot be deep-copied
+        return self
+
+    def action_space(self, params=None):
+        return self.env.action_space(params)
+
+    def observation_space(self, params=None):
+        return self.env.observation_space(params)
+
+    def reset(self, key, params=None):
+        return self.env.reset_env(key, params)
+
+    def step(self, key, state, action, params=None):
+        key_step, key_reset = jax.random.split(key)
+        obs_step, state_step, reward, done, info = self.env.step_env(key_step, state, action, params)
+        truncated = done & (info["truncation"] > 0)
+        obs_reset, state_reset = self.env.reset_env(key_reset, params)
+        obs, state = jax.tree.map(lambda fresh, stepped: jnp.where(done, fresh, stepped),
+                                  (obs_reset, state_reset), (obs_step, state_step))
+        return obs, state, reward, done & ~truncated, truncated, {"final_observation": obs_step}
+
+
+def is_brax(env_id: str) -> bool:
+    return env_id.startswith("brax/")
+
+
+def make_env(env_id: str):
+    """`(env, env_params)` with gymnax 1.0's six-value `step`: gymnax's env, or rejax's brax env
+    through `BraxSixValueStep`."""
+    if not is_brax(env_id):
+        return gymnax.make(env_id)
+    try:
+        from rejax.compat import create
+        env, env_params = create(env_id, auto_reset=False)
+    except ImportError as err:  # pragma: no cover
+        raise SystemExit(f"{env_id} needs brax: pip install 'jaxnat[bench]' ({err})")
+    return BraxSixValueStep(env), env_params
 
 
 class FlatObservation(Wrapper):
@@ -273,8 +363,8 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
             "the critic's gradient); jaxnat's separate actor and critic MLPs share one",
         ]
         if c.get("normalize_observations"):
-            differences.append("observation normalisation: rejax's is not clipped, jaxnat's is clipped to +-10 "
-                               "(baselines' VecNormalize)")
+            differences.append("observation normalisation: rejax's is not clipped and its first step reads the "
+                               "raw first observations, jaxnat's is clipped to +-10 (baselines' VecNormalize)")
     elif algo == "a2c":
         config = _apply(A2CConfig, dict(total_timesteps=c["total_timesteps"], trunk=trunk, gamma=c["gamma"],
                                         normalize_observations=False, normalize_rewards=False), differences)
@@ -318,8 +408,12 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
                            f"(epsilon >= {floor:.2f})")
     if algo != "a2c":
         differences.append("time limits: rejax treats them as terminal (gymnax 0.0.x `done`), "
-                           "jaxnat bootstraps from the final observation")
-        differences.append("initialisation: rejax flax's default (lecun normal), jaxnat orthogonal")
+                           "jaxnat bootstraps from the final observation"
+                           + (" (HalfCheetah never terminates: every episode ends at its 1000-step limit)"
+                              if env_id == "brax/halfcheetah" else ""))
+        differences.append("initialisation: rejax flax's default (lecun normal), jaxnat orthogonal"
+                           + (" (the Gaussian's mean head: scale 0.01, so jaxnat's first actions are near 0, "
+                              "rejax's are not)" if is_brax(env_id) else ""))
     return config, differences
 
 
@@ -329,7 +423,11 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
 
 def evaluate(policy, env, env_params, key, episodes: int):
     """Mean undiscounted return of `episodes` fresh episodes of a gymnax 1.0 env (each env plays
-    its first episode to the end); `policy(obs [E, ...], key) -> actions [E]`."""
+    its first episode to the end); `policy(obs [E, ...], key) -> actions [E]` (or `[E, D]` for a
+    Box, clipped to its bounds here, as both sides clip them at the env boundary in training)."""
+    space = env.action_space(env_params)
+    if is_box(space):
+        policy = lambda obs, key, act=policy: jnp.clip(act(obs, key), space.low, space.high)  # noqa: E731
     reset = jax.vmap(env.reset, in_axes=(0, None))
     step = jax.vmap(env.step, in_axes=(0, 0, 0, None))
     key_reset, key_run = jax.random.split(key)
@@ -371,7 +469,7 @@ def scores(policy_of, params, env, env_params, keys, episodes: int) -> np.ndarra
 
 
 def run_jaxnat(env_id, algo, config, seeds, episodes):
-    env, env_params = gymnax.make(env_id)
+    env, env_params = make_env(env_id)
     flat = config.trunk == "mlp" and len(env.observation_space(env_params).shape) > 1
     train_env = FlatObservation(env) if flat else env
     make = {"ppo": make_ppo, "a2c": make_a2c, "dqn": make_dqn}[algo]
@@ -379,17 +477,20 @@ def run_jaxnat(env_id, algo, config, seeds, episodes):
     keys = jax.random.split(jax.random.key(0), seeds)
     (runner, _), compile_s, train_s = timed_train(learner.train, keys)
     network = learner.network
+    action_space = env.action_space(env_params)
 
-    def policy_of(params):
+    def policy_of(state):
+        params, normalizer = state
+
         def policy(obs, key):
             if flat:
                 obs = obs.reshape(obs.shape[0], -1)
-            logits, _ = network.apply(params, obs)
-            return distributions.mode(logits)[..., 0]
+            logits, _ = network.apply(params, normalize(normalizer, obs))
+            return env_action(distributions.mode(logits), action_space)
         return policy
 
-    returns = scores(policy_of, runner.train_state.params, env, env_params, jax.random.split(jax.random.key(1), seeds),
-                     episodes)
+    state = (runner.train_state.params, getattr(runner, "normalizer", None))
+    returns = scores(policy_of, state, env, env_params, jax.random.split(jax.random.key(1), seeds), episodes)
     trunk = getattr(network, "trunk", None) or config.trunk or "default"
     trunk = f"{trunk} on flattened observations" if flat else trunk
     return {"returns": returns, "compile_s": compile_s, "train_s": train_s,
@@ -397,7 +498,7 @@ def run_jaxnat(env_id, algo, config, seeds, episodes):
 
 
 def run_rejax(env_id, algo, config, seeds, episodes):
-    env, env_params = gymnax.make(env_id)
+    env, env_params = make_env(env_id)
     cls = {"ppo": rejax.PPO, "dqn": rejax.DQN}[algo]
     config = {**config, "agent_kwargs": dict(config["agent_kwargs"])}
     algorithm = cls.create(env=FiveValueStep(env), env_params=env_params, eval_freq=config["total_timesteps"],
@@ -411,6 +512,9 @@ def run_rejax(env_id, algo, config, seeds, episodes):
             def policy(obs, key):
                 if algorithm.normalize_observations:
                     obs = algorithm.normalize_obs(ts.obs_rms_state, obs)
+                if not algorithm.discrete:  # GaussianPolicy: the mean, unclipped (`evaluate` clips)
+                    return algorithm.actor.apply(ts.actor_ts.params, obs,
+                                                 method=lambda m, o: m.action_mean(m.features(o)))
                 logits = algorithm.actor.apply(ts.actor_ts.params, obs,
                                                method=lambda m, o: m.action_logits(m.features(o)))
                 return jnp.argmax(logits, axis=-1)
@@ -429,16 +533,21 @@ def run_rejax(env_id, algo, config, seeds, episodes):
 
 
 def random_return(env_id, seeds, episodes) -> float:
-    env, env_params = gymnax.make(env_id)
-    n = env.action_space(env_params).n
-    policy = lambda obs, key: jax.random.randint(key, obs.shape[:1], 0, n)  # noqa: E731
+    env, env_params = make_env(env_id)
+    space = env.action_space(env_params)
+    if is_box(space):
+        def policy(obs, key):
+            return jax.random.uniform(key, (obs.shape[0], *space.shape), minval=space.low, maxval=space.high)
+    else:
+        def policy(obs, key):
+            return jax.random.randint(key, obs.shape[:1], 0, space.n)
     run = jax.jit(jax.vmap(lambda k: evaluate(policy, env, env_params, k, episodes)))
     return float(np.mean(jax.device_get(run(jax.random.split(jax.random.key(2), seeds)))))
 
 
 def versions() -> dict:
     out = {}
-    for name in ("flax", "optax", "gymnax", "rejax", "chex", "distrax", "scipy"):
+    for name in ("flax", "optax", "gymnax", "rejax", "chex", "distrax", "scipy", "brax", "mujoco"):
         try:
             out[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
@@ -463,7 +572,8 @@ def _fmt(mean, half):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", nargs="+", default=list(ENVS), help=f"gymnax ids (default: {' '.join(ENVS)})")
+    parser.add_argument("--envs", nargs="+", default=list(ENVS),
+                        help=f"gymnax ids (default: {' '.join(ENVS)}), or {' '.join(BRAX_ENVS)} (ppo only)")
     parser.add_argument("--algos", nargs="+", default=list(ALGOS), choices=ALGOS)
     parser.add_argument("--seeds", type=int, default=5, help="seeds per side, vmapped")
     parser.add_argument("--budget-scale", type=float, default=1.0,
@@ -476,9 +586,10 @@ def main(argv=None):
     parser.add_argument("--out", type=pathlib.Path, default=common.RESULTS, help="results directory")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
-    unknown = sorted(set(args.envs) - set(gymnax.registered_envs))
+    unknown = sorted(set(args.envs) - set(gymnax.registered_envs) - set(BRAX_ENVS))
     if unknown:
-        raise SystemExit(f"not gymnax envs: {unknown}")
+        raise SystemExit(f"not gymnax envs, nor {' '.join(BRAX_ENVS)}: {unknown}")
+    brax_envs = [env_id for env_id in args.envs if is_brax(env_id)]
 
     info = common.machine()
     info.update(versions())
@@ -494,8 +605,15 @@ def main(argv=None):
     for env_id in args.envs:
         minatar = env_id.endswith("-MinAtar")
         trunk = None if (minatar and args.minatar_trunk == "default") else "mlp"
+        algos = args.algos
+        if is_brax(env_id):  # rejax's brax configs tune PPO; jaxnat's DQN is discrete, its A2C has no reference
+            algos = [algo for algo in args.algos if algo == "ppo"]
+            if len(algos) < len(args.algos):
+                print(f"{env_id}: ppo only (skipping {' '.join(a for a in args.algos if a != 'ppo')})", flush=True)
+            if not algos:
+                continue
         random_mean = random_return(env_id, args.seeds, args.eval_episodes)
-        for algo in args.algos:
+        for algo in algos:
             reference = algo != "a2c"
             rejax_config, changed = rejax_settings(env_id, "ppo" if algo == "a2c" else algo, args.budget_scale,
                                                    args.rejax_network)
@@ -564,7 +682,8 @@ def main(argv=None):
                   "jaxnat faster",
         "target": "jaxnat's mean return >= rejax's CI lower bound, and jaxnat's training time <= rejax's",
         "versions": ", ".join(f"{k} {info[k]}" for k in ("jax", "jaxlib", "flax", "optax", "gymnax", "rejax",
-                                                         "chex", "distrax", "jaxnat_commit"))
+                                                         "chex", "distrax", *(("brax", "mujoco") if brax_envs else ()),
+                                                         "jaxnat_commit"))
                     + (f"; stand-ins for {', '.join(STAND_INS)} (not installed)" if STAND_INS else ""),
     }
     common.RESULTS = args.out
