@@ -34,6 +34,7 @@ fidelity for speed, docs/environments.md); rows record which one ran.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import json
 import sys
 import time
@@ -65,18 +66,31 @@ def final_training_return(metrics, fraction: float) -> np.ndarray:
     return np.asarray(finals)
 
 
-def train_seeds(env, params, config, make, seeds: int, key=0):
-    """Compile and run `seeds` vmapped trainings: (runner, metrics, learner, compile s, train s)."""
+def compile_seeds(env, params, config, make, seeds: int, key=0):
+    """Compile `seeds` vmapped trainings: (compiled program, keys, learner, compile s)."""
     import jax
 
     learner = make(config, env, params)
     keys = jax.random.split(jax.random.key(key), seeds)
     start = time.perf_counter()
     train = jax.jit(jax.vmap(learner.train)).lower(keys).compile()
-    compile_s = time.perf_counter() - start
+    return train, keys, learner, time.perf_counter() - start
+
+
+def run_seeds(train, keys):
+    """Run a compiled training: (runner, metrics on the host, train s)."""
+    import jax
+
     start = time.perf_counter()
     runner, metrics = jax.block_until_ready(train(keys))
-    return runner, jax.device_get(metrics), learner, compile_s, time.perf_counter() - start
+    return runner, jax.device_get(metrics), time.perf_counter() - start
+
+
+def train_seeds(env, params, config, make, seeds: int, key=0):
+    """Compile and run `seeds` vmapped trainings: (runner, metrics, learner, compile s, train s)."""
+    train, keys, learner, compile_s = compile_seeds(env, params, config, make, seeds, key)
+    runner, metrics, train_s = run_seeds(train, keys)
+    return runner, metrics, learner, compile_s, train_s
 
 
 def state_bench(args) -> None:
@@ -193,32 +207,39 @@ def open_loop_bench(args) -> None:
     from jaxnat.agents import ALGORITHMS, defaults
 
     out = common.RESULTS / "open_loop.jsonl"
-    rows = []
+    cells = []
     for robot in args.robots:
         for algo in args.algos:
             for name in args.observations:
-                kwargs = OBSERVATIONS[name]
-                env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, **kwargs)
+                env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, **OBSERVATIONS[name])
                 algorithm = ALGORITHMS[algo]
                 overrides = defaults.family_defaults(algo, env.observation_space(params), env.action_space(params))
                 overrides.update(total_timesteps=args.total_timesteps, num_envs=args.num_envs)
                 if "num_steps" in overrides or algo == "ppo":
                     overrides["num_steps"] = args.num_steps
-                config = algorithm.config(**overrides)
-                runner, metrics, learner, compile_s, train_s = train_seeds(env, params, config, algorithm.make,
-                                                                           args.seeds)
-                mean, half = common.mean_ci(final_training_return(metrics, 0.1))
-                steps = config.num_envs * config.num_steps
-                row = {"robot": robot, "algo": algo, "observation": name, "physics": args.physics, "seeds": args.seeds,
-                       "steps_per_seed": learner.num_updates * steps, "final_return": mean, "ci": half,
-                       "train_s": train_s, "compile_s": compile_s,
-                       "curve_steps": (np.arange(1, learner.num_updates + 1) * steps).tolist(),
-                       "curve": np.asarray(metrics["episode_return"]).tolist()}
-                rows.append(row)
-                print(json.dumps({k: v for k, v in row.items() if not k.startswith("curve")}), flush=True)
-                if not args.no_record:
-                    with open(out, "a") as f:
-                        f.write(json.dumps({"machine": common.machine(), **row}) + "\n")
+                cells.append((robot, algo, name, env, params, algorithm.config(**overrides), algorithm.make))
+    rows = []
+    # Programs compile on worker threads ahead of the cell that runs (compiling is host work;
+    # one process keeps the accelerator to one training at a time, so train s stays comparable).
+    with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
+        compiled = [pool.submit(compile_seeds, env, params, config, make, args.seeds)
+                    for _, _, _, env, params, config, make in cells]
+        for (robot, algo, name, _, _, config, _), future in zip(cells, compiled):
+            train, keys, learner, compile_s = future.result()
+            runner, metrics, train_s = run_seeds(train, keys)
+            del train, runner
+            mean, half = common.mean_ci(final_training_return(metrics, 0.1))
+            steps = config.num_envs * config.num_steps
+            row = {"robot": robot, "algo": algo, "observation": name, "physics": args.physics, "seeds": args.seeds,
+                   "steps_per_seed": learner.num_updates * steps, "final_return": mean, "ci": half,
+                   "train_s": train_s, "compile_s": compile_s,
+                   "curve_steps": (np.arange(1, learner.num_updates + 1) * steps).tolist(),
+                   "curve": np.asarray(metrics["episode_return"]).tolist()}
+            rows.append(row)
+            print(json.dumps({k: v for k, v in row.items() if not k.startswith("curve")}), flush=True)
+            if not args.no_record:
+                with open(out, "a") as f:
+                    f.write(json.dumps({"machine": common.machine(), **row}) + "\n")
     table = common.markdown_table(rows, [
         ("robot", "robot", ""), ("algo", "algo", ""), ("observation", "observation", ""), ("physics", "physics", ""),
         ("steps_per_seed", "steps/seed", ",d"), ("final_return", "final return", ".1f"), ("ci", "± 95% CI", ".1f"),
@@ -274,15 +295,18 @@ def plot(args) -> None:
                 curve = np.asarray(row["curve"], np.float64)
                 with np.errstate(all="ignore"):
                     mean, std = np.nanmean(curve, 0), np.nanstd(curve, 0)
-                line, = ax.plot(row["curve_steps"], mean, label=name, linewidth=1)
-                ax.fill_between(row["curve_steps"], mean - std, mean + std, alpha=0.2, color=line.get_color())
+                # Updates in which no episode ended are NaN (fixed-length episodes end together).
+                steps, ended = np.asarray(row["curve_steps"]), np.isfinite(mean)
+                line, = ax.plot(steps[ended], mean[ended], label=name, linewidth=1)
+                ax.fill_between(steps[ended], (mean - std)[ended], (mean + std)[ended], alpha=0.2,
+                                color=line.get_color())
             ax.set_title(f"{robot} · {algo.upper()}")
             ax.set_xlabel("env steps per seed")
             ax.set_ylabel("training episode return")
             ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize="small")
     physics = sorted({row.get("physics", "default") for row in latest.values()})
-    fig.suptitle(f"PixelMuJoCo: state, pixels and pure noise (mean ± std over seeds; physics {', '.join(physics)})")
+    fig.suptitle(f"PixelMuJoCo: state, pixels and pure noise\n(mean ± std over seeds; physics {', '.join(physics)})")
     path = common.RESULTS / "open_loop.png"
     fig.savefig(path, dpi=100)
     print(path)
@@ -312,6 +336,8 @@ def main(argv=None):
     loop.add_argument("--total-timesteps", type=int, default=1_000_000)
     loop.add_argument("--num-envs", type=int, default=64)
     loop.add_argument("--num-steps", type=int, default=32)
+    loop.add_argument("--compile-ahead", type=int, default=3,
+                      help="programs compiled at once on worker threads while a cell trains")
     sub.add_parser("plot")
     for p in (state, pixels, loop):
         p.add_argument("--physics", default="default", choices=["default", "fast"],
