@@ -28,8 +28,9 @@ the reference or above on every task, at equal or better wall time."
   (gymnax 0.0.x's `done`), so rejax trains on `FiveValueStep(env)`, whose `done` is
   `terminated | truncated`: rejax treats time limits as terminal, jaxnat bootstraps them.
 - Seeds: `--seeds` per side, vmapped in one jitted program per side
-  (`jax.jit(jax.vmap(train)).lower(keys).compile()`, then one call). Wall times: training
-  alone (compile excluded) and trace + compile + training (compile included). rejax's
+  (`jax.jit(jax.vmap(train)).lower(keys).compile()`, then `--repeats` calls, 3 by default).
+  Wall times: training alone (the median call, compile excluded) and trace + compile +
+  training (compile included). rejax's
   in-training evaluation is switched off (its `eval_callback` returns a constant and
   `eval_freq` is the whole run), so both sides take exactly the same env steps and time
   nothing but training.
@@ -447,14 +448,23 @@ def evaluate(policy, env, env_params, key, episodes: int):
     return total.mean()
 
 
+# Timed calls of each compiled training program (`--repeats`); the median is reported, since a
+# single call of a few seconds moves by several percent from run to run.
+REPEATS = 3
+
+
 def timed_train(train, keys):
-    """(output, compile seconds, training seconds) of `jax.jit(jax.vmap(train))(keys)`."""
+    """(output, compile seconds, training seconds) of `jax.jit(jax.vmap(train))(keys)`: the
+    median over `REPEATS` calls of the same compiled program (the same keys, so the same output)."""
     t0 = time.perf_counter()
     compiled = jax.jit(jax.vmap(train)).lower(keys).compile()
     compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(compiled(keys))
-    return out, compile_s, time.perf_counter() - t0
+    times = []
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(compiled(keys))
+        times.append(time.perf_counter() - t0)
+    return out, compile_s, float(np.median(times))
 
 
 def count_params(tree) -> int:
@@ -583,9 +593,13 @@ def main(argv=None):
                         help="matched: 64x64 tanh MLPs on both sides; config: rejax's configs' networks")
     parser.add_argument("--minatar-trunk", choices=("mlp", "default"), default="mlp",
                         help="jaxnat on MinAtar: mlp on flattened observations, or jaxnat's own pick")
+    parser.add_argument("--repeats", type=int, default=REPEATS,
+                        help="timed calls of each compiled training program; the median is reported")
     parser.add_argument("--out", type=pathlib.Path, default=common.RESULTS, help="results directory")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
+    global REPEATS
+    REPEATS = max(1, args.repeats)
     unknown = sorted(set(args.envs) - set(gymnax.registered_envs) - set(BRAX_ENVS))
     if unknown:
         raise SystemExit(f"not gymnax envs, nor {' '.join(BRAX_ENVS)}: {unknown}")
