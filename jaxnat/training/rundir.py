@@ -20,6 +20,7 @@ import jaxnat
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, auto_eval_every
 
+
 @dataclasses.dataclass
 class TrainResult:
     run_dir: Path
@@ -99,11 +100,9 @@ def open_resumed(args: TrainArgs):
 
 
 def check_counts(args: TrainArgs) -> None:
-    for name in ("seeds", "eval_episodes", "env_parts"):
-        if getattr(args, name) < 1:
+    for name in ("seeds", "eval_episodes", "env_parts", "eval_every"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
-    if args.eval_every is not None and args.eval_every < 1:
-        raise TrainError("--eval-every must be at least 1")
 
 
 def with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
@@ -124,8 +123,7 @@ def new_run_dir(args: TrainArgs) -> Path:
 
 
 def args_json(args: TrainArgs) -> dict:
-    data = dataclasses.asdict(args)
-    return json.loads(json.dumps(data, default=str))
+    return json.loads(json.dumps(dataclasses.asdict(args), default=str))
 
 
 @dataclasses.dataclass

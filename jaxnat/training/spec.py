@@ -6,13 +6,11 @@ import dataclasses
 import math
 from typing import Any
 
-
 from jaxnat.agents import ALGORITHMS, defaults, normalize
 from jaxnat.agents.networks import default_trunk
 from jaxnat.training.args import CORE_CONFIG_FIELDS, TrainArgs, TrainError
 
 TARGET_EVALUATIONS = 20  # --eval-every's default aims at about this many evaluations
-
 
 
 @dataclasses.dataclass(frozen=True)
