@@ -129,10 +129,6 @@ class DeviceBackend:
         except ValueError as err:  # e.g. a batch that the minibatches do not divide
             raise TrainError(str(err)) from None
 
-    def _lower_chunk(self, n: int) -> None:
-        if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
-            self._lowered[("chunk", n)] = self._lower(self._chunk_program(n), self.params, self.runner_shape)
-
     def prepare(self, chunk_lengths=()) -> None:
         """Lower, then compile every program (init, evaluation, chance, a chunk of each length)
         not compiled yet (`lower`, `compile_pending`)."""
@@ -144,7 +140,8 @@ class DeviceBackend:
         backend is built). Tracing stays on the thread that uses the programs: JAX's tracing
         caches are not safe to share with a thread compiling at the same time."""
         for n in chunk_lengths:
-            self._lower_chunk(n)
+            if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
+                self._lowered[("chunk", n)] = self._lower(self._chunk_program(n), self.params, self.runner_shape)
 
     def compile_pending(self) -> None:
         """Compile every lowered program not compiled yet: XLA only, no tracing, so it may run on
@@ -162,7 +159,7 @@ class DeviceBackend:
     def _program(self, name):
         if name not in self._compiled:
             if isinstance(name, tuple):
-                self._lower_chunk(name[1])
+                self.lower([name[1]])
             self._compiled[name] = self._lowered.pop(name).compile(self.compiler_options)
         return self._compiled[name]
 

@@ -18,7 +18,7 @@ import jax
 
 import jaxnat
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
-from jaxnat.training.spec import RunSpec, auto_eval_every
+from jaxnat.training.spec import SPEC_FIELDS_ADDED, RunSpec, auto_eval_every
 
 
 @dataclasses.dataclass
@@ -43,10 +43,6 @@ def versions() -> dict:
 def default_run_dir(env_id: str, algo: str) -> Path:
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     return Path("runs") / f"{env_id.replace('/', '_')}-{algo}-{stamp}"
-
-
-# Run spec fields added since runs were first written: the value an older config.json means.
-SPEC_FIELDS_ADDED = {"env_parts": 1, "devices": 1, "shard": None}
 
 
 def check_resume_args(args: TrainArgs, saved: dict) -> None:
