@@ -114,9 +114,10 @@ def resolve_config(args: TrainArgs, observation_space, action_space=None):
         if value is None:
             continue
         if field.name not in names:
-            flag = "--" + field.name.replace("_", "-")
-            raise TrainError(f"{flag} is not a setting of {args.algo} (it belongs to "
-                             f"{', '.join(a for a, algorithm in ALGORITHMS.items() if field.name in {f.name for f in dataclasses.fields(algorithm.config)})})")
+            owners = [algo for algo, algorithm in ALGORITHMS.items()
+                      if field.name in {f.name for f in dataclasses.fields(algorithm.config)}]
+            raise TrainError(f"--{field.name.replace('_', '-')} is not a setting of {args.algo} (it belongs to "
+                             f"{', '.join(owners)})")
         values[field.name] = value
     for name in CORE_CONFIG_FIELDS:
         if getattr(args, name) is not None:
