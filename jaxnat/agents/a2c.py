@@ -17,6 +17,7 @@ from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clipped_opt
 
 __all__ = ["A2CConfig", "actor_critic_loss", "make_train", "make_a2c", "make_host_a2c"]
 
+
 @struct.dataclass
 class A2CConfig:
     total_timesteps: int = static(1_000_000)

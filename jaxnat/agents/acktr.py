@@ -10,9 +10,10 @@ value coef 0.5, Fisher value coef 1.0, entropy 0.01, gamma 0.99, n-step returns,
 The Fisher is the joint one of the policy and a unit-variance Gaussian value output, estimated
 with actions sampled from the policy and values sampled from `N(V, 1)` (ACKTR's choice). The
 optimizer state holds the K-FAC factors, so checkpoints and resumes carry them.
-Differences from baselines: the factors' eigendecompositions are recomputed every update
-(baselines recomputes them asynchronously); no gradient-norm clipping and no "cold" SGD steps
-(the KL trust region bounds the step from the first update on).
+Differences from baselines: the damped factors' inverses are refined every update by
+Newton-Schulz steps (`kfac.refine_inverse`; baselines recomputes eigendecompositions
+asynchronously); no gradient-norm clipping and no "cold" SGD steps (the KL trust region bounds
+the step from the first update on).
 """
 
 from __future__ import annotations

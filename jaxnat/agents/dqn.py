@@ -13,9 +13,8 @@ steps); the target network copies the online one every `target_update_period` gr
 transition from `s_t` carries `r_t + gamma r_{t+1} + ... + gamma^{m-1} r_{t+m-1}` and
 bootstraps from `s_{t+m}` with `gamma^m`, where m = n, or fewer when the episode ends first
 (then no bootstrap if it terminated, a bootstrap from its final observation if it was
-truncated). One-step Q-learning
-cannot solve a task whose reward comes after an observation that hides the earlier action
-(`probes.TwoStepProbe`); two-step returns can.
+truncated). One-step Q-learning cannot solve a task whose reward comes after an observation
+that hides the earlier action (`probes.TwoStepProbe`); two-step returns can.
 
 Settings: Nature DQN's (RMSprop lr 2.5e-4, decay 0.95, centered, batch 32, gamma 0.99, epsilon
 1.0 -> 0.1, one gradient step per 4 env steps) but for the loss, the squared error (Huber's is
@@ -180,6 +179,12 @@ def _optimizer(config: DQNConfig):
     return _pick(OPTIMIZERS, config.optimizer, "optimizer")(config)
 
 
+def _learning(config: DQNConfig, update):
+    """Whether update number `update` (from 0) takes its gradient steps: by its end, the seed's
+    envs have made `learning_starts` steps."""
+    return (update + 1) * config.num_steps * config.num_envs >= config.learning_starts
+
+
 def nstep_transition(recent: dict, gamma) -> dict:
     """The n-step transition from the oldest of `recent`'s one-step transitions (`[n, B, ...]`,
     oldest first): `reward = sum_k gamma^k r_k` over the first m steps (m = n, or up to and
@@ -207,6 +212,11 @@ def td_error_loss(errors, loss: str):
     return _pick(LOSSES, loss, "loss")(errors)
 
 
+def _chosen(q, actions) -> jax.Array:
+    """The Q value of each factor's action in `actions` `[B, F]`, as `[F, B]`."""
+    return jnp.stack([jnp.take_along_axis(qf, actions[:, f : f + 1], -1)[:, 0] for f, qf in enumerate(q)])
+
+
 def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[jax.Array, dict]:
     """Mean TD loss (`config.loss`) over the batch and the action factors; the target is
     `reward + discount * mean_f next value_f` (`discount` = gamma^m, 0 at termination)."""
@@ -214,16 +224,13 @@ def td_loss(config: DQNConfig, network, params, target_params, batch) -> tuple[j
     q_next, _ = network.apply(target_params, batch["next_obs"])
     if config.double_dqn:
         online_next, _ = network.apply(params, batch["next_obs"])
-        best = distributions.mode(online_next)
-        next_values = [jnp.take_along_axis(qf, best[:, f : f + 1], -1)[:, 0] for f, qf in enumerate(q_next)]
+        next_values = _chosen(q_next, distributions.mode(online_next))
     else:
-        next_values = [qf.max(-1) for qf in q_next]
-    next_value = jnp.mean(jnp.stack(next_values), axis=0)
-    target = jax.lax.stop_gradient(batch["reward"] + batch["discount"] * next_value)
-    taken = [jnp.take_along_axis(qf, batch["action"][:, f : f + 1], -1)[:, 0] for f, qf in enumerate(q)]
-    errors = jnp.stack(taken) - target
-    loss = td_error_loss(errors, config.loss).mean()
-    return loss, {"loss": loss, "q_mean": jnp.stack(taken).mean()}
+        next_values = jnp.stack([qf.max(-1) for qf in q_next])
+    target = jax.lax.stop_gradient(batch["reward"] + batch["discount"] * jnp.mean(next_values, axis=0))
+    taken = _chosen(q, batch["action"])
+    loss = td_error_loss(taken - target, config.loss).mean()
+    return loss, {"loss": loss, "q_mean": taken.mean()}
 
 
 def check_config(config: DQNConfig) -> None:
@@ -336,9 +343,8 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         (state, env_state, obs, key), (infos, rates) = scan_steps(
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             runner.learner, runner.env_state, runner.obs, runner.key)
-        env_steps = (first_step + config.num_steps) * config.num_envs
         key, key_learn = jax.random.split(key)
-        state, losses = parts.learn(state, key_learn, env_steps >= config.learning_starts, config)
+        state, losses = parts.learn(state, key_learn, _learning(config, runner.update), config)
         runner = runner.with_learner(state, env_state=env_state, obs=obs, key=key, update=runner.update + 1)
         return runner, {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
 
@@ -375,8 +381,7 @@ def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) 
         policy, observe = _step_callbacks(config, index * config.num_steps, act, store, exploration)
         (state, obs, key), records = host_steps(env, config.num_steps, policy, observe, state, obs, key)
         key, key_learn = jax.random.split(key)
-        learning = (index + 1) * config.num_steps * config.num_envs >= config.learning_starts
-        state, metrics = learn(state, key_learn, learning, [info for info, _ in records])
+        state, metrics = learn(state, key_learn, _learning(config, index), [info for info, _ in records])
         return state, obs, key, {**metrics, "epsilon": records[-1][1]}
 
     return host_updates(env, parts.network, num_updates, init, update, lambda s: s.learner.train_state.params, jit)

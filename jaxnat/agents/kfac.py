@@ -10,8 +10,9 @@ K-FAC layers are the ones whose parameters are exactly `{"kernel", "bias"}`: `nn
 those whose parameters are exactly `{"bias"}`: a Gaussian policy's `LogStd`, a layer whose input
 is the constant 1 (so `A = [1]` and `G` is the Fisher of the log-std itself), as the authors'
 K-FAC treats its `AddBias`. Every other parameter (the goal embedding, the ResNet's
-convolutions and GroupNorms) keeps its plain gradient. For a layer with inputs `a` (the im2col patches for a conv, with a trailing 1 for the
-bias) and output gradients `g`, the Fisher block is approximated by `A (x) G`:
+convolutions and GroupNorms) keeps its plain gradient. For a layer with inputs `a` (the im2col
+patches for a conv, with a trailing 1 for the bias) and output gradients `g`, the Fisher block
+is approximated by `A (x) G`:
 
     A = mean over examples and output pixels of a a^T
     G = pixels * mean over examples and output pixels of g g^T
@@ -215,7 +216,7 @@ def kfac(learning_rate: Callable[[jax.Array], jax.Array] | float, *, damping, st
             keys = jax.random.split(jax.random.fold_in(key, index))
             inverses[name] = tuple(refine_inverse(m, x, inverse_iterations, k) for m, x, k in
                                    zip(damped_factors(*factors[name], damping), state.inverses[name], keys))
-        flat = dict(traverse_util.flatten_dict(grads))
+        flat = traverse_util.flatten_dict(grads)
         for name, (kernel_key, bias_key) in _layers(grads).items():
             bias = flat[bias_key]
             rows = [] if kernel_key is None else [flat[kernel_key].reshape(-1, bias.shape[-1])]

@@ -1,16 +1,10 @@
 """Actor-critic networks: the paper's trunks and a ResNet-18, channels-last, uint8 in.
 
-Trunks (the paper's appendix, `docs/environments.md` section 5); every conv is VALID and
-followed by ReLU, then a ReLU dense layer of 512:
-
-| trunk        | layers                                   | meant for                  |
-|--------------|------------------------------------------|----------------------------|
-| `mnist`      | conv 10@5x5/2, 20@5x5, 10@5x5            | 28x28 classification       |
-| `cifar`      | conv 6@5x5/2, 16@5x5, 6@5x5              | 32x32 classification       |
-| `cityscapes` | conv 32@8x8/7, 64@4x4/4, 32@3x3          | 256x256 localization       |
-| `atari`      | conv 32@8x8/4, 64@4x4/2, 32@3x3          | 84x84 Atari and MuJoCo     |
-| `resnet18`   | 3x3 stem, BasicBlocks [2,2,2,2], no pool | any of the above           |
-| `mlp`        | dense 64, 64 (tanh); actor and critic each | vector observations     |
+Trunks (`TRUNKS`): the paper's CNNs `mnist`, `cifar`, `cityscapes` and `atari` (its appendix;
+`_PAPER_CNNS`, tabled in `docs/environments.md` section 5), every conv VALID and followed by
+ReLU, then a ReLU dense layer of 512; `resnet18` (3x3 stem, BasicBlocks [2, 2, 2, 2], no pool);
+`mlp` (dense 64, 64, tanh; actor and critic each) for vector observations. `default_trunk`
+picks one by observation size.
 
 uint8 pixels are scaled to [0, 1] inside the network. `dtype` is the computation dtype of the
 trunk (flax's convention: parameters stay float32): `"bfloat16"` runs its convolutions and dense
@@ -44,8 +38,9 @@ from jaxnat import spaces
 from jaxnat.agents.conv import conv2d, im2col_patches
 from jaxnat.agents.distributions import Gaussian
 
-__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "LogStd", "Memory", "initial_memory", "one_step_sequence", "make_actor_critic", "default_trunk",
-           "action_dims", "action_size", "is_box", "init_params", "im2col_patches"]
+__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "LogStd", "Memory", "initial_memory", "one_step_sequence",
+           "make_actor_critic", "default_trunk", "action_dims", "action_size", "is_box", "init_params",
+           "im2col_patches"]
 
 # (features, kernel, stride) per conv layer.
 _PAPER_CNNS = {
@@ -199,19 +194,16 @@ class ActorCritic(nn.Module):
     """`(obs) -> (policy, value)`: the policy is a tuple of logits, one per action factor, or
     with `action_size > 0` (a Box of that many dimensions) a `Gaussian(mean, log_std)`.
 
-    A convolutional trunk is shared by the heads; the `mlp` trunk is two MLPs with disjoint
-    parameters, `actor` under the logits and `critic` under the value (a Dict observation's goal
-    embedding is built in each). With `memory`, the GRU is the actor's: it reads the actor's
-    features, and the value reads the critic's features and the GRU output through a
-    `stop_gradient`, so the value loss trains critic parameters only and the policy loss actor
-    parameters only.
+    The `mlp` trunk's `actor` and `critic` MLPs have disjoint parameters (a Dict observation's
+    goal embedding is built in each). With `memory`, the GRU is the actor's: the value reads the
+    critic's features and the GRU output through a `stop_gradient`, so the value loss trains
+    critic parameters only and the policy loss actor parameters only.
 
     With `memory > 0` (a GRU of that size) the call is `(obs, Memory) -> (logits, value,
     hidden)` over a sequence: `obs` `[T, B, ...]`, the memory's per-step fields `[T, B, ...]`
     and its `hidden` `[B, H]`; outputs are `[T, B, ...]` and the state after the last step.
-    The trunk runs on all `T * B` observations at once; only the GRU steps through time. Its
-    input is the (actor) trunk's features with the previous action (one-hot per factor) and
-    reward; the heads read the features and the GRU's output side by side.
+    The trunk runs on all `T * B` observations at once; only the GRU steps through time, on the
+    (actor) trunk's features with the previous action (one-hot per factor) and reward.
     """
 
     action_dims: Sequence[int]  # categories per factor; () with a Box

@@ -31,21 +31,9 @@ from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState
 from jaxnat.wrappers import AutoResetWrapper
 
-__all__ = [
-    "ProbeState",
-    "ProbeParams",
-    "ConstantRewardProbe",
-    "SignProbe",
-    "TwoStepProbe",
-    "FactoredProbe",
-    "EndlessProbe",
-    "CostlyStartProbe",
-    "RecallProbe",
-    "TargetProbe",
-    "OpenLoopProbe",
-    "PROBES",
-    "make_probe",
-]
+__all__ = ["ProbeState", "ProbeParams", "ConstantRewardProbe", "SignProbe", "TwoStepProbe", "FactoredProbe",
+           "EndlessProbe", "CostlyStartProbe", "RecallProbe", "TargetProbe", "OpenLoopProbe", "PROBES",
+           "make_probe"]
 
 
 @struct.dataclass
@@ -66,17 +54,15 @@ class ProbeParams(EnvParams):
     reward: float = 1.0
 
 
-def _state(time, cue, first_action=0) -> ProbeState:
-    return ProbeState(
-        time=jnp.asarray(time, jnp.int32),
-        cue=jnp.asarray(cue, jnp.int32),
-        first_action=jnp.asarray(first_action, jnp.int32),
-    )
+def _state(cue) -> ProbeState:
+    """An episode's first state, showing `cue`."""
+    zero = jnp.asarray(0, jnp.int32)
+    return ProbeState(time=zero, cue=jnp.asarray(cue, jnp.int32), first_action=zero)
 
 
 def _random_sign(key) -> ProbeState:
     """A cue `c = +-1` at random, held as `(c > 0)` in `cue[0]`."""
-    return _state(0, jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
+    return _state(jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), 0]))
 
 
 def _squared_miss(action, target):
@@ -109,7 +95,7 @@ class _Probe(Environment):
         return self.get_obs(state, params), state
 
     def _initial_state(self, key) -> ProbeState:
-        return _state(0, jnp.zeros(2, jnp.int32))
+        return _state(jnp.zeros(2, jnp.int32))
 
     def get_obs(self, state, params):
         return jnp.ones((1,), jnp.float32)
@@ -177,7 +163,7 @@ class FactoredProbe(_Probe):
     def _initial_state(self, key):
         k0, k1 = jax.random.split(key)
         cue = jnp.stack([jax.random.randint(k0, (), 0, 2), jax.random.randint(k1, (), 0, 3)])
-        return _state(0, cue)
+        return _state(cue)
 
     def get_obs(self, state, params):
         return jnp.concatenate(
@@ -250,7 +236,7 @@ class TargetProbe(_Probe):
 
     def _initial_state(self, key):
         # The target in thousandths, held in the int32 cue.
-        return _state(0, jnp.stack([jax.random.randint(key, (), -800, 801), 0]))
+        return _state(jnp.stack([jax.random.randint(key, (), -800, 801), 0]))
 
     def get_obs(self, state, params):
         return (state.cue[:1] / 1000.0).astype(jnp.float32)
@@ -271,7 +257,7 @@ class OpenLoopProbe(_Probe):
 
     def _initial_state(self, key):
         # The noise's key, as int32 bits in the cue (fresh each episode).
-        return _state(0, jax.random.randint(key, (2,), jnp.iinfo(jnp.int32).min, jnp.iinfo(jnp.int32).max))
+        return _state(jax.random.randint(key, (2,), jnp.iinfo(jnp.int32).min, jnp.iinfo(jnp.int32).max))
 
     def get_obs(self, state, params):
         key = jax.random.key(jax.lax.bitcast_convert_type(state.cue, jnp.uint32)[0])

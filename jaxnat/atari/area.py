@@ -1,24 +1,19 @@
 """OpenCV's INTER_AREA downscaling, bit-exact and cheaper, fused with the background
-compositing: `composite_resize(screens, backgrounds, out)`.
+compositing: `composite_resize(screens, backgrounds, out, plan)`.
 
 Why: OpenCV resizes 210x160 -> 84x84 (a non-integer scale) with its generic INTER_AREA code, a
-scalar float loop: most of Natural Atari's host work, which ale-py itself does inside its
-emulation threads (the "host pieces" lines of bench/results/natural_atari.md time OpenCV's
-resize and this kernel side by side).
+scalar float loop that was most of Natural Atari's host work (the "host pieces" lines of
+bench/results/natural_atari.md time both). How: area weights are rational, so an output pixel
+is `N / D` for an exact integer `N` (`D = 200` at 210x160 -> 84x84); the kernel sums rows, then
+columns on the transposed rows, and rounds, redoing OpenCV's float32 sums only at exact ties.
+`docs/design.md`, "Compositing and resizing", has the argument; tests/test_atari_area.py and
+tests/test_atari.py check it against `cv2.resize`.
 
-How (`docs/design.md`, "Compositing and resizing", has the argument): area weights are
-rational, so an output pixel is `N / D` for an integer `N = sum(wy * wx * pixel)` (`D = 200` at
-210x160 -> 84x84, `N` exact in uint16). The kernel computes `N` rows first, then columns on the
-transposed rows (both vectorise), and rounds; OpenCV's float32 mean is within `E`
-(`_opencv_error_bound`) of `N / D`, so both round alike but at exact ties (`N mod D = D/2`),
-where the kernel redoes OpenCV's float32 sums for that pixel in OpenCV's order. Tested against
-`cv2.resize` (tests/test_atari_area.py, tests/test_atari.py).
-
-The plan applies where OpenCV takes that generic path and the argument above holds: downscaling
-on both axes, not by integer factors on both (OpenCV's fast integer path rounds differently),
-output sides under 1,000 (OpenCV drops overlaps under 1e-3 pixel), `255 D < 2^31` and
-`E < 1 / (2D)` (so `D` up to a few thousand; 84x84 from 210x160 has `2 D E` ~ 0.06). `area_plan`
-returns None otherwise and callers use `cv2.resize`.
+A plan exists where OpenCV takes that generic path and the argument holds: downscaling on both
+axes, not by integer factors on both (OpenCV's fast integer path rounds differently), output
+sides under 1,000 (OpenCV drops overlaps under 1e-3 pixel), `255 D < 2^31` and OpenCV's float32
+error `E < 1 / (2D)` (`_opencv_error_bound`; `D` up to a few thousand). `area_plan` returns None
+otherwise and callers use `cv2.resize`.
 
 Compositing rides along: a source pixel at gray level 0 takes the background's pixel
 (jaxnat.atari.compositor explains why gray 0 is exactly the all-channels-black RGB mask). Passing
@@ -34,7 +29,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["AreaPlan", "area_plan", "check_screens", "composite_resize", "kernel_arguments"]
+__all__ = ["AreaPlan", "area_plan", "check_out", "check_screens", "composite_resize", "kernel_arguments"]
 
 _MAX_SIDE = 1000  # OpenCV drops overlaps under 1e-3 source pixel; 1/m stays above that
 
@@ -152,10 +147,16 @@ def composite_resize(screens: np.ndarray, backgrounds: np.ndarray, out: np.ndarr
     bit for bit, for `uint8[B, H, W]` screens and backgrounds (`backgrounds=screens`: no
     compositing) into C-contiguous `uint8[B, h, w]` `out`. Releases the GIL."""
     b = check_screens(screens, backgrounds, plan)
-    if out.shape != (b, *plan.dst_shape) or out.dtype != np.uint8 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous uint8 array of shape {(b, *plan.dst_shape)}, "
-                         f"got {out.dtype} {out.shape}")
-    _kernel(screens, backgrounds, out, *kernel_arguments(plan))
+    _kernel(screens, backgrounds, check_out(out, (b, *plan.dst_shape)), *kernel_arguments(plan))
+    return out
+
+
+def check_out(out: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """`out`, checked to be a C-contiguous `uint8[shape]` that can be written in place (OpenCV
+    would copy a non-contiguous one and the result would be lost); raises `ValueError`."""
+    if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got "
+                         f"{out.dtype} {out.shape} (contiguous: {out.flags.c_contiguous})")
     return out
 
 

@@ -70,7 +70,6 @@ class NoiseBackground(NoBackground):
                  runner=None):
         self.buffer = np.empty((num_envs, *shape), np.uint8)
         self.law = noise_law(law)
-        # each env draws from its own generator
         self._sampler = GrayNoiseSampler(scale=self.law.scale, mean=self.law.mean)
         self._runner = runner
         self._drawing = []  # futures of the draws started by advance()
@@ -135,18 +134,8 @@ class BankBackground(NoBackground):
         self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
 
 
-def make_background(
-    kind: str,
-    num_envs: int,
-    shape: tuple[int, int],
-    *,
-    split: str = "train",
-    sources=None,
-    seed: int = 0,
-    noise=DEFAULT_NOISE,
-    noise_scale: float | None = None,
-    runner=None,
-):
+def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: str = "train", sources=None,
+                    seed: int = 0, noise=DEFAULT_NOISE, noise_scale: float | None = None, runner=None):
     """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
     `noise`: the pixel-noise law of "noise" (a name in `jaxnat.natural.NOISE_LAWS` or a
     `NoiseLaw`), `noise_scale` its scale when not None; `runner`: a `ChunkRunner` whose pool

@@ -1,12 +1,9 @@
 """Split a batch's host work into row chunks and run them on a pool of threads.
 
-What runs in a chunk is a few whole-chunk numba/numpy/OpenCV calls that release the GIL
-(drawing a chunk of envs' noise; compositing, resizing and stacking their screens where
-jaxnat.atari.hostpass's single parallel numba call does not apply), so chunks run in parallel;
-the Python between those calls is a few microseconds a chunk. (Many small per-env calls in
-each chunk would serialise on the GIL instead: more threads, more host time.) A chunk of a few
-envs is small enough that OpenCV keeps its own calls single-threaded, so the pool does not stack
-on OpenCV's threads.
+A chunk's work is a few whole-chunk numba/numpy/OpenCV calls that release the GIL, so chunks
+run in parallel (many small per-env calls would serialise on the GIL instead), and a chunk of a
+few envs is small enough that OpenCV keeps its own calls single-threaded. `docs/design.md`,
+"Host threads", says where this pool is used and where jaxnat.atari.hostpass replaces it.
 """
 
 from __future__ import annotations

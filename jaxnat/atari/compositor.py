@@ -20,10 +20,8 @@ max-pooled RGB screen and we turn it gray with the RGB mask (`background_mask`).
 Compositing and resizing run fused in one pass (`composite_and_resize`): jaxnat.atari.area's
 numba kernel, bit-identical to OpenCV's INTER_AREA; `cv2.resize` for sizes it has no plan for.
 
-The OpenCV calls take a batch `[B, H, W(, C)]` as one tall image `[B*H, W(, C)]`: every
-operation here is per pixel, and INTER_AREA shrinking by the same factor keeps the images' rows
-apart (210 rows become 84 exactly, so no output row mixes two images), so one call does the
-whole batch.
+The OpenCV calls take a batch `[B, H, W(, C)]` as one tall image `[B*H, W(, C)]`: the
+operations are per pixel, or a shrinking resize that keeps the images apart (`resize_area`).
 """
 
 from __future__ import annotations
@@ -33,7 +31,7 @@ import math
 import cv2
 import numpy as np
 
-from jaxnat.atari.area import area_plan, composite_resize
+from jaxnat.atari.area import area_plan, check_out, composite_resize
 from jaxnat.natural.noise import NoiseLaw
 
 __all__ = [
@@ -105,14 +103,8 @@ def composite_pooled_gray(gray: np.ndarray, gray_backgrounds: np.ndarray | None)
 
 
 def _output(out: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
-    """A new `uint8[shape]`, or `out` checked to be one OpenCV can write in place (a
-    non-contiguous one would be copied and the result lost)."""
-    if out is None:
-        return np.empty(shape, np.uint8)
-    if out.shape != shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous uint8 array of shape {shape}, got "
-                         f"{out.dtype} {out.shape} (contiguous: {out.flags.c_contiguous})")
-    return out
+    """A new `uint8[shape]`, or `out` checked to be one that can be written in place."""
+    return np.empty(shape, np.uint8) if out is None else check_out(out, shape)
 
 
 def resize_area(gray: np.ndarray, size: tuple[int, int], out: np.ndarray | None = None) -> np.ndarray:

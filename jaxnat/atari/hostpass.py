@@ -1,27 +1,21 @@
-"""Natural Atari's host work after ALE, as one parallel numba call: composite each env's gray
-screen over its background, shrink it with jaxnat.atari.area's exact INTER_AREA kernel into the
-frame stack's newest slot, and interleave the stack into the channels-last observation
-(`composite_resize_stack`; the numba code is `jaxnat.atari.area.parallel_pass`).
+"""Natural Atari's host work after ALE, as one parallel numba call (`composite_resize_stack`):
+composite each env's gray screen over its background, shrink it with jaxnat.atari.area's exact
+INTER_AREA kernel into the frame stack's newest slot, and interleave the stack into the
+channels-last observation (the numba code is `jaxnat.atari.area.parallel_pass`).
 
-Why one numba call and not a pool of Python threads (`host_pass="pool"` keeps the pool, for
-comparison), and why idle threads must sleep: `docs/design.md`, "Host threads".
-
-`threads` sets how many of numba's threads the call uses (`numba.set_num_threads`, which only
-affects the calling thread, restored afterwards); envs are split into that many contiguous
-chunks. The output does not depend on `threads`.
-
+`threads` sets how many of numba's threads the call uses (`numba.set_num_threads`, which
+affects only the calling thread; restored afterwards); envs are split into that many contiguous
+chunks. The output does not depend on it.
 The first pass starts numba's threads (OpenMP's libgomp, which reads `OMP_WAIT_POLICY` once,
 when loaded) with `OMP_WAIT_POLICY=PASSIVE` set for that moment only, unless you set it
-yourself. If libgomp was already loaded by then, its policy stays as it was; `GOMP_SPINCOUNT`,
-if set, overrides the policy.
+yourself; a libgomp loaded before keeps its policy, and `GOMP_SPINCOUNT`, if set, overrides it.
 
-`usable()` says whether the pass may be used: not on numba's `workqueue` layer (chosen when
-neither OpenMP nor TBB is available), which aborts the process when two threads call parallel
-code at once (two envs stepped from two threads) and ran slower than the Python pool; and
-not in a process forked after numba's OpenMP threads started (GNU OpenMP is not fork-safe:
-numba terminates such a child at its first parallel call), where envs made in the child use
-the Python pool instead. An env made before a fork cannot be stepped in the child either way
-(ale-py's emulation threads do not survive a fork).
+`usable()` says whether the pass may run here: not on numba's `workqueue` layer (no OpenMP or
+TBB: it aborts the process when two threads call parallel code at once), and not in a process
+forked after numba's OpenMP threads started (GNU OpenMP is not fork-safe); envs then use the
+Python pool (`host_pass="pool"`, also kept for comparison). An env made before a fork cannot be
+stepped in the child either way (ale-py's emulation threads do not survive a fork). Why one
+numba call, and why idle threads must sleep: `docs/design.md`, "Host threads".
 """
 
 from __future__ import annotations

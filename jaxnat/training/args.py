@@ -23,7 +23,6 @@ class TrainError(Exception):
     """A user error: printed as one line `jaxnat train: error: <message>`, exit status 2."""
 
 
-
 def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
     """Every algorithm config field except the core ones: name -> (type, {algo: default})."""
     fields: dict[str, tuple[Any, dict[str, Any]]] = {}
@@ -32,7 +31,7 @@ def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
         for field in dataclasses.fields(config_cls):
             if field.name in CORE_CONFIG_FIELDS:
                 continue
-            kind, defaults = fields.setdefault(field.name, (hints[field.name], {}))
+            _, defaults = fields.setdefault(field.name, (hints[field.name], {}))
             defaults[algo] = field.default
     return fields
 
@@ -124,16 +123,17 @@ def parse_env_kwargs(items, env_id: str | None = None) -> dict[str, Any]:
 
     With `env_id`, a value for a constructor argument whose default is a string stays a string
     (`background=none` names Natural Atari's "none" background, not None)."""
-    pairs = items.items() if isinstance(items, dict) else []
-    if not isinstance(items, dict):
+    if isinstance(items, dict):
+        pairs = items.items()
+    else:
+        pairs = []
         for item in items:
             key, sep, value = item.partition("=")
             if not sep or not key:
                 raise TrainError(f"--env-kwargs takes KEY=VALUE pairs, got {item!r}")
             pairs.append((key.strip(), value.strip()))
-    strings = set()
-    if env_id is not None:
-        strings = {name for name, p in constructor_parameters(env_id).items() if isinstance(p.default, str)}
+    strings = set() if env_id is None else {
+        name for name, p in constructor_parameters(env_id).items() if isinstance(p.default, str)}
     return {key: value if key in strings and isinstance(value, str) else _parse_value(value) for key, value in pairs}
 
 

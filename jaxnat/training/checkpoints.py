@@ -69,11 +69,12 @@ class Checkpoints:
         restored = self.manager.restore(step, args=ocp.args.Composite(
             state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
         target_leaves, treedef = jax.tree.flatten(fields)
-        stored = iter(jax.tree.leaves(restored.state))
+        stored = jax.tree.leaves(restored.state)
         expected = sum(not _is_empty(ref) for ref in target_leaves)
-        if len(jax.tree.leaves(restored.state)) != expected:
+        if len(stored) != expected:
             raise TrainError(f"checkpoint {step} does not match this run's state "
-                             f"({len(jax.tree.leaves(restored.state))} arrays, expected {expected})")
+                             f"({len(stored)} arrays, expected {expected})")
+        stored = iter(stored)
         leaves = [jnp.zeros(ref.shape, ref.dtype) if _is_empty(ref)
                   else jax.random.wrap_key_data(next(stored), impl=jax.random.key_impl(ref)) if _is_key(ref)
                   else jnp.asarray(next(stored)) for ref in target_leaves]

@@ -130,7 +130,8 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     else:
         with console.status("compiling init, training chunk and evaluation programs..."):
             compile_start = time.perf_counter()
-            backend = _ready_program(spec, compiler_options, envs)
+            backend = compiled_program(spec, compiler_options, envs)
+            backend.prepare(_chunk_lengths(spec))
         console.print(f"[dim]programs ready in {time.perf_counter() - compile_start:.1f} s[/dim]")
     new_run = None if saved is not None else {
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
@@ -144,19 +145,10 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     return TrainResult(run_dir, state, summary, complete)
 
 
-def _lowered_program(spec: RunSpec, compiler_options: dict | None, envs=None):
-    """The device programs of `spec`, every one lowered (the chunk lengths the run will use);
-    `envs`: `make_envs(spec)` when already built."""
-    program = compiled_program(spec, compiler_options, envs)
-    program.lower({spec.eval_every, spec.num_updates % spec.eval_every} - {0})
-    return program
-
-
-def _ready_program(spec: RunSpec, compiler_options: dict | None, envs=None):
-    """The device programs of `spec`, every one compiled."""
-    program = _lowered_program(spec, compiler_options, envs)
-    program.compile_pending()
-    return program
+def _chunk_lengths(spec: RunSpec) -> set[int]:
+    """The lengths of the run's chunks: `eval_every`, and a shorter last one where it does not
+    divide the run."""
+    return {spec.eval_every, spec.num_updates % spec.eval_every} - {0}
 
 
 def _nothing() -> None:
@@ -177,7 +169,9 @@ def prepare_programs(args: TrainArgs, *, compiler_options: dict | None = None) -
     spec, _, _, envs = _setup(args, Console(quiet=True))
     if is_host_env(spec.env_id):
         return _nothing
-    return _lowered_program(spec, compiler_options, envs).compile_pending
+    program = compiled_program(spec, compiler_options, envs)
+    program.lower(_chunk_lengths(spec))
+    return program.compile_pending
 
 
 def main(argv=None, **train_options) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import collections
 import copy
+import dataclasses
 import functools
 import inspect
 from concurrent.futures import ThreadPoolExecutor
@@ -25,24 +26,19 @@ from jaxnat.training.spec import RunSpec
 EVAL_STREAM = 0x6576616C  # fold_in constant: evaluation keys never collide with training keys
 
 
-
-def accepts(env_id: str, name: str) -> bool:
-    """Whether the env's entry point takes the constructor argument `name` (e.g. "split")."""
-    return name in constructor_parameters(env_id)
-
-
 def split_argument(env_id: str, env_kwargs: dict) -> str | None:
     """The env's constructor argument that picks disjoint train and test data: `split` (vision
     envs), `video_split` (PixelMuJoCo with `floor="video"`: held-out videos), else None."""
-    if accepts(env_id, "split"):
+    parameters = constructor_parameters(env_id)
+    if "split" in parameters:
         return "split"
-    if accepts(env_id, "video_split") and env_kwargs.get("floor") == "video":
+    if "video_split" in parameters and env_kwargs.get("floor") == "video":
         return "video_split"
     return None
 
 
 def make_envs(spec: RunSpec):
-    """(train env, params, test env, params, whether the test env is the test split)."""
+    """(train env, params, test env, params): the test env is the test split where the env has one."""
     kwargs = dict(spec.env_kwargs)
     for name in ("split", "video_split"):
         if name in kwargs:
@@ -50,19 +46,18 @@ def make_envs(spec: RunSpec):
                              f"{name}=test for evaluation")
     try:
         argument = split_argument(spec.env_id, kwargs)
-        has_split = argument is not None
-        split = {argument: "train"} if has_split else {}
-        env, params = jaxnat.make(spec.env_id, **split, **kwargs)
-        test_split = {argument: "test"} if has_split else {}
-        test_env, test_params = jaxnat.make(spec.env_id, autoreset=False, **test_split, **kwargs)
-    except UnknownEnvError as err:
-        raise TrainError(str(err)) from None
-    except (MissingDependencyError, DatasetNotFoundError, DatasetFormatError) as err:
+        train, test = ({argument: "train"}, {argument: "test"}) if argument is not None else ({}, {})
+        env, params = jaxnat.make(spec.env_id, **train, **kwargs)
+        test_env, test_params = jaxnat.make(spec.env_id, autoreset=False, **test, **kwargs)
+    except (UnknownEnvError, MissingDependencyError, DatasetNotFoundError, DatasetFormatError) as err:
         raise TrainError(str(err)) from None
     except (TypeError, ValueError) as err:  # bad kwarg names or values
         message = str(err)
         raise TrainError(message if spec.env_id in message else f"{spec.env_id}: {message}") from None
-    return env, params, test_env, test_params, has_split
+    return env, params, test_env, test_params
+
+
+_SINK = None  # the running chunk's progress display, `sink(update, metrics)`; None: drop
 
 
 def _update_callback(update, metrics) -> None:
@@ -71,15 +66,6 @@ def _update_callback(update, metrics) -> None:
     sink = _SINK
     if sink is not None:
         sink(update, metrics)
-
-
-_SINK = None
-
-
-def set_progress_sink(sink) -> None:
-    """Route the compiled chunks' per-update callbacks to `sink(update, metrics)` (None: drop)."""
-    global _SINK
-    _SINK = sink
 
 
 class DeviceBackend:
@@ -94,8 +80,7 @@ class DeviceBackend:
         self.spec = spec
         self.compiler_options = compiler_options
         self.placement = Placement.resolve(spec.algo, spec.config, spec.seeds, spec.devices, spec.shard)
-        env, params, test_env, test_params, self.test_split = envs or make_envs(spec)
-        self.observation_space = env.observation_space(params)
+        env, params, test_env, test_params = envs or make_envs(spec)
         make_learner = ALGORITHMS[spec.algo].make
         # The env params (datasets, window, time limit, ...) are arguments of every program, not
         # constants baked into it: runs that differ only in traced params (the w/M sweep) can run
@@ -125,7 +110,7 @@ class DeviceBackend:
         self.runner_shape = jax.eval_shape(init_program, self.params, keys)
         replicated, per_seed = place.specs("replicated"), place.specs("per_seed")
         # Evaluation reads the parameters and the normaliser's moments: per seed, or replicated.
-        scored = place.specs("per_seed" if place.shard == "seeds" else "replicated")
+        self._scored = scored = place.specs("per_seed" if place.shard == "seeds" else "replicated")
         self._lowered = {  # compiled on first use, or together by `prepare`
             "init": self._lower(init_program, self.params, keys),
             "evaluate": self._lower(place.program(evaluate, (replicated, scored, place.specs("keys"), scored),
@@ -144,10 +129,6 @@ class DeviceBackend:
         except ValueError as err:  # e.g. a batch that the minibatches do not divide
             raise TrainError(str(err)) from None
 
-    def _lower_chunk(self, n: int) -> None:
-        if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
-            self._lowered[("chunk", n)] = self._lower(self._chunk_program(n), self.params, self.runner_shape)
-
     def prepare(self, chunk_lengths=()) -> None:
         """Lower, then compile every program (init, evaluation, chance, a chunk of each length)
         not compiled yet (`lower`, `compile_pending`)."""
@@ -159,7 +140,8 @@ class DeviceBackend:
         backend is built). Tracing stays on the thread that uses the programs: JAX's tracing
         caches are not safe to share with a thread compiling at the same time."""
         for n in chunk_lengths:
-            self._lower_chunk(n)
+            if ("chunk", n) not in self._lowered and ("chunk", n) not in self._compiled:
+                self._lowered[("chunk", n)] = self._lower(self._chunk_program(n), self.params, self.runner_shape)
 
     def compile_pending(self) -> None:
         """Compile every lowered program not compiled yet: XLA only, no tracing, so it may run on
@@ -177,7 +159,7 @@ class DeviceBackend:
     def _program(self, name):
         if name not in self._compiled:
             if isinstance(name, tuple):
-                self._lower_chunk(name[1])
+                self.lower([name[1]])
             self._compiled[name] = self._lowered.pop(name).compile(self.compiler_options)
         return self._compiled[name]
 
@@ -217,16 +199,16 @@ class DeviceBackend:
         pass
 
     def chunk(self, state, num_updates: int, progress):
-        set_progress_sink(progress)
+        global _SINK
+        _SINK = progress
         try:
             state, metrics = self.compiled_chunk(num_updates)(self.place(state))
             return state, jax.device_get(metrics)
         finally:
-            set_progress_sink(None)
+            _SINK = None
 
     def evaluate(self, group, state) -> dict:
-        scored = self.placement.specs("per_seed" if self.placement.shard == "seeds" else "replicated")
-        params, normalizer = self.placement.put((state.train_state.params, state.normalizer), scored)
+        params, normalizer = self.placement.put((state.train_state.params, state.normalizer), self._scored)
         return jax.device_get(self._program("evaluate")(self.test_params, params, self.eval_keys(), normalizer))
 
     def chance(self) -> dict:
@@ -237,23 +219,21 @@ class DeviceBackend:
     def close(self) -> None:
         pass
 
-
     def may_serve(self, spec: RunSpec, compiler_options: dict | None) -> bool:
         """Whether `spec` differs from this backend's only in env params (kwargs that are not
         constructor arguments, e.g. `window` and `max_steps_in_episode`): then `reuse_for` may
         serve it with these programs."""
-        mine, theirs = dict(self.spec.env_kwargs), dict(spec.env_kwargs)
-        differing = {k for k in mine.keys() | theirs.keys() if mine.get(k, _ABSENT) != theirs.get(k, _ABSENT)}
-        return (spec.env_id, spec.algo, spec.config, spec.seeds, spec.eval_episodes, spec.devices, spec.shard) == (
-            self.spec.env_id, self.spec.algo, self.spec.config, self.spec.seeds, self.spec.eval_episodes,
-            self.spec.devices, self.spec.shard) \
-            and compiler_options == self.compiler_options and not differing & _structural_kwargs(spec.env_id)
+        differing = {name for name, _ in self.spec.env_kwargs.items() ^ spec.env_kwargs.items()}
+        same_but_kwargs = dataclasses.replace(spec, env_kwargs=self.spec.env_kwargs).program_key() == \
+            self.spec.program_key()
+        return same_but_kwargs and compiler_options == self.compiler_options and \
+            not differing & _structural_kwargs(spec.env_id)
 
     def reuse_for(self, spec: RunSpec, envs) -> DeviceBackend | None:
         """This backend's programs serving `spec` (one `may_serve` accepts) with its own envs'
         params (`make_envs(spec)`), when they have the same shapes and test-episode bound; else
         None."""
-        _, params, _, test_params, _ = envs
+        _, params, _, test_params = envs
         if (_signature(params), _signature(test_params), int(test_params.max_steps_in_episode)) != (
                 _signature(self.params), _signature(self.test_params), int(self.test_params.max_steps_in_episode)):
             return None
@@ -261,9 +241,6 @@ class DeviceBackend:
         other.spec = spec
         other.params, other.test_params = self._place_params(params, test_params)
         return other
-
-
-_ABSENT = object()
 
 
 def _structural_kwargs(env_id: str) -> set[str]:

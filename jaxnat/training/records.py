@@ -32,12 +32,14 @@ def write_jsonl(path: Path, rows, mode: str = "a") -> None:
 
 
 class History:
-    """What the curve and the summary need, read from the run's metric rows."""
+    """What the curve and the summary need, read from the run's metric rows: per update, each
+    seed's train return and terminated fraction (`[updates, seeds]`, NaN where none); per
+    evaluation, its update and each score over the seeds; every chunk's steps/s."""
 
     def __init__(self, spec: RunSpec):
         self.spec = spec
-        self.train: dict[str, list[np.ndarray]] = {"update": [], "episode_return": [],
-                                                   "terminated_fraction": []}
+        self.updates = np.zeros(0)
+        self.returns = self.terminated = np.zeros((0, spec.seeds))
         self.evals: list[dict] = []  # one per evaluation: update + arrays over seeds
         self.chunk_sps: list[float] = []
 
@@ -52,11 +54,8 @@ class History:
                 value = row.get(name)
                 arrays[j, index[row["seed"]]] = np.nan if value is None else value
         if by_update:
-            updates = np.array(sorted(by_update))
-            stacked = np.stack([by_update[u] for u in updates])  # [n, 2, seeds]
-            history.train["update"].append(updates)
-            history.train["episode_return"].append(stacked[:, 0])
-            history.train["terminated_fraction"].append(stacked[:, 1])
+            history.updates = np.array(sorted(by_update))
+            history.returns, history.terminated = np.stack([by_update[u] for u in history.updates], axis=1)
         evals: dict[int, dict] = {}
         for row in eval_rows:
             entry = evals.setdefault(row["update"], {"update": row["update"], "sps": row.get("steps_per_second")})
@@ -64,17 +63,11 @@ class History:
                 if k.startswith(("greedy_", "sampled_")):
                     entry.setdefault(k, np.full(spec.seeds, np.nan))[index[row["seed"]]] = np.nan if v is None else v
         for update in sorted(evals):
-            entry = evals[update]
-            sps = entry.pop("sps")
-            history.evals.append(entry)
+            sps = evals[update].pop("sps")
+            history.evals.append(evals[update])
             if sps is not None:
                 history.chunk_sps.append(sps)
         return history
-
-    def train_arrays(self):
-        if not self.train["update"]:
-            return np.zeros(0), np.zeros((0, self.spec.seeds)), np.zeros((0, self.spec.seeds))
-        return tuple(np.concatenate(self.train[k]) for k in ("update", "episode_return", "terminated_fraction"))
 
 
 def mean_std(values) -> tuple[float, float]:
@@ -105,8 +98,7 @@ def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    updates, returns, accuracy = history.train_arrays()
-    steps = updates * spec.steps_per_update
+    steps = history.updates * spec.steps_per_update
     eval_steps = np.array([e["update"] for e in history.evals]) * spec.steps_per_update
     fig = Figure(figsize=(11, 4.2), constrained_layout=True)
     FigureCanvasAgg(fig)
@@ -121,9 +113,12 @@ def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None
         line, = ax.plot(x, mean, label=label, **style)
         ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color(), linewidth=0)
 
-    band(axes[0], steps, returns, "train (episodes ending in each rollout)", color="C0")
-    band(axes[1], steps, accuracy, "train (episodes ending in each rollout)", color="C0")
-    for ax, score in zip(axes, ("return", "terminated_fraction")):
+    label = terminated_label(spec.env_id)
+    panels = (("return", history.returns, "Episode return", "return"),
+              ("terminated_fraction", history.terminated, f"{label.capitalize()} (fraction of episodes terminated)",
+               label))
+    for ax, (score, train, title, ylabel) in zip(axes, panels):
+        band(ax, steps, train, "train (episodes ending in each rollout)", color="C0")
         for mode, color in (("greedy", "C1"), ("sampled", "C2")):
             key = f"{mode}_{score}"
             if history.evals and all(key in e for e in history.evals):  # (host runs score returns only)
@@ -132,9 +127,6 @@ def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None
         if chance is not None and chance.get(score) is not None:
             ax.axhline(chance[score], color="0.4", linestyle="--", linewidth=1,
                        label="test split, uniform random policy")
-    label = terminated_label(spec.env_id)
-    labels = (("Episode return", "return"), (f"{label.capitalize()} (fraction of episodes terminated)", label))
-    for ax, (title, ylabel) in zip(axes, labels):
         ax.set_title(title)
         ax.set_xlabel("env steps per seed")
         ax.set_ylabel(ylabel)
@@ -148,12 +140,10 @@ def run_summary(spec: RunSpec, history: History, wall_time: float, complete: boo
                 chance: dict | None = None) -> dict:
     """The final table as JSON; `chance`: the uniform random policy's test scores (means over
     the seeds' evaluation keys), the baseline to read the test scores against."""
-    updates, returns, accuracy = history.train_arrays()
-    window = max(1, min(spec.eval_every, len(updates)))  # the last chunk's updates
-    per_seed = {
-        "train_return": nanmean(returns[-window:], 0) if len(updates) else np.full(spec.seeds, np.nan),
-        "train_accuracy": nanmean(accuracy[-window:], 0) if len(updates) else np.full(spec.seeds, np.nan),
-    }
+    updates = history.updates
+    window = max(1, min(spec.eval_every, len(updates)))  # the last chunk's updates (NaN without any)
+    per_seed = {"train_return": nanmean(history.returns[-window:], 0),
+                "train_accuracy": nanmean(history.terminated[-window:], 0)}
     last = history.evals[-1] if history.evals else {}
     for name, key in [("test_greedy_return", "greedy_return"),
                       ("test_greedy_accuracy", "greedy_terminated_fraction"),

@@ -18,7 +18,8 @@ import jax
 
 import jaxnat
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
-from jaxnat.training.spec import RunSpec, auto_eval_every
+from jaxnat.training.spec import SPEC_FIELDS_ADDED, RunSpec, auto_eval_every
+
 
 @dataclasses.dataclass
 class TrainResult:
@@ -42,10 +43,6 @@ def versions() -> dict:
 def default_run_dir(env_id: str, algo: str) -> Path:
     stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     return Path("runs") / f"{env_id.replace('/', '_')}-{algo}-{stamp}"
-
-
-# Run spec fields added since runs were first written: the value an older config.json means.
-SPEC_FIELDS_ADDED = {"env_parts": 1, "devices": 1, "shard": None}
 
 
 def check_resume_args(args: TrainArgs, saved: dict) -> None:
@@ -99,11 +96,9 @@ def open_resumed(args: TrainArgs):
 
 
 def check_counts(args: TrainArgs) -> None:
-    for name in ("seeds", "eval_episodes", "env_parts"):
-        if getattr(args, name) < 1:
+    for name in ("seeds", "eval_episodes", "env_parts", "eval_every"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
-    if args.eval_every is not None and args.eval_every < 1:
-        raise TrainError("--eval-every must be at least 1")
 
 
 def with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
@@ -124,8 +119,7 @@ def new_run_dir(args: TrainArgs) -> Path:
 
 
 def args_json(args: TrainArgs) -> dict:
-    data = dataclasses.asdict(args)
-    return json.loads(json.dumps(data, default=str))
+    return json.loads(json.dumps(dataclasses.asdict(args), default=str))
 
 
 @dataclasses.dataclass

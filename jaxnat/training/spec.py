@@ -6,13 +6,14 @@ import dataclasses
 import math
 from typing import Any
 
-
 from jaxnat.agents import ALGORITHMS, defaults, normalize
 from jaxnat.agents.networks import default_trunk
 from jaxnat.training.args import CORE_CONFIG_FIELDS, TrainArgs, TrainError
 
 TARGET_EVALUATIONS = 20  # --eval-every's default aims at about this many evaluations
-
+# Run spec fields added since runs were first written: the value an older config.json means
+# (every host run stepped its envs as one batch, on one device).
+SPEC_FIELDS_ADDED = {"env_parts": 1, "devices": 1, "shard": None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,14 +85,12 @@ class RunSpec:
             # Written before observation and reward normalisation existed: the run had neither.
             data = {**data, "config": {**data["config"], "normalize_observations": False,
                                        "normalize_rewards": False}}
+        data = {**SPEC_FIELDS_ADDED, **data}
         return cls(
             env_id=data["env_id"], env_kwargs=dict(data["env_kwargs"]), algo=data["algo"],
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
             eval_every=int(data["eval_every"]), eval_episodes=int(data["eval_episodes"]),
-            # Written before env_parts existed: every host run stepped its envs as one batch.
-            env_parts=int(data.get("env_parts", 1)),
-            # Written before --devices existed: one device.
-            devices=int(data.get("devices", 1)), shard=data.get("shard"),
+            env_parts=int(data["env_parts"]), devices=int(data["devices"]), shard=data["shard"],
         )
 
 
@@ -115,9 +114,10 @@ def resolve_config(args: TrainArgs, observation_space, action_space=None):
         if value is None:
             continue
         if field.name not in names:
-            flag = "--" + field.name.replace("_", "-")
-            raise TrainError(f"{flag} is not a setting of {args.algo} (it belongs to "
-                             f"{', '.join(a for a, algorithm in ALGORITHMS.items() if field.name in {f.name for f in dataclasses.fields(algorithm.config)})})")
+            owners = [algo for algo, algorithm in ALGORITHMS.items()
+                      if field.name in {f.name for f in dataclasses.fields(algorithm.config)}]
+            raise TrainError(f"--{field.name.replace('_', '-')} is not a setting of {args.algo} (it belongs to "
+                             f"{', '.join(owners)})")
         values[field.name] = value
     for name in CORE_CONFIG_FIELDS:
         if getattr(args, name) is not None:
