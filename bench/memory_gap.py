@@ -14,7 +14,6 @@ between the two columns is what remembering wrong guesses is worth to that polic
 from __future__ import annotations
 
 import argparse
-import functools
 import sys
 import time
 

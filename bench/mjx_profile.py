@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
-import time
 
 import jax
 import jax.numpy as jnp
