@@ -170,6 +170,15 @@ def test_parse_env_kwargs():
         train.parse_env_kwargs(["w"])
 
 
+@pytest.mark.parametrize("name", ["split", "video_split"])
+def test_split_kwargs_are_refused_on_every_path(name):
+    # One check for the device path (`programs.make_envs`) and the host path (`host.py`).
+    from jaxnat.training.args import check_split_kwargs
+    with pytest.raises(train.TrainError, match=f"env kwarg '{name}' is set by jaxnat train"):
+        check_split_kwargs({"w": 3, name: "test"})
+    check_split_kwargs({"w": 3, "floor": "video"})
+
+
 def test_auto_eval_every():
     assert spec_module.auto_eval_every(976) == 61  # PPO defaults: a divisor near 976 / 20
     assert spec_module.auto_eval_every(977) == 49  # prime: one shorter last chunk

@@ -23,6 +23,15 @@ class TrainError(Exception):
     """A user error: printed as one line `jaxnat train: error: <message>`, exit status 2."""
 
 
+def check_split_kwargs(env_kwargs: dict) -> None:
+    """Refuse the env kwargs that pick the data split: `jaxnat train` sets them itself (the
+    train split for training, the test split for evaluation)."""
+    for name in ("split", "video_split"):
+        if name in env_kwargs:
+            raise TrainError(f"env kwarg {name!r} is set by jaxnat train: {name}=train for training and "
+                             f"{name}=test for evaluation")
+
+
 def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
     """Every algorithm config field except the core ones: name -> (type, {algo: default})."""
     fields: dict[str, tuple[Any, dict[str, Any]]] = {}

@@ -41,7 +41,7 @@ from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.sharding import process_share
-from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
+from jaxnat.training.args import TrainArgs, TrainError, check_split_kwargs, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
 
 __all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend",
@@ -112,9 +112,7 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
         raise TrainError(f"{args.algo} has no host loop: {args.env_id} (host-emulated) trains "
                          f"with {', '.join(HOST_ALGORITHMS)}")
     env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
-    if "split" in env_kwargs:
-        raise TrainError("env kwarg 'split' is set by jaxnat train: split=train for training and "
-                         "split=test for evaluation")
+    check_split_kwargs(env_kwargs)
     with host_errors(args.env_id):
         config = resolve_config(args, observation_space(args.env_id, env_kwargs))
     if args.algo == "dqn" and args.config.loss is None:
@@ -161,10 +159,8 @@ class HostBackend:
     def __init__(self, spec: RunSpec, compiler_options: dict | None = None):
         self.spec = spec
         self.groups = [[seed] for seed in spec.seed_values]
+        check_split_kwargs(spec.env_kwargs)
         with host_errors(spec.env_id):
-            if "split" in spec.env_kwargs:
-                raise ValueError("env kwarg 'split' is set by jaxnat train: split=train for training and "
-                                 "split=test for evaluation")
             self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts)
             # No more test envs than test games: the first games to end are the short ones, so
             # many envs would bias the scores (and step emulators whose games are never counted).

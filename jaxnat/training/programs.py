@@ -19,7 +19,7 @@ from jaxnat.agents import ALGORITHMS
 from jaxnat.agents.rollout import make_chance, make_evaluate
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
-from jaxnat.training.args import TrainError, constructor_parameters
+from jaxnat.training.args import TrainError, check_split_kwargs, constructor_parameters
 from jaxnat.training.placement import Placement
 from jaxnat.training.spec import RunSpec
 
@@ -40,10 +40,7 @@ def split_argument(env_id: str, env_kwargs: dict) -> str | None:
 def make_envs(spec: RunSpec):
     """(train env, params, test env, params): the test env is the test split where the env has one."""
     kwargs = dict(spec.env_kwargs)
-    for name in ("split", "video_split"):
-        if name in kwargs:
-            raise TrainError(f"env kwarg {name!r} is set by jaxnat train: {name}=train for training and "
-                             f"{name}=test for evaluation")
+    check_split_kwargs(kwargs)
     try:
         argument = split_argument(spec.env_id, kwargs)
         train, test = ({argument: "train"}, {argument: "test"}) if argument is not None else ({}, {})
