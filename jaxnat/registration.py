@@ -21,6 +21,7 @@ __all__ = [
     "register",
     "registered_envs",
     "spec",
+    "close_matches",
     "make",
     "make_vec",
 ]
@@ -82,6 +83,16 @@ def registered_envs() -> tuple[str, ...]:
     return tuple(sorted(_REGISTRY))
 
 
+def close_matches(name: str, names) -> list[str]:
+    """Up to ten of `names` closest to a mistyped `name`, as spelled and then ignoring case,
+    without repeats (for "Did you mean" hints)."""
+    names = list(names)
+    folded = {n.lower(): n for n in names}
+    close = difflib.get_close_matches(name, names, n=5, cutoff=0.5)
+    close += [folded[m] for m in difflib.get_close_matches(name.lower(), folded, n=5, cutoff=0.5)]
+    return list(dict.fromkeys(close))
+
+
 def spec(id: str) -> EnvSpec:
     """The `EnvSpec` of `id`; unknown ids raise `UnknownEnvError` with the closest matches."""
     try:
@@ -89,10 +100,7 @@ def spec(id: str) -> EnvSpec:
     except KeyError:
         pass
     ids = registered_envs()
-    folded = {i.lower(): i for i in ids}
-    close = difflib.get_close_matches(id, ids, n=5, cutoff=0.5)
-    close += [folded[m] for m in difflib.get_close_matches(id.lower(), folded, n=5, cutoff=0.5)]
-    close = list(dict.fromkeys(close))  # de-duplicate, keep order
+    close = close_matches(id, ids)
     hint = f" Did you mean: {', '.join(close)}?" if close else ""
     raise UnknownEnvError(
         f"No env registered as {id!r}.{hint} See jaxnat.registered_envs() for all "

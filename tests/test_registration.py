@@ -123,3 +123,11 @@ def test_make_vec_of_a_host_batched_env_is_a_host_batched_env():
     finally:
         env.close()
     assert not isinstance(object(), HostBatchedEnv)
+
+
+def test_close_matches_as_spelled_then_ignoring_case_without_repeats():
+    from jaxnat.registration import close_matches
+    names = ["Breakout", "SpaceInvaders", "Pong"]
+    assert close_matches("Breakot", names) == ["Breakout"]  # found both ways, listed once
+    assert close_matches("SPACEINVADER", names) == ["SpaceInvaders"]  # only ignoring case
+    assert close_matches("Zzzz", names) == []

@@ -6,9 +6,10 @@ imports nothing heavy; `tests/test_atari.py` checks it against `ale_py.roms.get_
 
 from __future__ import annotations
 
-import difflib
 import os
 from pathlib import Path
+
+from jaxnat.registration import close_matches
 
 __all__ = ["ROM_IDS", "MULTIPLAYER_ONLY", "GAMES", "AUTHORS_GAMES", "game_name", "rom_id", "rom_path",
            "RomNotFoundError"]
@@ -69,10 +70,7 @@ def rom_id(game: str) -> str:
     if game in MULTIPLAYER_ONLY or game in {game_name(r) for r in MULTIPLAYER_ONLY}:
         raise ValueError(f"{game} is a multiplayer-only ROM: ALE runs it only in its multi-agent mode, "
                          "which Natural Atari does not offer (single-agent games: jaxnat.atari.GAMES)")
-    close = difflib.get_close_matches(game, list(GAMES), n=5, cutoff=0.5)
-    folded = {g.lower(): g for g in GAMES}
-    close += [folded[m] for m in difflib.get_close_matches(game.lower(), folded, n=5, cutoff=0.5)]
-    close = list(dict.fromkeys(close))
+    close = close_matches(game, GAMES)
     hint = f" Did you mean: {', '.join(close)}?" if close else ""
     raise ValueError(
         f"Unknown Atari game {game!r}.{hint} Games are ALE's ROMs in CamelCase "
