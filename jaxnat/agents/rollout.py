@@ -134,6 +134,16 @@ class UpdateRule(NamedTuple):
         return TrainState.create(apply_fn=network.apply, params=init_params(network, observation_space, key),
                                  tx=self.make_optimizer(config, num_updates))
 
+    def averaged(self, axis_name) -> UpdateRule:
+        """This rule trained data parallel over `axis_name`: its optimizer applies the devices'
+        mean gradient (`pmean_gradients`); a `ValueError` for a rule that cannot."""
+        if not self.data_parallel:
+            raise ValueError("this algorithm does not train data parallel (its update needs the whole batch "
+                             "on one device): place whole seeds on devices, or leave devices out")
+        make_optimizer = self.make_optimizer
+        return self._replace(make_optimizer=lambda config, num_updates: pmean_gradients(
+            make_optimizer(config, num_updates), axis_name))
+
     def learn(self, config, network, train_state: TrainState, transitions: Transition, key, axis_name=None):
         """One update on a rollout, as both drivers make it: GAE, then `update_step`. Returns
         `(train_state, metrics)`: the episode metrics and the losses. With `axis_name` (inside
@@ -393,16 +403,11 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
     network = make_actor_critic(observation_space, action_space, config.trunk, **rule.network_options(config))
     normalizing = normalize.switches(config, observation_space)
     reset, step = vector_env(env)
-    make_optimizer = rule.make_optimizer
     if axis_name is not None:
-        if not rule.data_parallel:
-            raise ValueError("this algorithm does not train data parallel (its update needs the whole batch "
-                             "on one device): place whole seeds on devices instead")
+        rule = rule.averaged(axis_name)
         if network.memory:
             raise ValueError(f"memory={network.memory}: a recurrent policy's minibatches are whole env rollouts, "
                              "which do not split evenly over devices: place whole seeds on devices instead")
-        make_optimizer = lambda config, num_updates: pmean_gradients(  # noqa: E731
-            rule.make_optimizer(config, num_updates), axis_name)
 
     def env_keys(key, config):
         """The keys of this device's envs (every env's without `axis_name`)."""
@@ -463,7 +468,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
                                               axis_name)
         return runner._replace(train_state=train_state, key=key, update=runner.update + 1), metrics
 
-    return scan_learner(config, init, update, lambda config: make_optimizer(config, total_updates), network,
+    return scan_learner(config, init, update, lambda config: rule.make_optimizer(config, total_updates), network,
                         total_updates, rollout)
 
 
@@ -713,8 +718,8 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
     unchanged)."""
     options = rule.network_options(config)
     mesh = None if devices is None else device_mesh(devices)
-    if mesh is not None and not rule.data_parallel:
-        raise ValueError("this algorithm does not train data parallel: leave devices out")
+    if mesh is not None:
+        rule = rule.averaged(AXIS)
     share = None if mesh is None else process_share(config.num_envs, mesh)
     num_updates = check_host_batch(config, env, options.get("memory", 0), share)
     observation_space = env.single_observation_space
@@ -783,22 +788,19 @@ def _host_programs(config, network, rule: UpdateRule, observation_space, num_upd
     """`(init, learn, local_params)` of an on-policy host learner: `init(key) -> TrainState`,
     `learn(train_state, transitions, key) -> (train_state, metrics)` on this process's rollout,
     and `local_params(train_state)`, the parameters its policy calls read. Without `mesh`,
-    programs of one device. With it, data parallel: the train state replicated over the mesh
-    (its optimizer applying the mean gradient, `pmean_gradients`), and `learn` runs `rule.learn`
+    programs of one device. With it, data parallel (`rule` is then `UpdateRule.averaged`): the
+    train state replicated over the mesh, and `learn` runs `rule.learn`
     with `AXIS` under `jax.shard_map` on every process's rollouts side by side (each process
     gives its own: `jax.make_array_from_process_local_data`) with the same key in every
     process; the policy reads this process's copy of the parameters."""
+    # One compiled program, not hundreds of small eager ones.
+    make_state = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
     if mesh is None:
         learn = jit(lambda train_state, transitions, key: rule.learn(config, network, train_state, transitions, key))
-        # One compiled program, not hundreds of small eager ones.
-        init = jit(lambda key: rule.train_state(config, network, observation_space, num_updates, key))
-        return init, learn, lambda train_state: train_state.params
+        return make_state, learn, lambda train_state: train_state.params
     whole, per_env = PartitionSpec(), PartitionSpec(None, AXIS)  # replicated; split along the env axis
     program = shard_program(lambda train_state, transitions, key: rule.learn(
         config, network, train_state, transitions, key, AXIS), mesh, (whole, per_env, whole), (whole, whole), jit)
-    averaged = rule._replace(make_optimizer=lambda config, num_updates: pmean_gradients(
-        rule.make_optimizer(config, num_updates), AXIS))
-    make_state = jit(lambda key: averaged.train_state(config, network, observation_space, num_updates, key))
 
     def init(key):
         return put_global(make_state(key), replicated(mesh))
