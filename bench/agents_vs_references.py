@@ -581,6 +581,7 @@ def _fmt(mean, half):
 
 
 def main(argv=None):
+    global REPEATS
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=list(ENVS),
                         help=f"gymnax ids (default: {' '.join(ENVS)}), or {' '.join(BRAX_ENVS)} (ppo only)")
@@ -598,7 +599,6 @@ def main(argv=None):
     parser.add_argument("--out", type=pathlib.Path, default=common.RESULTS, help="results directory")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
-    global REPEATS
     REPEATS = max(1, args.repeats)
     unknown = sorted(set(args.envs) - set(gymnax.registered_envs) - set(BRAX_ENVS))
     if unknown:

@@ -102,3 +102,11 @@ def test_package_layering(package):
 def test_the_cycle_finder_finds_cycles():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+@pytest.mark.parametrize("script", sorted(p.name for p in (ROOT.parent / "bench").glob("*.py")))
+def test_bench_scripts_compile(script):
+    """The benches are not imported by the suite (their peers are optional installs), so a
+    compile-time error (a misplaced `global`, say) would otherwise reach the GPU first."""
+    path = ROOT.parent / "bench" / script
+    compile(path.read_text(), str(path), "exec")
