@@ -173,6 +173,11 @@ class Learner(NamedTuple):
     rollout: Callable | None = None
 
 
+# Steps of the GAE recursion per loop iteration (`gae`): bench/results/agents_vs_references.md
+# ("unrolling GAE") measures what it saves.
+GAE_UNROLL = 32
+
+
 def gae(transitions: Transition, gamma, gae_lambda) -> tuple[jax.Array, jax.Array]:
     """Advantages and value targets over a `[T, ...]` rollout (time-major)."""
 
@@ -183,7 +188,10 @@ def gae(transitions: Transition, gamma, gae_lambda) -> tuple[jax.Array, jax.Arra
         return advantage, advantage
 
     steps = (transitions.reward, transitions.next_value, transitions.value, transitions.done)
-    _, advantages = jax.lax.scan(backward, jnp.zeros_like(transitions.value[0]), steps, reverse=True)
+    # Unrolled: each step is a few elementwise operations, so a rolled loop's per-iteration cost
+    # (on a GPU, a launch and the loop's predicate read back) would outweigh its body.
+    _, advantages = jax.lax.scan(backward, jnp.zeros_like(transitions.value[0]), steps, reverse=True,
+                                 unroll=min(GAE_UNROLL, transitions.value.shape[0]))
     return advantages, advantages + transitions.value
 
 
