@@ -18,7 +18,7 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.agents import A2CConfig, PPOConfig, make_a2c, make_ppo
-from jaxnat.agents.rollout import Transition, gae
+from jaxnat.agents.rollout import Transition, gae, pack_vectors, unpack_vectors
 from jaxnat.agents.probes import make_probe
 from jaxnat.testing import check_env
 
@@ -442,3 +442,25 @@ def test_chance_is_the_uniform_random_policy(probe, expected):
     scores = jax.jit(make_chance(env, params, num_episodes=4000, max_steps=1))(jax.random.key(0))
     assert abs(float(scores["return"]) - expected) < 0.03, scores
     assert float(scores["length"]) == 1.0 and float(scores["unfinished"]) == 0.0
+
+
+def test_a_steps_per_env_scalars_round_trip_exactly_through_one_packed_write():
+    """The scan driver writes a step's 1-D float32/bool leaves as one [N, k] array: stacked over
+    steps and unpacked, every leaf comes back with its dtype and its exact values; other leaves
+    (ints, observations) are left as they are."""
+    key = jax.random.key(3)
+    record = {"obs": jax.random.normal(key, (4, 2, 2)), "reward": jax.random.normal(key, (4,)) * 1e30,
+              "done": jnp.array([True, False, True, False]), "length": jnp.arange(4, dtype=jnp.int32),
+              "info": {"value": jnp.array([np.nan, -0.0, np.inf, 1e-45], jnp.float32)}}
+    layout = {}
+    packed, others = pack_vectors(record, layout)
+    assert packed.shape == (4, 3) and [x.dtype for x in others] == [jnp.int32, jnp.float32]
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), (packed, others), (packed, others))
+    back = unpack_vectors(stacked, layout)
+    for name, x in jax.tree_util.tree_leaves_with_path(record):
+        got = functools.reduce(lambda t, k: t[k.key], name, back)
+        assert got.dtype == x.dtype and got.shape == (2, *x.shape)
+        np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(x))
+    assert np.signbit(back["info"]["value"][0, 1])  # -0.0 survives
+    one = {"reward": jnp.zeros(4), "obs": jnp.zeros((4, 2))}  # a single vector: nothing to pack
+    assert pack_vectors(one, layout) is one and unpack_vectors(one, layout) is one

@@ -344,6 +344,7 @@ def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_step
     Returns `((carry, env_state, obs, key), records stacked over time)`."""
     if env_keys is None:
         env_keys = functools.partial(jax.random.split, num=num_envs)
+    layout = {}
 
     def body(state, t):
         carry, env_state, obs, key = state
@@ -353,9 +354,41 @@ def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_step
             env_keys(key_env), env_state, env_action(action, action_space), env_params)
         carry, record = observe(carry, EnvStep.after(obs, action, next_obs, reward, terminated, truncated, info),
                                 aux, t)
-        return (carry, env_state, next_obs, key), record
+        return (carry, env_state, next_obs, key), pack_vectors(record, layout)
 
-    return jax.lax.scan(body, (carry, env_state, obs, key), jnp.arange(num_steps))
+    final, packed = jax.lax.scan(body, (carry, env_state, obs, key), jnp.arange(num_steps))
+    return final, unpack_vectors(packed, layout)
+
+
+# The per-env scalars a step records (reward, value, done, episode statistics, ...), written into
+# one `[N, k]` array per step rather than k arrays: each array a loop stacks is its own write per
+# iteration (on a GPU, its own kernel). float32 and bool only, so the round trip is exact.
+_PACKED_DTYPES = (jnp.float32, jnp.bool_)
+
+
+def pack_vectors(record, layout: dict):
+    """`(packed [N, k] float32, the other leaves)` from `record`'s 1-D float32/bool leaves (k >= 2;
+    else `record` as it is); `layout` keeps what `unpack_vectors` needs."""
+    leaves, treedef = jax.tree_util.tree_flatten(record)
+    vectors = [i for i, x in enumerate(leaves) if x.ndim == 1 and x.dtype in _PACKED_DTYPES]
+    if len(vectors) < 2 or len({leaves[i].shape for i in vectors}) > 1:
+        layout.clear()
+        return record
+    layout.update(treedef=treedef, vectors=vectors, dtypes=[leaves[i].dtype for i in vectors])
+    packed = jnp.stack([leaves[i].astype(jnp.float32) for i in vectors], axis=-1)
+    return packed, [x for i, x in enumerate(leaves) if i not in vectors]
+
+
+def unpack_vectors(stacked, layout: dict):
+    """`pack_vectors`'s output stacked over steps, back to the record's structure `[T, ...]`."""
+    if not layout:
+        return stacked
+    packed, others = stacked
+    others = iter(others)
+    columns = dict(zip(layout["vectors"], range(packed.shape[-1])))
+    leaves = [packed[..., columns[i]].astype(layout["dtypes"][columns[i]]) if i in columns else next(others)
+              for i in range(layout["treedef"].num_leaves)]
+    return jax.tree_util.tree_unflatten(layout["treedef"], leaves)
 
 
 def scan_learner(config, init: Callable, update: Callable, optimizer: Callable, network, num_updates: int,
