@@ -14,9 +14,10 @@ the reference or above on every task, at equal or better wall time."
   its own defaults (the classic synchronous A2C: RMSprop 7e-4, 16 envs x 5 steps, n-step
   returns, value coef 0.5, entropy 0.01), trunk and the env's gamma and step budget from
   rejax's PPO config; its row reads "no reference".
-- Networks (`--rejax-network matched`, the default): 64x64 tanh MLPs on both sides; rejax's
-  DQN then uses its plain `QNetwork` with tanh instead of its configs' `DuelingQNetwork` with
-  swish (jaxnat has no dueling head). `--rejax-network config` keeps rejax's configs' networks.
+- Networks (`--rejax-network matched`, the default): jaxnat's networks on both sides: 64x64
+  tanh MLPs for PPO; for DQN jaxnat's Q-network (`networks.Q_MLP`: 120x84 ReLU, CleanRL's and
+  PureJaxRL's), rejax's plain `QNetwork` then taking those sizes instead of its configs'
+  `DuelingQNetwork` with swish (jaxnat has no dueling head). `--rejax-network config` keeps rejax's configs' networks.
   MinAtar observations are [10, 10, C] float grids: rejax's MLP flattens them; jaxnat's default
   trunk for a 10x10 image is a ResNet-18, so jaxnat trains on a flattened view
   (`FlatObservation`, a `jaxnat.wrappers.Wrapper`) with its "mlp" trunk;
@@ -131,10 +132,12 @@ try:
 except ImportError as err:  # pragma: no cover
     raise SystemExit(f"bench/agents_vs_references.py needs rejax and gymnax: pip install 'jaxnat[bench]' ({err})")
 
+import flax.linen as nn  # noqa: E402
 import jaxnat  # noqa: E402
 from jaxnat.agents import A2CConfig, DQNConfig, PPOConfig, distributions, make_a2c, make_dqn, make_ppo  # noqa: E402
 from jaxnat.agents.dqn import epsilon  # noqa: E402
 from jaxnat.agents.normalize import normalize  # noqa: E402
+from jaxnat.agents.networks import Q_MLP  # noqa: E402
 from jaxnat.agents.rollout import env_action, is_box  # noqa: E402
 from jaxnat.wrappers import Wrapper  # noqa: E402
 
@@ -292,17 +295,24 @@ class FlatObservation(Wrapper):
 
 def rejax_settings(env_id: str, algo: str, scale: float, network: str) -> tuple[dict, list[str]]:
     """rejax's config for this (env, algo), with `total_timesteps` scaled by `scale` and rounded
-    down to whole iterations (at least one), and (`network="matched"`) 64x64 tanh networks.
+    down to whole iterations (at least one), and (`network="matched"`) jaxnat's networks: 64x64
+    tanh for PPO, DQN's Q-network (`networks.Q_MLP`, 120x84 ReLU) for DQN.
     Returns (config, notes on what was changed from rejax's file)."""
     config = {k: (dict(v) if isinstance(v, dict) else v) for k, v in REJAX_CONFIGS[config_key(env_id, algo)].items()}
     notes = []
-    if network == "matched":
+    if network == "matched" and algo == "dqn":  # jaxnat's Q-network on vector observations
+        sizes, activation = Q_MLP
+        if config["agent_kwargs"].get("activation") != activation:
+            notes.append(f"rejax activation {config['agent_kwargs']['activation']} -> {activation} "
+                         "(matched networks: jaxnat's Q-network)")
+        config["agent_kwargs"].update(activation=activation, hidden_layer_sizes=tuple(sizes))
+        if config.get("agent", "QNetwork") != "QNetwork":
+            notes.append(f"rejax {config['agent']} -> QNetwork (jaxnat has no dueling head)")
+            config["agent"] = "QNetwork"
+    elif network == "matched":
         if config["agent_kwargs"].get("activation") != "tanh":
             notes.append(f"rejax activation {config['agent_kwargs']['activation']} -> tanh (matched networks)")
             config["agent_kwargs"]["activation"] = "tanh"
-        if algo == "dqn" and config.get("agent", "QNetwork") != "QNetwork":
-            notes.append(f"rejax {config['agent']} -> QNetwork (jaxnat has no dueling head)")
-            config["agent"] = "QNetwork"
         if algo == "ppo":
             config["agent_kwargs"]["hidden_layer_sizes"] = (64, 64)
     else:
@@ -398,6 +408,8 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
         else:
             differences.append(f"gradient clipping: rejax clips each element to +-{c['max_grad_norm']}, jaxnat none")
         config = _apply(DQNConfig, values, differences)
+        differences.append("parameters: jaxnat's count includes its network's value head, which DQN never "
+                           "trains or reads (one dense unit on the last hidden layer)")
         polyak = c.get("polyak", 0.99)
         if polyak:
             differences.append(
@@ -507,9 +519,25 @@ def run_jaxnat(env_id, algo, config, seeds, episodes):
             "params": count_params(runner.train_state.params), "network": trunk}
 
 
+class SizedDQN(rejax.DQN):
+    """rejax 0.1.3's DQN, its Q-network's hidden sizes taken from `agent_kwargs`
+    ("hidden_layer_sizes"; rejax's own `create_agent` fixes them at 64x64 and reads only the
+    activation there): the algorithm is rejax's, the network can match jaxnat's."""
+
+    @classmethod
+    def create_agent(cls, config, env, env_params):
+        from rejax.networks import DiscreteQNetwork, DuelingQNetwork, EpsilonGreedyPolicy
+
+        network = {"QNetwork": DiscreteQNetwork, "DuelingQNetwork": DuelingQNetwork}[config.pop("agent", "QNetwork")]
+        kwargs = dict(config.pop("agent_kwargs", {}))
+        kwargs["activation"] = getattr(nn, kwargs.pop("activation", "swish"))
+        kwargs["hidden_layer_sizes"] = tuple(kwargs.get("hidden_layer_sizes", (64, 64)))
+        return {"agent": EpsilonGreedyPolicy(network)(action_dim=env.action_space(env_params).n, **kwargs)}
+
+
 def run_rejax(env_id, algo, config, seeds, episodes):
     env, env_params = make_env(env_id)
-    cls = {"ppo": rejax.PPO, "dqn": rejax.DQN}[algo]
+    cls = {"ppo": rejax.PPO, "dqn": SizedDQN}[algo]
     config = {**config, "agent_kwargs": dict(config["agent_kwargs"])}
     algorithm = cls.create(env=FiveValueStep(env), env_params=env_params, eval_freq=config["total_timesteps"],
                            skip_initial_evaluation=True, **config)
