@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import importlib
 import sys
+from typing import Callable
 
 # name -> (module with `main(argv) -> int | None`, one-line description)
 COMMANDS = {
@@ -26,6 +27,19 @@ def _usage() -> str:
     lines += [f"  {name:<{width}}  {description}" for name, (_, description) in COMMANDS.items()]
     lines += ["", "Run `jaxnat <command> --help` for a command's arguments."]
     return "\n".join(lines)
+
+
+def exit_status(command: Callable[[], object], user_error: type[Exception], prog: str) -> int:
+    """Run a command's `command()` and return its exit status: 0; 2 for a `user_error`, printed
+    as one line `<prog>: error: <message>`; 130 when interrupted."""
+    try:
+        command()
+    except user_error as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return 0
 
 
 def main(argv=None) -> int:

@@ -12,7 +12,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clipped_optimizer, on_policy_host_learner,
+from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, on_policy_host_learner,
                                    on_policy_learner, replay, static)
 
 __all__ = ["A2CConfig", "actor_critic_loss", "make_train", "make_a2c", "make_host_a2c"]
@@ -40,9 +40,8 @@ class A2CConfig:
 
 
 def _optimizer(config: A2CConfig, num_updates: int):
-    return clipped_optimizer(
-        config.max_grad_norm, optax.rmsprop(config.lr, decay=config.rms_alpha, eps=config.rms_eps)
-    )
+    return optax.chain(clip_by_global_norm(config.max_grad_norm),
+                       optax.rmsprop(config.lr, decay=config.rms_alpha, eps=config.rms_eps))
 
 
 def actor_critic_loss(config, logits, value, action, advantages, targets) -> tuple[jax.Array, dict]:
@@ -69,9 +68,7 @@ def _update(config: A2CConfig, network, train_state, transitions, advantages, ta
     return train_state.apply_gradients(grads=grads), losses
 
 
-RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,
-                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory},
-                  data_parallel=True)
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update, data_parallel=True)
 
 
 def make_a2c(config: A2CConfig, env, env_params, axis_name=None) -> Learner:

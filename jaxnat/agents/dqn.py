@@ -57,8 +57,7 @@ from flax.training.train_state import TrainState
 from jaxnat.agents import distributions
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_batch, count_updates, episode_metrics,
-                                   host_jit, host_steps, host_updates, scan_learner, scan_steps,
-                                   static, step_info, vector_env)
+                                   host_steps, host_updates, scan_learner, scan_steps, static, step_info, vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
 __all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_host_dqn", "make_dqn_parts",
@@ -359,7 +358,7 @@ def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) 
     the default 100k)."""
     num_updates = check_host_batch(config, env)
     parts = make_dqn_parts(config, env.single_observation_space, env.single_action_space)
-    jit = host_jit(compiler_options)
+    jit = functools.partial(jax.jit, compiler_options=compiler_options)
     act = jit(parts.act)
     # On the device, without a host sync: the rate goes straight into `act`.
     exploration = jit(lambda env_steps: epsilon(config, env_steps))

@@ -27,7 +27,7 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clipped_optimizer, on_policy_host_learner,
+from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, on_policy_host_learner,
                                    on_policy_learner, replay, static)
 
 __all__ = ["PPOConfig", "make_train", "make_ppo", "make_host_ppo"]
@@ -69,8 +69,8 @@ def _optimizer(config: PPOConfig, num_updates: int):
         done = (count // steps_per_update) / num_updates
         return config.lr * (1.0 - done if config.anneal_lr else 1.0)
 
-    return clipped_optimizer(config.max_grad_norm,
-                             optax.adamw(schedule, eps=1e-5, weight_decay=config.weight_decay))
+    return optax.chain(clip_by_global_norm(config.max_grad_norm),
+                       optax.adamw(schedule, eps=1e-5, weight_decay=config.weight_decay))
 
 
 def _per_env_minibatches(data, key, num_minibatches: int, axis_name):
@@ -156,9 +156,7 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
     return train_state, dict(zip(LOSS_NAMES, jnp.mean(losses, axis=(0, 1))))
 
 
-RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update,
-                  network_options=lambda config: {"dtype": config.dtype, "memory": config.memory},
-                  data_parallel=True)
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update, data_parallel=True)
 
 
 def make_ppo(config: PPOConfig, env, env_params, axis_name=None) -> Learner:

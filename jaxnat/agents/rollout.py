@@ -58,7 +58,7 @@ __all__ = [
     "host_updates", "TIMING_KEYS",
     "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch",
     "make_evaluate", "make_chance", "evaluate_host",
-    "clip_by_global_norm", "clipped_optimizer", "host_jit", "EPISODE_KEYS",
+    "clip_by_global_norm", "EPISODE_KEYS",
 ]
 
 # What a host-batched env's `info` carries about episodes that ended (PureJaxRL's keys).
@@ -123,11 +123,15 @@ class UpdateRule(NamedTuple):
 
     make_optimizer: Callable  # (config, num_updates) -> optax.GradientTransformation
     update_step: Callable  # (config, network, train_state, transitions, advantages, targets, key)
-    # config -> keyword arguments of `networks.make_actor_critic` (dtype, memory) beyond the trunk
-    network_options: Callable = lambda config: {}
     # `update_step` takes `axis_name=` and trains data parallel inside a shard_map (its
     # gradient is a mean over the batch, made whole by `pmean_gradients`).
     data_parallel: bool = False
+
+    @staticmethod
+    def network_options(config) -> dict:
+        """`networks.make_actor_critic`'s options beyond the trunk: the config's dtype and memory
+        where it has them."""
+        return {name: getattr(config, name) for name in ("dtype", "memory") if hasattr(config, name)}
 
     def train_state(self, config, network, observation_space, num_updates: int, key) -> TrainState:
         """Fresh parameters and optimizer state for a run of `num_updates` updates."""
@@ -266,10 +270,6 @@ def clip_by_global_norm(max_norm) -> optax.GradientTransformation:
             lambda g: jnp.where(keep, g, (g / norm.astype(g.dtype)) * max_norm).astype(g.dtype), updates), state
 
     return optax.GradientTransformation(lambda params: optax.EmptyState(), update)
-
-
-def clipped_optimizer(max_grad_norm, optimizer: optax.GradientTransformation):
-    return optax.chain(clip_by_global_norm(max_grad_norm), optimizer)
 
 
 def pmean_gradients(tx: optax.GradientTransformation, axis_name) -> optax.GradientTransformation:
@@ -728,12 +728,6 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
     return HostLearner(init, run, train, updates, params, greedy, sample, network, num_updates, timings)
 
 
-def host_jit(compiler_options: dict | None) -> Callable:
-    """`jax.jit` with XLA options for every jitted function of a host learner, e.g.
-    `{"xla_backend_optimization_level": 0}` (compiles much faster on CPU)."""
-    return functools.partial(jax.jit, compiler_options=compiler_options)
-
-
 def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict | None = None,
                            devices=None) -> HostLearner:
     """The host-loop on-policy learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched
@@ -768,7 +762,7 @@ def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict
         raise ValueError("normalize_observations and normalize_rewards apply to jitted envs; a host-batched "
                          "env (Natural Atari) trains on raw frames and clipped rewards: leave them off")
     network = make_actor_critic(observation_space, env.single_action_space, config.trunk, **options)
-    jit = host_jit(compiler_options)
+    jit = functools.partial(jax.jit, compiler_options=compiler_options)  # XLA options for every program
 
     @functools.partial(jit, static_argnames="first")
     def policy(params, obs, key, first=None):

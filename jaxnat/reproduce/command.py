@@ -21,6 +21,7 @@ from typing import Annotated, Optional
 
 import tyro
 
+from jaxnat.cli import exit_status
 from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, RUN_SETTINGS, Cell, Profile, build_grid
 
 PROG = "jaxnat reproduce"
@@ -609,11 +610,4 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None)
 def main(argv=None) -> int:
     """`jaxnat reproduce` with `argv` (default: sys.argv[1:]); returns the exit status."""
     args = parse_args(argv)
-    try:
-        reproduce(args)
-    except ReproduceError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
-    return 0
+    return exit_status(lambda: reproduce(args), ReproduceError, PROG)

@@ -42,7 +42,7 @@ from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.sharding import process_share
 from jaxnat.training.args import TrainArgs, TrainError, check_split_kwargs, parse_env_kwargs
-from jaxnat.training.spec import RunSpec, check_algo, resolve_config
+from jaxnat.training.spec import RunSpec, resolve_config
 
 __all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend",
            "is_host_env", "new_host_spec", "check_env_parts", "observation_space", "make_learner", "make_train_env",
@@ -106,8 +106,7 @@ def is_host_env(env_id: str) -> bool:
 
 
 def new_host_spec(args: TrainArgs, console) -> RunSpec:
-    """The spec of a new host run (`eval_every` not yet resolved)."""
-    check_algo(args.algo)
+    """The spec of a new host run (`eval_every` not yet resolved) of a known algorithm."""
     if args.algo not in HOST_ALGORITHMS:
         raise TrainError(f"{args.algo} has no host loop: {args.env_id} (host-emulated) trains "
                          f"with {', '.join(HOST_ALGORITHMS)}")

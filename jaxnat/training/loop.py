@@ -13,6 +13,7 @@ from typing import Callable
 
 import jax
 
+from jaxnat.cli import exit_status
 from jaxnat.sharding import initialize_from_env
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
@@ -178,14 +179,7 @@ def main(argv=None, **train_options) -> int:
     """`jaxnat train` with `argv` (default: sys.argv[1:]); returns the exit status. Keyword
     arguments go to `train` (e.g. `compiler_options`, `stop_after_chunks`)."""
     args = parse_args(argv)
-    try:
-        train(args, **train_options)
-    except TrainError as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
-    return 0
+    return exit_status(lambda: train(args, **train_options), TrainError, PROG)
 
 
 if __name__ == "__main__":

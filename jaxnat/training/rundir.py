@@ -17,6 +17,7 @@ from typing import Any
 import jax
 
 import jaxnat
+from jaxnat.agents.rollout import count_updates
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import SPEC_FIELDS_ADDED, RunSpec, auto_eval_every
 
@@ -103,9 +104,10 @@ def check_counts(args: TrainArgs) -> None:
 
 def with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
     """`spec` with its chunk length (`--eval-every`, else about 20 evaluations over the run)."""
-    if spec.num_updates < 1:
-        raise TrainError(f"total_timesteps={spec.config.total_timesteps} is less than one rollout "
-                         f"(num_envs * num_steps = {spec.steps_per_update})")
+    try:
+        count_updates(spec.config)  # at least one
+    except ValueError as err:
+        raise TrainError(str(err)) from None
     eval_every = args.eval_every or auto_eval_every(spec.num_updates)
     return dataclasses.replace(spec, eval_every=min(eval_every, spec.num_updates))
 
