@@ -12,8 +12,8 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, on_policy_host_learner,
-                                   on_policy_learner, replay, static)
+from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
+                                   on_policy_host_learner, on_policy_learner, replay, static)
 
 __all__ = ["A2CConfig", "actor_critic_loss", "make_train", "make_a2c", "make_host_a2c"]
 
@@ -68,7 +68,8 @@ def _update(config: A2CConfig, network, train_state, transitions, advantages, ta
     return train_state.apply_gradients(grads=grads), losses
 
 
-RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update, data_parallel=True)
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update, network_options=dtype_and_memory,
+                  data_parallel=True)
 
 
 def make_a2c(config: A2CConfig, env, env_params, axis_name=None) -> Learner:

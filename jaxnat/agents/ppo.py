@@ -27,8 +27,8 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
-from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, on_policy_host_learner,
-                                   on_policy_learner, replay, static)
+from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
+                                   on_policy_host_learner, on_policy_learner, replay, static)
 
 __all__ = ["PPOConfig", "make_train", "make_ppo", "make_host_ppo"]
 
@@ -156,7 +156,8 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
     return train_state, dict(zip(LOSS_NAMES, jnp.mean(losses, axis=(0, 1))))
 
 
-RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update, data_parallel=True)
+RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update, network_options=dtype_and_memory,
+                  data_parallel=True)
 
 
 def make_ppo(config: PPOConfig, env, env_params, axis_name=None) -> Learner:

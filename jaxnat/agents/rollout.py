@@ -53,12 +53,12 @@ from jaxnat.wrappers import LogWrapper
 
 __all__ = [
     "static", "Transition", "EnvStep", "RunnerState", "UpdateRule", "Learner", "HostState", "HostLearner",
-    "gae", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box", "is_scalar_action", "env_action",
-    "act", "replay", "choose", "vector_env", "scan_steps", "scan_learner", "host_steps", "host_steps_pipelined",
-    "host_updates", "TIMING_KEYS",
+    "gae", "GAE_UNROLL", "bootstrap", "step_info", "episode_metrics", "count_updates", "is_box",
+    "is_scalar_action", "env_action", "act", "replay", "choose", "vector_env", "scan_steps", "pack_vectors",
+    "unpack_vectors", "scan_learner", "host_steps", "host_steps_pipelined", "host_updates", "TIMING_KEYS",
     "on_policy_learner", "on_policy_host_learner", "shard_slice", "pmean_gradients", "check_host_batch",
     "make_evaluate", "make_chance", "evaluate_host",
-    "clip_by_global_norm", "EPISODE_KEYS",
+    "clip_by_global_norm", "dtype_and_memory", "EPISODE_KEYS",
 ]
 
 # What a host-batched env's `info` carries about episodes that ended (PureJaxRL's keys).
@@ -126,12 +126,9 @@ class UpdateRule(NamedTuple):
     # `update_step` takes `axis_name=` and trains data parallel inside a shard_map (its
     # gradient is a mean over the batch, made whole by `pmean_gradients`).
     data_parallel: bool = False
-
-    @staticmethod
-    def network_options(config) -> dict:
-        """`networks.make_actor_critic`'s options beyond the trunk: the config's dtype and memory
-        where it has them."""
-        return {name: getattr(config, name) for name in ("dtype", "memory") if hasattr(config, name)}
+    # config -> keyword arguments of `networks.make_actor_critic` beyond the trunk
+    # (`dtype_and_memory` for configs that have those fields)
+    network_options: Callable = lambda config: {}
 
     def train_state(self, config, network, observation_space, num_updates: int, key) -> TrainState:
         """Fresh parameters and optimizer state for a run of `num_updates` updates."""
@@ -175,6 +172,11 @@ class Learner(NamedTuple):
     # On-policy learners: `(runner, config) -> (runner, Transition)`, one rollout as an update
     # collects it (what the update trains on; for inspection and tests).
     rollout: Callable | None = None
+
+
+def dtype_and_memory(config) -> dict:
+    """`UpdateRule.network_options` of a config with `dtype` and `memory` fields (PPO's, A2C's)."""
+    return {"dtype": config.dtype, "memory": config.memory}
 
 
 # Steps of the GAE recursion per loop iteration (`gae`): bench/results/agents_vs_references.md
