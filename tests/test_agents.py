@@ -185,6 +185,28 @@ def test_truncated_steps_bootstrap_from_the_final_observation(algo):
     np.testing.assert_array_equal(metrics["episode_return"][:, -1], -10.0 + 4.0)
 
 
+@pytest.mark.parametrize("num_steps", [10, 12])
+def test_rollout_next_value_is_the_value_of_the_final_observation(num_steps):
+    """The rollout's `next_value` (read in the next step's network call for a feed-forward
+    policy, the last step's after the loop) is exactly V(final observation) on every step of
+    an untrained policy: on the costly-start probe every final observation is [0, 1], and the
+    truncated steps (t = 4, 9) would read V([1, 0]) from the next episode's first observation
+    if it came from the wrong place. With 10 steps the last one is truncated; with 12 not."""
+    env, params = make_probe("costly_start")
+    config = CONFIGS["ppo"].replace(num_steps=num_steps)
+    learner = make_ppo(config, env, params)
+    runner = learner.init(jax.random.key(3))
+    _, batch = jax.jit(learner.rollout)(runner, config)
+    _, value = learner.network.apply(runner.train_state.params, jnp.asarray([[0.0, 1.0], [1.0, 0.0]]))
+    assert abs(float(value[0] - value[1])) > 1e-3  # the probe can tell the two apart
+    np.testing.assert_allclose(np.asarray(batch.next_value), float(value[0]), rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(np.asarray(batch.done)[:, 0], [t % 5 == 4 for t in range(num_steps)])
+    # Where no episode ended, the next step's own value is the same number.
+    ongoing = np.asarray(batch.done)[:-1] == 0
+    np.testing.assert_allclose(np.asarray(batch.next_value)[:-1][ongoing], np.asarray(batch.value)[1:][ongoing],
+                               rtol=1e-6, atol=1e-6)
+
+
 # --- GAE against hand computations ---------------------------------------------------------------
 
 

@@ -36,8 +36,14 @@ def sample(key, dist) -> jax.Array:
     if isinstance(dist, Gaussian):
         std = jnp.exp(dist.log_std)
         return dist.mean + std * jax.random.normal(key, jnp.shape(dist.mean), jnp.float32)
-    keys = jax.random.split(key, len(dist))
-    return jnp.stack([jax.random.categorical(k, l) for k, l in zip(keys, dist)], axis=-1).astype(jnp.int32)
+    # One Gumbel draw for every factor (argmax of logits + Gumbel noise: `jax.random.categorical`'s
+    # rule), not a key split and a draw per factor: on a GPU each draw is a loop of its own, and
+    # a rollout draws on every step.
+    sizes = [l.shape[-1] for l in dist]
+    noise = jax.random.gumbel(key, (*jnp.shape(dist[0])[:-1], sum(sizes)), jnp.float32)
+    starts = np.cumsum([0, *sizes])
+    return jnp.stack([jnp.argmax(l + noise[..., a:b], axis=-1) for l, a, b in zip(dist, starts, starts[1:])],
+                     axis=-1).astype(jnp.int32)
 
 
 def mode(dist) -> jax.Array:

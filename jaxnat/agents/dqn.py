@@ -281,11 +281,14 @@ def make_dqn_parts(config: DQNConfig, observation_space, action_space) -> DQNPar
         return DQNState(train_state, params, replay_init(item, config.buffer_size), recent)
 
     def act(params, obs, key, rate):
-        key_explore, *keys = jax.random.split(key, 1 + len(dims))
         q, _ = network.apply(params, obs)
         greedy = distributions.mode(q)
-        random = jnp.stack([jax.random.randint(k, greedy.shape[:1], 0, n) for k, n in zip(keys, dims)], -1)
-        explore = jax.random.uniform(key_explore, greedy.shape[:1]) < rate
+        # One uniform draw per env for the coin and every factor's random action (a split and
+        # a `randint` per factor would each be a loop of their own on a GPU, on every step).
+        u = jax.random.uniform(key, (greedy.shape[0], 1 + len(dims)))
+        sizes = jnp.asarray(dims, jnp.int32)
+        random = jnp.minimum((u[:, 1:] * sizes).astype(jnp.int32), sizes - 1)
+        explore = u[:, 0] < rate
         return jnp.where(explore[:, None], random, greedy).astype(jnp.int32)
 
     def store(state: DQNState, step: dict, steps_taken, config=config) -> DQNState:

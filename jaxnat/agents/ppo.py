@@ -142,17 +142,23 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params, *minibatch)
         return train_state.apply_gradients(grads=grads), losses
 
-    def epoch(train_state, key):
+    def epoch(train_state, key_or_order):
         if axis_name is not None:
             return jax.lax.scan(minibatch_step, train_state,
-                                _per_env_minibatches(data, key, config.num_minibatches, axis_name))
-        order = jax.random.permutation(key, units)
+                                _per_env_minibatches(data, key_or_order, config.num_minibatches, axis_name))
         shuffled = jax.tree_util.tree_map(
-            lambda x: x[order].reshape(config.num_minibatches, -1, *x.shape[1:]), data
+            lambda x: x[key_or_order].reshape(config.num_minibatches, -1, *x.shape[1:]), data
         )
         return jax.lax.scan(minibatch_step, train_state, shuffled)
 
-    train_state, losses = jax.lax.scan(epoch, train_state, jax.random.split(key, config.update_epochs))
+    if axis_name is None:
+        # Every epoch's order from one draw of random bits, sorted (`jax.random.permutation`'s
+        # rule for one round), not a key split and a permutation per epoch: on a GPU each
+        # draw is a loop of its own.
+        epochs = jnp.argsort(jax.random.bits(key, (config.update_epochs, units)), axis=-1)
+    else:
+        epochs = jax.random.split(key, config.update_epochs)
+    train_state, losses = jax.lax.scan(epoch, train_state, epochs)
     return train_state, dict(zip(LOSS_NAMES, jnp.mean(losses, axis=(0, 1))))
 
 

@@ -284,11 +284,23 @@ def pmean_gradients(tx: optax.GradientTransformation, axis_name) -> optax.Gradie
     return optax.GradientTransformation(tx.init, update)
 
 
-def shard_slice(x, axis_name):
-    """This device's share of `x` along its leading axis, inside a shard_map over `axis_name`
-    (e.g. its envs' keys out of `jax.random.split(key, num_envs)`)."""
-    size = x.shape[0] // jax.lax.axis_size(axis_name)
-    return jax.lax.dynamic_slice_in_dim(x, jax.lax.axis_index(axis_name) * size, size)
+def shard_slice(x, axis_name, axis: int = 0):
+    """This device's share of `x` along `axis`, inside a shard_map over `axis_name` (e.g. its
+    envs' keys out of `jax.random.split(key, num_envs)`)."""
+    size = x.shape[axis] // jax.lax.axis_size(axis_name)
+    return jax.lax.dynamic_slice_in_dim(x, jax.lax.axis_index(axis_name) * size, size, axis)
+
+
+def _stack_batches(a, b):
+    """Two batches of observations (pytrees alike) as one: `a`'s rows, then `b`'s."""
+    return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y]), a, b)
+
+
+def _first_rows(logits, n: int):
+    """A policy head's output (factored logits, or a Gaussian whose log-std is broadcast to the
+    mean's shape) for the first `n` rows of its batch."""
+    rows = [x[:n] for x in logits]
+    return distributions.Gaussian(*rows) if isinstance(logits, distributions.Gaussian) else tuple(rows)
 
 
 def _sample_each(keys, logits):
@@ -342,24 +354,31 @@ def vector_env(env) -> tuple[Callable, Callable]:
 def scan_steps(step: Callable, env_params, action_space, num_envs: int, num_steps: int,
                policy: Callable, observe: Callable, carry, env_state, obs, key, env_keys: Callable | None = None):
     """`num_steps` steps of `num_envs` JAX envs in one `lax.scan` (`step` from `vector_env`).
-    `env_keys(key) -> [num_envs] keys` (default: `jax.random.split(key, num_envs)`).
-    Returns `((carry, env_state, obs, key), records stacked over time)`."""
+    `env_keys(key, shape) -> keys [*shape, n]` for this device's `n` envs (default:
+    `jax.random.split(key, (*shape, num_envs))`). Returns `((carry, env_state, obs, key), records
+    stacked over time)`.
+
+    Every step's keys are split before the loop, in two draws for the whole rollout: on a GPU
+    each draw is a loop of its own, and two per step (the policy's key, the envs' keys) cost
+    more kernel launches than a small policy's forward pass."""
     if env_keys is None:
-        env_keys = functools.partial(jax.random.split, num=num_envs)
+        env_keys = lambda key, shape: jax.random.split(key, (*shape, num_envs))  # noqa: E731
     layout = {}
 
-    def body(state, t):
-        carry, env_state, obs, key = state
-        key, key_act, key_env = jax.random.split(key, 3)
+    def body(state, xs):
+        carry, env_state, obs = state
+        t, key_act, keys_env = xs
         action, aux = policy(carry, obs, key_act, t)
         next_obs, env_state, reward, terminated, truncated, info = step(
-            env_keys(key_env), env_state, env_action(action, action_space), env_params)
+            keys_env, env_state, env_action(action, action_space), env_params)
         carry, record = observe(carry, EnvStep.after(obs, action, next_obs, reward, terminated, truncated, info),
                                 aux, t)
-        return (carry, env_state, next_obs, key), pack_vectors(record, layout)
+        return (carry, env_state, next_obs), pack_vectors(record, layout)
 
-    final, packed = jax.lax.scan(body, (carry, env_state, obs, key), jnp.arange(num_steps))
-    return final, unpack_vectors(packed, layout)
+    key, key_act, key_env = jax.random.split(key, 3)
+    xs = (jnp.arange(num_steps), jax.random.split(key_act, num_steps), env_keys(key_env, (num_steps,)))
+    (carry, env_state, obs), packed = jax.lax.scan(body, (carry, env_state, obs), xs)
+    return (carry, env_state, obs, key), unpack_vectors(packed, layout)
 
 
 # The per-env scalars a step records (reward, value, done, episode statistics, ...), written into
@@ -452,10 +471,10 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             raise ValueError(f"memory={network.memory}: a recurrent policy's minibatches are whole env rollouts, "
                              "which do not split evenly over devices: place whole seeds on devices instead")
 
-    def env_keys(key, config):
-        """The keys of this device's envs (every env's without `axis_name`)."""
-        keys = jax.random.split(key, config.num_envs)
-        return keys if axis_name is None else shard_slice(keys, axis_name)
+    def env_keys(key, config, shape=()):
+        """The keys of this device's envs `[*shape, n]` (every env's without `axis_name`)."""
+        keys = jax.random.split(key, (*shape, config.num_envs))
+        return keys if axis_name is None else shard_slice(keys, axis_name, axis=len(shape))
 
     def init(key, config=config) -> RunnerState:
         key, key_net, key_env = jax.random.split(key, 3)
@@ -467,41 +486,62 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
         return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory, normalizer)
 
     def policy(carry, obs, key, t):
-        params, memory, normalizer = carry
+        params, memory, normalizer, pending = carry
         normalizer = normalize.observe(normalizer, obs, axis_name)
         obs = normalize.normalize(normalizer, obs)
-        logits, value, hidden = act(network, params, obs, memory)
+        if pending is None:  # recurrent: the final observation is valued in `observe`
+            logits, value, hidden = act(network, params, obs, memory)
+            pending_value = None
+        else:  # this step's observations and the previous step's final ones, in one batch
+            logits, values, hidden = act(network, params, _stack_batches(obs, pending), None)
+            logits, value, pending_value = _first_rows(logits, len(values) // 2), *jnp.split(values, 2)
         if axis_name is None:
             action = distributions.sample(key, logits)
         else:
             action = _sample_each(env_keys(key, config), logits)
-        return action, (obs, distributions.log_prob(logits, action), value, hidden, normalizer)
+        return action, (obs, distributions.log_prob(logits, action), value, hidden, normalizer, pending_value)
 
     def rollout(runner: RunnerState, config):
         """`config.num_steps` steps of every env: `(runner after them, Transition [T, N, ...])`
-        (parameters and update count unchanged)."""
+        (parameters and update count unchanged).
+
+        The value of a step's final observation, as if the episode went on (it bootstraps a
+        truncated step), is read in the same network call as the next step's observations (a
+        feed-forward policy; the last step's after the loop): a call of its own on every step
+        would cost a small network's rollout as many kernel launches again. A recurrent policy
+        reads it in `observe`, after this step's memory."""
+        params = runner.train_state.params
 
         def observe(carry, s: EnvStep, aux, t):
-            params, memory, _ = carry
-            obs, log_prob, value, hidden, normalizer = aux
-            # The value of the final observation, as if the episode went on (it bootstraps a
-            # truncated step): a recurrent policy reads it after this step's memory.
+            params, memory, _, _ = carry
+            obs, log_prob, value, hidden, normalizer, pending_value = aux
+            final_obs = normalize.normalize(normalizer, s.final_obs)
             following = None if memory is None else Memory(hidden, s.action, s.reward.astype(jnp.float32),
                                                            jnp.zeros_like(s.done))
-            _, final_value, _ = act(network, params, normalize.normalize(normalizer, s.final_obs), following)
+            if memory is None:  # V(the previous step's final observation); moved to its step below
+                final_value, pending = pending_value, final_obs
+            else:
+                _, final_value, _ = act(network, params, final_obs, following)
+                final_value, pending = bootstrap(final_value, s.terminated), None
             normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma, axis_name)
             transition = Transition(obs, s.action, log_prob, value, reward, s.done.astype(jnp.float32),
-                                    bootstrap(final_value, s.terminated), step_info(s.info, s.terminated),
+                                    final_value, step_info(s.info, s.terminated),
                                     None if memory is None else memory._replace(hidden=None))
             next_memory = None if memory is None else following._replace(start=s.done)
-            return (params, next_memory, normalizer), transition
+            return (params, next_memory, normalizer, pending), transition
 
-        ((_, memory, normalizer), env_state, obs, key), transitions = scan_steps(
+        pending = None if runner.memory is not None else jax.tree_util.tree_map(
+            jnp.zeros_like, normalize.normalize(runner.normalizer, runner.obs))
+        ((_, memory, normalizer, pending), env_state, obs, key), transitions = scan_steps(
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
-            (runner.train_state.params, runner.memory, runner.normalizer), runner.env_state, runner.obs, runner.key,
-            None if axis_name is None else functools.partial(env_keys, config=config))
+            (params, runner.memory, runner.normalizer, pending), runner.env_state, runner.obs, runner.key,
+            None if axis_name is None else lambda key, shape: env_keys(key, config, shape))
         if runner.memory is not None:  # the state before the rollout's first step (`replay`)
             transitions = transitions._replace(memory=transitions.memory._replace(hidden=runner.memory.hidden[None]))
+        else:  # step t's final value was read at step t + 1; the last step's now
+            _, last, _ = act(network, params, pending, None)
+            final_values = jnp.concatenate([transitions.next_value[1:], last[None]])
+            transitions = transitions._replace(next_value=bootstrap(final_values, transitions.info["terminated"]))
         return runner._replace(env_state=env_state, obs=obs, key=key, memory=memory, normalizer=normalizer), transitions
 
     def update(runner: RunnerState, config):
