@@ -296,13 +296,6 @@ def _stack_batches(a, b):
     return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y]), a, b)
 
 
-def _first_rows(logits, n: int):
-    """A policy head's output (factored logits, or a Gaussian whose log-std is broadcast to the
-    mean's shape) for the first `n` rows of its batch."""
-    rows = [x[:n] for x in logits]
-    return distributions.Gaussian(*rows) if isinstance(logits, distributions.Gaussian) else tuple(rows)
-
-
 def _sample_each(keys, logits):
     """One action per env, each drawn with its own key."""
     if isinstance(logits, distributions.Gaussian):  # a shared log-std, given to every env
@@ -494,7 +487,10 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             pending_value = None
         else:  # this step's observations and the previous step's final ones, in one batch
             logits, values, hidden = act(network, params, _stack_batches(obs, pending), None)
-            logits, value, pending_value = _first_rows(logits, len(values) // 2), *jnp.split(values, 2)
+            # (Every leaf of the head's output has a row per observation: a Gaussian's log-std
+            # is broadcast to the mean's shape.)
+            value, pending_value = jnp.split(values, 2)
+            logits = jax.tree_util.tree_map(lambda x: x[:len(value)], logits)
         if axis_name is None:
             action = distributions.sample(key, logits)
         else:
@@ -521,8 +517,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             if memory is None:  # V(the previous step's final observation); moved to its step below
                 final_value, pending = pending_value, final_obs
             else:
-                _, final_value, _ = act(network, params, final_obs, following)
-                final_value, pending = bootstrap(final_value, s.terminated), None
+                (_, final_value, _), pending = act(network, params, final_obs, following), None
             normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma, axis_name)
             transition = Transition(obs, s.action, log_prob, value, reward, s.done.astype(jnp.float32),
                                     final_value, step_info(s.info, s.terminated),
@@ -536,12 +531,13 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             (params, runner.memory, runner.normalizer, pending), runner.env_state, runner.obs, runner.key,
             None if axis_name is None else lambda key, shape: env_keys(key, config, shape))
+        final_values = transitions.next_value  # V(final observation), before `bootstrap`
         if runner.memory is not None:  # the state before the rollout's first step (`replay`)
             transitions = transitions._replace(memory=transitions.memory._replace(hidden=runner.memory.hidden[None]))
         else:  # step t's final value was read at step t + 1; the last step's now
             _, last, _ = act(network, params, pending, None)
-            final_values = jnp.concatenate([transitions.next_value[1:], last[None]])
-            transitions = transitions._replace(next_value=bootstrap(final_values, transitions.info["terminated"]))
+            final_values = jnp.concatenate([final_values[1:], last[None]])
+        transitions = transitions._replace(next_value=bootstrap(final_values, transitions.info["terminated"]))
         return runner._replace(env_state=env_state, obs=obs, key=key, memory=memory, normalizer=normalizer), transitions
 
     def update(runner: RunnerState, config):
