@@ -248,26 +248,32 @@ def checker_box(cells, xy, tile, footprint, *, texels: int) -> jax.Array:
 def _tent_width(extent, texels: int):
     """The tent's half-width for a footprint `extent` (in copies of the texture): the extent
     itself (a tent twice the footprint wide, as trilinear filtering blends two levels, the
-    coarser one texels twice the footprint); 0 (no filtering) under sqrt(2) texels or where
-    nothing is hit (NaN)."""
-    extent = jnp.nan_to_num(extent, nan=0.0, posinf=jnp.inf)
-    return jnp.where(extent * texels < np.sqrt(2.0), 0.0, extent)
+    coarser one texels twice the footprint), at most `_WIDEST` copies (beyond it the average is
+    the mean, 0, to float32's precision, and an infinite extent, where nothing is hit, gives 0
+    instead of NaN); 0 (no filtering) under sqrt(2) texels or where the extent is NaN."""
+    return jnp.where(extent * texels >= np.sqrt(2.0), jnp.minimum(extent, _WIDEST), 0.0)
+
+
+_WIDEST = 1e4  # copies: |average| <= 1 / (8 * width**2), about 1e-9 here
 
 
 def _tent_square_wave(x, half_width):
     """The square wave of period 1 (+1 on [0, 1/2), -1 on [1/2, 1)) averaged under a tent
-    window of `half_width` centred on `x`; the wave itself where `half_width` is 0, 0 where it
-    is infinite."""
-    def second_integral(y):  # periodic: the wave, and its first integral less 1/4, average 0
+    window of `half_width` centred on `x`; the wave itself where `half_width` is 0.
+
+    The average is a second difference of the wave's second integral over the window, divided
+    by its squared half-width. The second integral, periodic and of mean 0, is
+    `(1/2 - f) (|f - 1/2| / 2 - 1/4)` with `f` the fractional part: no branch, so a pixel costs
+    a few multiply-adds."""
+    def second_integral(y):
         f = y - jnp.floor(y)
-        g = jnp.abs(f - 0.5)
-        return jnp.where(f < 0.5, 1.0, -1.0) * g * (0.5 * g - 0.25)
+        return (0.5 - f) * (0.5 * jnp.abs(f - 0.5) - 0.25)
 
     sharp = jnp.where(x - jnp.floor(x) < 0.5, 1.0, -1.0)
-    finite = jnp.isfinite(half_width)
-    r = jnp.where(finite & (half_width > 0), half_width, 1.0)
+    filtered = half_width > 0
+    r = jnp.where(filtered, half_width, 1.0)
     average = (second_integral(x + r) - 2.0 * second_integral(x) + second_integral(x - r)) / (r * r)
-    return jnp.where(half_width > 0, jnp.where(finite, average, 0.0), sharp)
+    return jnp.where(filtered, average, sharp)
 
 
 def _checker_cells(values):

@@ -664,9 +664,15 @@ class Renderer:
 
     def _normal(self, best_g, safe_g, terms, t, d):
         """Unit world normal of the winning geom at each pixel's hit (0 where nothing is hit):
-        its pose is gathered by geom index, so the normal is computed once per pixel."""
+        its pose is gathered by geom index, so the normal is computed once per pixel.
+
+        The winner's whole row of frame terms is gathered once and its columns sliced: one
+        gather per pixel. Gathering each column on its own (`terms[:, k][safe_g]`) made XLA
+        write the batched gather's indices to memory and cut the terms into a kernel per
+        column, a fifth of the frame's time at large batches (bench/results/pixel_mujoco.md)."""
         table = self.table
-        winner = lambda k: terms[:, k][safe_g]  # noqa: E731  (one [G] lookup per column used)
+        rows = terms[safe_g]  # [..., NUM_TERMS]
+        winner = lambda k: rows[..., k]  # noqa: E731
         xmat = _xmat_of(winner)
         rel = tuple(winner(_W + i) + t * d[i] for i in range(3))  # hit point - geom origin
         local = _to_local(rel, xmat)
