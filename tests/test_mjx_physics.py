@@ -284,6 +284,38 @@ def test_physics_setting_is_validated_and_applied():
         jaxnat.make("PixelMuJoCo/Hopper-v0", physics="quick")
 
 
+def test_fast_ant_touches_the_floor_with_massless_invisible_foot_spheres():
+    """Fast Ant's contacts are spheres at the ankle capsules' far ends (Brax's Ant's feet): the
+    capsule's radius and contact properties, no mass (the bodies' masses and inertias are
+    Gymnasium's), group 3 (the renderer leaves them out), one contact each with the floor. A
+    name that is not a capsule is refused."""
+    from jaxnat.mjx_pixel.base import PhysicsSettings
+    from jaxnat.mjx_pixel.render import GeomTable
+
+    fast = jaxnat.make("MuJoCo/Ant-v0", autoreset=False, physics="fast")[0]
+    model, gym = fast.model, models.load_model("ant")
+    for field in ("body_mass", "body_inertia", "body_ipos", "qpos0", "dof_armature"):
+        np.testing.assert_array_equal(getattr(model, field), getattr(gym, field))
+    geom = lambda m, name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)  # noqa: E731
+    for sphere, capsule in fast.fast_physics.foot_spheres:
+        s, c = geom(model, sphere), geom(gym, capsule)
+        assert model.geom_type[s] == mujoco.mjtGeom.mjGEOM_SPHERE and model.geom_group[s] == 3
+        assert model.geom_bodyid[s] == gym.geom_bodyid[c]
+        assert model.geom_size[s][0] == gym.geom_size[c][0]
+        # the far end: the ankle capsules run from their body's origin, centred halfway
+        np.testing.assert_allclose(model.geom_pos[s], gym.geom_pos[c] * 2, atol=1e-6)
+        for field in ("geom_friction", "geom_margin", "geom_condim", "geom_conaffinity"):
+            assert np.array_equal(getattr(model, field)[s], getattr(gym, field)[c]), field
+    def visible(m):
+        return {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or (int(m.geom_bodyid[g]), int(m.geom_type[g]))
+                for g in GeomTable.from_model(m).geom_ids}
+    assert visible(model) == visible(gym)
+    state = jax.jit(fast.reset)(jax.random.key(0), fast.default_params)[1]
+    assert state.data._impl.contact.dist.shape == (4,)  # one per foot
+    with pytest.raises(ValueError, match="'torso_geom' is not a capsule"):
+        PhysicsSettings(foot_spheres=(("foot", "torso_geom"),)).build("ant")
+
+
 @pytest.mark.xdist_group("mjx-Hopper")
 def test_fast_physics_steps_near_but_not_on_the_default():
     """Hopper's fast setting (Euler, foot-only contacts) stays close to the default over a few

@@ -22,9 +22,10 @@ Gymnasium's `ant.xml`, RK4 at 0.01 s, `frame_skip` 5: one step is 0.05 s of simu
 - **Reset**: `qpos = qpos0 + U(-s, s)`, `qvel = s * N(0, 1)`, `s = reset_noise_scale` (0.1);
   `qpos0` puts the torso at z = 0.75, upright.
 - **`physics="fast"`**: Euler instead of RK4 (same 0.01 s step and `frame_skip`, no implicit
-  joint damping), one Newton iteration with at most 4 line-search steps, and only the four
-  lower legs (`*_ankle_geom`) touch the floor (torso, hip and upper-leg geoms collide with
-  nothing), as Brax's MJX Ant. Faster, further from Gymnasium's trajectories
+  joint damping), one Newton iteration with at most 4 line-search steps, and only four feet
+  touch the floor: massless, invisible spheres of the lower legs' radius at their far ends
+  (`left_foot` ... `fourth_foot`, one contact each where a capsule makes two); every other geom
+  collides with nothing, as Brax's MJX Ant. Faster, further from Gymnasium's trajectories
   (bench/results/mjx_fidelity.md).
 - **Time limit**: 1000 steps (`truncated`, never `terminated`).
 - **Info**: `x_position`, `y_position`, `distance_from_origin`, `x_velocity`, `y_velocity`,
@@ -86,7 +87,9 @@ class Ant(MJXEnv):
     root_position_size = 2
     fast_physics = PhysicsSettings(
         integrator="euler", iterations=1, ls_iterations=4, eulerdamp=False,
-        contact_geoms=("left_ankle_geom", "right_ankle_geom", "third_ankle_geom", "fourth_ankle_geom"),
+        contact_geoms=("left_foot", "right_foot", "third_foot", "fourth_foot"),
+        foot_spheres=(("left_foot", "left_ankle_geom"), ("right_foot", "right_ankle_geom"),
+                      ("third_foot", "third_ankle_geom"), ("fourth_foot", "fourth_ankle_geom")),
     )
 
     def __init__(

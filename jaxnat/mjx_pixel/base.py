@@ -61,7 +61,7 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvState
-from jaxnat.mjx_pixel.models import import_mjx, load_model, torso_body_id
+from jaxnat.mjx_pixel.models import import_mjx, load_model, model_path, torso_body_id
 
 mjx = import_mjx()  # (before mjx_internals, which imports MJX's private modules)
 
@@ -89,6 +89,10 @@ class PhysicsSettings:
     iterations and on each one's line search. contact_geoms: names of the robot's geoms that
     still collide (with whatever they collided with); every other geom of the robot (not of the
     world body) collides with nothing. eulerdamp: keep Euler's implicit joint damping.
+    foot_spheres: `(name, capsule)` pairs: a sphere `name` of the capsule's radius added at its
+    far end (`fromto`'s second point), massless, invisible (group 3) and with the capsule's
+    contact properties, as Brax's Ant has foot spheres: a sphere meets the floor in one contact
+    where a capsule makes two. List the spheres in `contact_geoms` for them to collide.
     """
 
     integrator: str | None = None
@@ -96,9 +100,32 @@ class PhysicsSettings:
     ls_iterations: int | None = None
     contact_geoms: tuple[str, ...] | None = None
     eulerdamp: bool = True
+    foot_spheres: tuple[tuple[str, str], ...] = ()
+
+    def build(self, robot: str) -> mujoco.MjModel:
+        """Robot `robot`'s model with these settings (a fresh copy)."""
+        if not self.foot_spheres:
+            model = load_model(robot)
+        else:
+            spec = mujoco.MjSpec.from_file(model_path(robot))
+            for name, capsule_name in self.foot_spheres:
+                capsule = spec.geom(capsule_name)
+                if capsule is None or capsule.type != mujoco.mjtGeom.mjGEOM_CAPSULE or not np.all(
+                        np.isfinite(capsule.fromto)):
+                    raise ValueError(f"foot_spheres: {capsule_name!r} is not a capsule given by "
+                                     f"fromto in the {robot} model")
+                sphere = capsule.parent.add_geom(
+                    name=name, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[capsule.size[0], 0, 0],
+                    pos=capsule.fromto[3:], mass=0.0, group=3)
+                for field in ("contype", "conaffinity", "condim", "friction", "margin", "gap",
+                              "solref", "solimp", "solmix", "priority"):
+                    setattr(sphere, field, getattr(capsule, field))
+            model = spec.compile()
+        self.apply(model)
+        return model
 
     def apply(self, model: mujoco.MjModel) -> None:
-        """Change `model` in place."""
+        """Change `model` in place (`build` adds `foot_spheres`, which need a new model)."""
         if self.integrator is not None:
             model.opt.integrator = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
                                     "rk4": mujoco.mjtIntegrator.mjINT_RK4}[self.integrator]
@@ -157,13 +184,14 @@ class MJXEnv(Environment):
         # Leading qpos entries left out of the observation.
         exclude = exclude_current_positions_from_observation
         self.skip_qpos = self.root_position_size if exclude else 0
-        self.model = load_model(self.robot)  # mujoco.MjModel, for MuJoCo C and the renderer
         if ls_iterations is not None and int(ls_iterations) < 1:
             raise ValueError(f"ls_iterations must be >= 1, got {ls_iterations}")
         if physics == "fast":
-            self.fast_physics.apply(self.model)
-        elif ls_iterations is not None:
-            self.model.opt.ls_iterations = int(ls_iterations)
+            self.model = self.fast_physics.build(self.robot)  # for MuJoCo C and the renderer
+        else:
+            self.model = load_model(self.robot)
+            if ls_iterations is not None:
+                self.model.opt.ls_iterations = int(ls_iterations)
         self.torso_body_id = torso_body_id(self.model)
         with _full_precision():
             # The JAX implementation explicitly: the frames fix reads its data layout.
