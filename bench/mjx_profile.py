@@ -76,9 +76,14 @@ def variant_env(name: str, change):
     if change is None:
         return jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics="fast")[0]
     env, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False)
-    if change == "contacts":
-        change = {"contact_geoms": env.fast_physics.contact_geoms}
-    base.PhysicsSettings(**change).apply(env.model)
+    if change == "contacts":  # the fast setting's colliding geoms (and foot spheres) alone
+        fast = env.fast_physics
+        ls_iterations = env.model.opt.ls_iterations
+        env.model = base.PhysicsSettings(contact_geoms=fast.contact_geoms,
+                                         foot_spheres=fast.foot_spheres).build(env.robot)
+        env.model.opt.ls_iterations = ls_iterations
+    else:
+        base.PhysicsSettings(**change).apply(env.model)
     with base._full_precision():
         env.mjx_model = mjx.put_model(env.model, impl="jax")
     return env
