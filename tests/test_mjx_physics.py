@@ -289,6 +289,7 @@ def test_fast_ant_touches_the_floor_with_massless_invisible_foot_spheres():
     capsule's radius and contact properties, no mass (the bodies' masses and inertias are
     Gymnasium's), group 3 (the renderer leaves them out), one contact each with the floor. A
     name that is not a capsule is refused."""
+    from jaxnat.mjx_pixel import mjx_internals
     from jaxnat.mjx_pixel.base import PhysicsSettings
     from jaxnat.mjx_pixel.render import GeomTable
 
@@ -304,16 +305,21 @@ def test_fast_ant_touches_the_floor_with_massless_invisible_foot_spheres():
         assert model.geom_size[s][0] == gym.geom_size[c][0]
         # the far end: the ankle capsules run from their body's origin, centred halfway
         np.testing.assert_allclose(model.geom_pos[s], gym.geom_pos[c] * 2, atol=1e-6)
-        for field in ("geom_friction", "geom_margin", "geom_condim", "geom_conaffinity"):
+        for field in ("geom_contype", "geom_conaffinity", "geom_condim", "geom_friction", "geom_margin",
+                      "geom_gap", "geom_solref", "geom_solimp", "geom_solmix", "geom_priority"):
             assert np.array_equal(getattr(model, field)[s], getattr(gym, field)[c]), field
-    def visible(m):
-        return {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or (int(m.geom_bodyid[g]), int(m.geom_type[g]))
-                for g in GeomTable.from_model(m).geom_ids}
+
+    def visible(m):  # names, or (body, type) for unnamed geoms: ids shift after each sphere
+        return {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+                or (int(m.geom_bodyid[g]), int(m.geom_type[g])) for g in GeomTable.from_model(m).geom_ids}
+
     assert visible(model) == visible(gym)
     state = jax.jit(fast.reset)(jax.random.key(0), fast.default_params)[1]
-    assert state.data._impl.contact.dist.shape == (4,)  # one per foot
+    assert mjx_internals.contact(state.data).dist.shape == (4,)  # one per foot
     with pytest.raises(ValueError, match="'torso_geom' is not a capsule"):
         PhysicsSettings(foot_spheres=(("foot", "torso_geom"),)).build("ant")
+    with pytest.raises(ValueError, match=r"lacks the foot spheres .* PhysicsSettings.build"):
+        fast.fast_physics.apply(models.load_model("ant"))
 
 
 @pytest.mark.xdist_group("mjx-Hopper")

@@ -27,7 +27,8 @@ adds Gymnasium MuJoCo v5's reward and termination (and observation where it is n
   shorter (compile seconds: bench/results/mjx_physics.md). Tests check it against MuJoCo C's
   `mj_step`.
 - **Contact frames**: plane-capsule contacts get MuJoCo C's frame (`_forward_with_c_capsule_
-  frames`); MJX's differs for steep capsules, which changes pyramidal friction (Ant).
+  frames`); MJX's differs for steep capsules, which changes pyramidal friction (Ant). Models
+  where no plane and capsule can collide (Swimmer, fast Ant) run `mjx.forward` itself.
 - **Line search**: MJX's contact solver runs its line search as a `lax.scan` of
   `ls_iterations` steps (the models say 50) that go idle once converged; under `vmap` an idle
   step still costs a full evaluation, so every solver iteration pays for all of them. On
@@ -126,6 +127,11 @@ class PhysicsSettings:
 
     def apply(self, model: mujoco.MjModel) -> None:
         """Change `model` in place (`build` adds `foot_spheres`, which need a new model)."""
+        absent = [name for name, _ in self.foot_spheres
+                  if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, name) < 0]
+        if absent:
+            raise ValueError(f"the model lacks the foot spheres {absent}: build the model with "
+                             f"PhysicsSettings.build(robot), which adds them")
         if self.integrator is not None:
             model.opt.integrator = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
                                     "rk4": mujoco.mjtIntegrator.mjINT_RK4}[self.integrator]
@@ -252,7 +258,7 @@ class MJXEnv(Environment):
     def _physics_step(self, data: mjx.Data) -> mjx.Data:
         """One `mj_step`."""
         forward = mjx.forward
-        if {_PLANE, _CAPSULE} <= set(self.model.geom_type.tolist()):
+        if _plane_capsule_pairs(self.model):
             forward = _forward_with_c_capsule_frames
         if self.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
             return _rk4_step(self.mjx_model, data, forward)
@@ -266,6 +272,16 @@ class MJXEnv(Environment):
         velocity = position_change / self.dt
         ctrl_cost = params.ctrl_cost_weight * jnp.sum(jnp.square(action))
         return params.forward_reward_weight * velocity, ctrl_cost, velocity
+
+
+def _plane_capsule_pairs(model: mujoco.MjModel) -> bool:
+    """Whether a plane and a capsule of `model` may collide (their contype and conaffinity
+    match): only then can a contact need `_forward_with_c_capsule_frames`."""
+    types = np.asarray(model.geom_type)
+    contype, conaffinity = np.asarray(model.geom_contype), np.asarray(model.geom_conaffinity)
+    planes, capsules = np.flatnonzero(types == _PLANE), np.flatnonzero(types == _CAPSULE)
+    return bool(np.any((contype[planes, None] & conaffinity[None, capsules])
+                       | (contype[None, capsules] & conaffinity[planes, None])))
 
 
 def _full_precision():

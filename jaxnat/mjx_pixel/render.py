@@ -669,7 +669,7 @@ class Renderer:
         The winner's whole row of frame terms is gathered once and its columns sliced: one
         gather per pixel. Gathering each column on its own (`terms[:, k][safe_g]`) made XLA
         write the batched gather's indices to memory and cut the terms into a kernel per
-        column, a fifth of the frame's time at large batches (bench/results/pixel_mujoco.md)."""
+        column (the profile: bench/results/pixel_mujoco.md)."""
         table = self.table
         rows = terms[safe_g]  # [..., NUM_TERMS]
         winner = lambda k: rows[..., k]  # noqa: E731
