@@ -78,10 +78,9 @@ def variant_env(name: str, change):
     env, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False)
     if change == "contacts":  # the fast setting's colliding geoms (and foot spheres) alone
         fast = env.fast_physics
-        ls_iterations = env.model.opt.ls_iterations
-        env.model = base.PhysicsSettings(contact_geoms=fast.contact_geoms,
+        env.model = base.PhysicsSettings(ls_iterations=int(env.model.opt.ls_iterations),
+                                         contact_geoms=fast.contact_geoms,
                                          foot_spheres=fast.foot_spheres).build(env.robot)
-        env.model.opt.ls_iterations = ls_iterations
     else:
         base.PhysicsSettings(**change).apply(env.model)
     with base._full_precision():
