@@ -8,6 +8,8 @@ conftest.py reuses. Each robot's tests form one xdist group (`make test` runs
 `--dist loadgroup`), so a robot compiles in one worker only.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -294,7 +296,9 @@ def test_fast_ant_touches_the_floor_with_massless_invisible_foot_spheres():
     from jaxnat.mjx_pixel.render import GeomTable
 
     fast = jaxnat.make("MuJoCo/Ant-v0", autoreset=False, physics="fast")[0]
-    model, gym = fast.model, models.load_model("ant")
+    # The spheres alone (fast Ant also fuses static bodies, which renumbers bodies and geoms).
+    model = dataclasses.replace(fast.fast_physics, fuse_static=False).build("ant")
+    gym = models.load_model("ant")
     for field in ("body_mass", "body_inertia", "body_ipos", "qpos0", "dof_armature"):
         np.testing.assert_array_equal(getattr(model, field), getattr(gym, field))
     geom = lambda m, name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)  # noqa: E731
@@ -320,6 +324,50 @@ def test_fast_ant_touches_the_floor_with_massless_invisible_foot_spheres():
         PhysicsSettings(foot_spheres=(("foot", "torso_geom"),)).build("ant")
     with pytest.raises(ValueError, match=r"lacks the foot spheres .* PhysicsSettings.build"):
         fast.fast_physics.apply(models.load_model("ant"))
+
+
+def test_fast_ant_fuses_its_static_leg_bodies_into_the_torso_without_changing_the_dynamics():
+    """Fast Ant's four jointless leg bodies are fused into the torso, as Brax's loader does:
+    10 bodies where Gymnasium's model has 14, the same total mass, MuJoCo C trajectories equal
+    to rounding, and an MJX observation (contact forces included, in Gymnasium's 14-body layout)
+    equal to that of the unfused model up to float32 rounding."""
+    from jaxnat.mjx_pixel.ant import Ant
+    from jaxnat.mjx_pixel.base import fused_body_index
+
+    class UnfusedAnt(Ant):
+        fast_physics = dataclasses.replace(Ant.fast_physics, fuse_static=False)
+
+    fused, unfused = Ant(physics="fast"), UnfusedAnt(physics="fast")
+    assert (fused.model.nbody, unfused.model.nbody) == (10, 14)
+    np.testing.assert_array_equal(fused_body_index(unfused.model, fused.model),
+                                  [0, 1, -1, 2, 3, -1, 4, 5, -1, 6, 7, -1, 8, 9])
+    assert fused_body_index(unfused.model, unfused.model) is None
+    assert fused.body_index is not None and unfused.body_index is None
+    np.testing.assert_allclose(fused.model.body_mass.sum(), unfused.model.body_mass.sum(), rtol=1e-12)
+
+    rng = np.random.default_rng(0)
+    datas = [mujoco.MjData(m) for m in (fused.model, unfused.model)]
+    for _ in range(20):  # 1 s: the Ant lands on its feet
+        action = rng.uniform(-1, 1, 8)
+        for m, d in zip((fused.model, unfused.model), datas):
+            d.ctrl[:] = action
+            mujoco.mj_step(m, d, 5)
+    assert datas[1].ncon > 0
+    np.testing.assert_allclose(datas[0].qpos, datas[1].qpos, atol=1e-9)
+
+    params = fused.default_params
+    observations = []
+    for env in (fused, unfused):
+        step = jax.jit(env.step)
+        obs, state = jax.jit(env.reset)(jax.random.key(0), params)
+        for t in range(20):
+            obs, state, *_ = step(jax.random.key(t), state, jnp.full(8, 0.3 * (-1) ** t), params)
+        observations.append(np.asarray(obs))
+    assert observations[0].shape == (fused.observation_size,) == (105,)
+    forces = observations[1][27:].reshape(13, 6)
+    assert np.abs(forces).max() > 0.1  # the feet are on the floor
+    np.testing.assert_array_equal(forces[[1, 4, 7, 10]], 0.0)  # the fused bodies
+    np.testing.assert_allclose(observations[0], observations[1], atol=1e-3)
 
 
 @pytest.mark.xdist_group("mjx-Hopper")

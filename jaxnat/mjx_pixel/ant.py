@@ -25,7 +25,9 @@ Gymnasium's `ant.xml`, RK4 at 0.01 s, `frame_skip` 5: one step is 0.05 s of simu
   joint damping), one Newton iteration with at most 4 line-search steps, and only four feet
   touch the floor: massless, invisible spheres of the lower legs' radius at their far ends
   (`left_foot` ... `fourth_foot`, one contact each where a capsule makes two); every other geom
-  collides with nothing, as Brax's MJX Ant. Faster, further from Gymnasium's trajectories
+  collides with nothing, and the four leg bodies without joints are fused into the torso (the
+  same rigid body; their contact forces, zero, keep their place in the observation), as Brax's
+  MJX Ant. Faster, further from Gymnasium's trajectories
   (bench/results/mjx_fidelity.md).
 - **Time limit**: 1000 steps (`truncated`, never `terminated`).
 - **Info**: `x_position`, `y_position`, `distance_from_origin`, `x_velocity`, `y_velocity`,
@@ -42,11 +44,13 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from jaxnat.core import EnvParams
 from jaxnat.mjx_pixel import mjx_internals
-from jaxnat.mjx_pixel.base import MJXEnv, MJXState, PhysicsSettings
+from jaxnat.mjx_pixel.base import MJXEnv, MJXState, PhysicsSettings, fused_body_index
+from jaxnat.mjx_pixel.models import load_model
 
 __all__ = ["Ant", "AntState", "AntParams"]
 
@@ -87,7 +91,7 @@ class Ant(MJXEnv):
     root_position_size = 2
     fast_physics = PhysicsSettings(
         integrator="euler", iterations=1, ls_iterations=4, eulerdamp=False,
-        contact_geoms=("left_foot", "right_foot", "third_foot", "fourth_foot"),
+        contact_geoms=("left_foot", "right_foot", "third_foot", "fourth_foot"), fuse_static=True,
         foot_spheres=(("left_foot", "left_ankle_geom"), ("right_foot", "right_ankle_geom"),
                       ("third_foot", "third_ankle_geom"), ("fourth_foot", "fourth_ankle_geom")),
     )
@@ -103,10 +107,16 @@ class Ant(MJXEnv):
         super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations,
                          physics)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
+        gymnasium_model = load_model(self.robot)
+        self.gymnasium_nbody = gymnasium_model.nbody
+        # Where fast physics fused the four static leg bodies into the torso: each Gymnasium
+        # body's index in this model (-1: fused). No geom of a fused body collides under fast
+        # physics, so their contact forces are zero, as they are in Gymnasium's layout.
+        self.body_index = fused_body_index(gymnasium_model, self.model)
 
     @property
     def observation_size(self) -> int:
-        forces = 6 * (self.model.nbody - 1) if self.include_cfrc_ext_in_observation else 0
+        forces = 6 * (self.gymnasium_nbody - 1) if self.include_cfrc_ext_in_observation else 0
         return super().observation_size + forces
 
     def get_obs(self, state: AntState, params: AntParams) -> jax.Array:
@@ -117,9 +127,14 @@ class Ant(MJXEnv):
         return jnp.concatenate([obs, forces])
 
     def contact_forces(self, data, params: AntParams) -> jax.Array:
-        """`cfrc_ext` clipped to `contact_force_range`, per body (world included)."""
+        """`cfrc_ext` clipped to `contact_force_range`, per body of Gymnasium's model (world
+        included)."""
         low, high = params.contact_force_range
-        return jnp.clip(mjx_internals.cfrc_ext(data), low, high)
+        forces = mjx_internals.cfrc_ext(data)
+        if self.body_index is not None:
+            fused = self.body_index < 0
+            forces = jnp.where(fused[:, None], 0.0, forces[np.maximum(self.body_index, 0)])
+        return jnp.clip(forces, low, high)
 
     def is_healthy(self, data, params: AntParams) -> jax.Array:
         low, high = params.healthy_z_range

@@ -16,8 +16,8 @@ adds Gymnasium MuJoCo v5's reward and termination (and observation where it is n
   those after a full `mj_forward`, and reset, which also runs inside every autoresetting step,
   compiles only those stages: no collision detection, no constraint solver.
 - **Step** (Gymnasium's `do_simulation`): `ctrl = action` (MuJoCo clamps it to `ctrlrange`),
-  `frame_skip` calls of `mj_step`, then `mj_rnePostConstraint` where the robot reads
-  `cfrc_ext` (Ant). As in MuJoCo C, the position-dependent fields of the data after a step
+  `frame_skip` calls of `mj_step`, then `mj_rnePostConstraint`'s `cfrc_ext` where the robot
+  reads it (Ant; its `cacc` and `cfrc_int`, which no robot reads, are not computed). As in MuJoCo C, the position-dependent fields of the data after a step
   (`xpos`, `geom_xpos`, contacts) are those of the last forward pass (the step's start for
   Euler, the last Runge-Kutta stage for RK4), not of the new `qpos`.
 - **Compile time**: MJX's `rungekutta4` unrolls its three inner stages, so XLA compiles four
@@ -68,7 +68,7 @@ mjx = import_mjx()  # (before mjx_internals, which imports MJX's private modules
 
 from jaxnat.mjx_pixel import mjx_internals  # noqa: E402  MJX's private names: RK4 tableau, `_impl` fields
 
-__all__ = ["MJXState", "MJXEnv", "PhysicsSettings", "PHYSICS"]
+__all__ = ["MJXState", "MJXEnv", "PhysicsSettings", "PHYSICS", "fused_body_index"]
 
 PHYSICS = ("default", "fast")  # the values of `MJXEnv(physics=...)`
 
@@ -94,6 +94,10 @@ class PhysicsSettings:
     far end (`fromto`'s second point), massless, invisible (group 3) and with the capsule's
     contact properties, as Brax's Ant has foot spheres: a sphere meets the floor in one contact
     where a capsule makes two. List the spheres in `contact_geoms` for them to collide.
+    fuse_static: merge each body without joints into its parent (MuJoCo's `fusestatic`, as
+    Brax's loader compiles its models): the same rigid bodies in fewer tree nodes, so every
+    pass over the body tree is shorter. Trajectories agree to rounding; bodies and geoms are
+    renumbered (`fused_body_index` maps the bodies back).
     """
 
     integrator: str | None = None
@@ -102,10 +106,11 @@ class PhysicsSettings:
     contact_geoms: tuple[str, ...] | None = None
     eulerdamp: bool = True
     foot_spheres: tuple[tuple[str, str], ...] = ()
+    fuse_static: bool = False
 
     def build(self, robot: str) -> mujoco.MjModel:
         """Robot `robot`'s model with these settings (a fresh copy)."""
-        if not self.foot_spheres:
+        if not self.foot_spheres and not self.fuse_static:
             model = load_model(robot)
         else:
             spec = mujoco.MjSpec.from_file(model_path(robot))
@@ -121,6 +126,7 @@ class PhysicsSettings:
                 for field in ("contype", "conaffinity", "condim", "friction", "margin", "gap",
                               "solref", "solimp", "solmix", "priority"):
                     setattr(sphere, field, getattr(capsule, field))
+            spec.compiler.fusestatic = self.fuse_static
             model = spec.compile()
         self.apply(model)
         return model
@@ -148,6 +154,22 @@ class PhysicsSettings:
             for geom in range(model.ngeom):
                 if model.geom_bodyid[geom] != 0 and geom not in keep:
                     model.geom_contype[geom] = model.geom_conaffinity[geom] = 0
+
+
+def fused_body_index(original: mujoco.MjModel, model: mujoco.MjModel) -> np.ndarray | None:
+    """For each body of `original`, its index in `model`, the same model with its static bodies
+    fused (`PhysicsSettings.fuse_static`), or -1 where it was fused into its parent; None when
+    `model` has every body of `original`. Bodies are matched through their joints, which fusion
+    keeps in order (a body that keeps its place has joints, or is the world)."""
+    if model.nbody == original.nbody:
+        return None
+    if model.njnt != original.njnt:
+        raise ValueError(f"{model.njnt} joints where the original model has {original.njnt}: "
+                         f"not the same model with static bodies fused")
+    jointed = np.asarray(original.body_jntnum) > 0
+    index = np.where(jointed, np.asarray(model.jnt_bodyid)[np.asarray(original.body_jntadr)], -1)
+    index[0] = 0
+    return index.astype(np.int32)
 
 
 class MJXEnv(Environment):
@@ -251,8 +273,8 @@ class MJXEnv(Environment):
         with _full_precision():
             data = data.replace(ctrl=jnp.asarray(action, data.ctrl.dtype))
             data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._physics_step(d), data)
-            if post_constraint:  # fills cfrc_ext (and cacc, cfrc_int), as Gymnasium does
-                data = mjx.rne_postconstraint(self.mjx_model, data)
+            if post_constraint:  # fills cfrc_ext, as Gymnasium's mj_rnePostConstraint
+                data = mjx_internals.with_cfrc_ext(self.mjx_model, data)
         return data
 
     def _physics_step(self, data: mjx.Data) -> mjx.Data:

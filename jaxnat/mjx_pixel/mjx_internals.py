@@ -7,7 +7,7 @@ The robots (`base.py`, `ant.py`) need three kinds of thing MJX keeps private:
   (`base._rk4_step`);
 - `mjx.Data._impl`'s `contact` (the contact frames are rebuilt as MuJoCo C makes them,
   `base._forward_with_c_capsule_frames`) and `efc_J` (whether there are constraints);
-- `mjx.Data._impl.cfrc_ext` (Ant's contact forces).
+- `mjx.Data._impl.cfrc_ext` (Ant's contact forces), read and set alone.
 
 A mujoco-mjx release may move or rename any of them. Importing this module checks every name
 below and, if one is missing, raises a one-line ImportError that names the release range this
@@ -107,3 +107,13 @@ def constraint_jacobian(d):
 def cfrc_ext(d):
     """`cfrc_ext` of `d`: per body, the external contact forces (after `rne_postconstraint`)."""
     return d._impl.cfrc_ext
+
+
+def with_cfrc_ext(m, d):
+    """`d` with `cfrc_ext` filled as `mjx.rne_postconstraint` fills it, and `cacc`,
+    `cfrc_int` left as they were.
+
+    `rne_postconstraint` also runs two passes over the body tree for `cacc` and `cfrc_int`,
+    which no robot here reads; taking only `cfrc_ext` from its result lets XLA drop them.
+    """
+    return d.tree_replace({"_impl.cfrc_ext": import_mjx().rne_postconstraint(m, d)._impl.cfrc_ext})
