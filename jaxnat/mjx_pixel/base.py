@@ -17,9 +17,10 @@ adds Gymnasium MuJoCo v5's reward and termination (and observation where it is n
   compiles only those stages: no collision detection, no constraint solver.
 - **Step** (Gymnasium's `do_simulation`): `ctrl = action` (MuJoCo clamps it to `ctrlrange`),
   `frame_skip` calls of `mj_step`, then `mj_rnePostConstraint`'s `cfrc_ext` where the robot
-  reads it (Ant; its `cacc` and `cfrc_int`, which no robot reads, are not computed). As in MuJoCo C, the position-dependent fields of the data after a step
-  (`xpos`, `geom_xpos`, contacts) are those of the last forward pass (the step's start for
-  Euler, the last Runge-Kutta stage for RK4), not of the new `qpos`.
+  reads it (Ant; its `cacc` and `cfrc_int`, which no robot reads, are not computed). As in
+  MuJoCo C, the position-dependent fields of the data after a step (`xpos`, `geom_xpos`,
+  contacts) are those of the last forward pass (the step's start for Euler, the last
+  Runge-Kutta stage for RK4), not of the new `qpos`.
 - **Compile time**: MJX's `rungekutta4` unrolls its three inner stages, so XLA compiles four
   copies of the forward dynamics (with the contact solver) per physics step. `_rk4_step` runs
   the same four stages as one `lax.scan` (one copy of the forward dynamics), with MJX's own
