@@ -107,7 +107,7 @@ class Ant(MJXEnv):
         super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations,
                          physics)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
-        gymnasium_model = load_model(self.robot)
+        gymnasium_model = self.model if physics == "default" else load_model(self.robot)
         self.gymnasium_nbody = gymnasium_model.nbody
         # Where fast physics fused the four static leg bodies into the torso: each Gymnasium
         # body's index in this model (-1: fused). No geom of a fused body collides under fast
