@@ -79,6 +79,7 @@ def check() -> None:
 
 check()
 
+_mjx = import_mjx()
 from mujoco.mjx._src import forward as _forward  # noqa: E402  (checked above)
 from mujoco.mjx._src import scan as _scan  # noqa: E402
 
@@ -116,4 +117,4 @@ def with_cfrc_ext(m, d):
     `rne_postconstraint` also runs two passes over the body tree for `cacc` and `cfrc_int`,
     which no robot here reads; taking only `cfrc_ext` from its result lets XLA drop them.
     """
-    return d.tree_replace({"_impl.cfrc_ext": import_mjx().rne_postconstraint(m, d)._impl.cfrc_ext})
+    return d.tree_replace({"_impl.cfrc_ext": _mjx.rne_postconstraint(m, d)._impl.cfrc_ext})
