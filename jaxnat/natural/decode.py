@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 __all__ = ["VideoDecodeWarning", "decode_video", "decode_image", "resize_frame",
-           "pyav_available", "READERS", "opencv_reader", "pyav_reader"]
+           "pyav_available", "READERS", "opencv_reader", "pyav_reader", "plain_file"]
 
 
 class VideoDecodeWarning(UserWarning):
@@ -60,7 +60,7 @@ def resize_frame(frame: np.ndarray, shape: tuple[int, int], grayscale: bool,
 
 
 @contextlib.contextmanager
-def _plain_file(path: Path) -> Iterator[Path]:
+def plain_file(path: Path) -> Iterator[Path]:
     """`path` itself, or a temporary unpacked copy when it is gzipped."""
     if path.suffix.lower() != ".gz":
         yield path
@@ -157,7 +157,7 @@ def decode_video(path: Path, shape: tuple[int, int], grayscale: bool,
     """Frames uint8 [n, H, W, C] of the video at `path` (at most `max_frames`), or None, with a
     `VideoDecodeWarning` naming the file, when neither OpenCV nor PyAV decodes a frame."""
     try:
-        with _plain_file(path) as plain:
+        with plain_file(path) as plain:
             frames, claimed = _decode_resized(plain, shape, grayscale, max_frames)
     except (OSError, EOFError, gzip.BadGzipFile) as e:
         warnings.warn(f"skipping video {path}: cannot read it ({e})", VideoDecodeWarning,
@@ -183,7 +183,7 @@ def decode_image(path: Path, shape: tuple[int, int], grayscale: bool) -> np.ndar
     """The photo at `path` as uint8 [1, H, W, C], or None with a `VideoDecodeWarning` naming
     the file when OpenCV cannot decode it."""
     try:
-        with _plain_file(path) as plain:
+        with plain_file(path) as plain:
             image = cv2.imread(str(plain), cv2.IMREAD_COLOR)
     except (OSError, EOFError, gzip.BadGzipFile) as e:
         image, reason = None, f"cannot read it ({e})"

@@ -88,7 +88,7 @@ def fingerprint(path: Path, digest: str | None = None, *, image: bool = False
     if digest is not None and digest in _FINGERPRINTS:
         return _FINGERPRINTS[digest]
     try:
-        with decode._plain_file(Path(path)) as plain:
+        with decode.plain_file(Path(path)) as plain:
             frames = _frames(plain, image)
     except (OSError, EOFError):  # unreadable: the decoder says so when the bank is built
         frames = []

@@ -92,7 +92,7 @@ class Placement:
                 if not data_parallel(algo):
                     raise ValueError(f"--shard envs trains ppo and a2c data parallel; {algo} needs the whole batch "
                                      "on one device: use --shard seeds")
-                if getattr(config, "memory", 0):
+                if config.memory:  # ppo and a2c, the data-parallel algorithms, have memory
                     raise ValueError("--shard envs trains feed-forward policies (a recurrent policy's minibatches "
                                      "are whole env rollouts): use --shard seeds, or memory=0")
                 check_split(config.num_envs, mesh.size, "num_envs", "--num-envs ")
