@@ -22,9 +22,10 @@ the reference or above on every task, at equal or better wall time."
   trunk for a 10x10 image is a ResNet-18, so jaxnat trains on a flattened view
   (`FlatObservation`, a `jaxnat.wrappers.Wrapper`) with its "mlp" trunk;
   `--minatar-trunk default` lets jaxnat pick its own trunk instead.
-- DQN's target network: rejax moves it softly (polyak), jaxnat copies it every
-  `target_update_period` gradient steps; `target_period` picks the period with the same mean
-  lag. Exploration, warm-up and buffer are in env steps per seed on both sides.
+- DQN's target network: rejax moves it softly (polyak), every `target_update_freq` env
+  steps; jaxnat the same way (`tau = 1 - polyak`, every `target_update_period` gradient steps:
+  `target_update` converts). Exploration, warm-up and buffer are in env steps per seed on both
+  sides.
 - gymnax 1.0's `step` returns six values (terminated, truncated); rejax 0.1.3 unpacks five
   (gymnax 0.0.x's `done`), so rejax trains on `FiveValueStep(env)`, whose `done` is
   `terminated | truncated`: rejax treats time limits as terminal, jaxnat bootstraps them.
@@ -340,17 +341,20 @@ def _apply(cls, values: dict, differences: list[str]):
     return cls(**{k: v for k, v in values.items() if k in names})
 
 
-def target_period(config: dict) -> int:
-    """rejax DQN's target update as one hard copy every P gradient steps, for jaxnat.
+def target_update(config: dict, soft: bool) -> tuple[int, float]:
+    """rejax DQN's target update as jaxnat's `(target_update_period, tau)`.
 
     rejax moves the target `target <- polyak * target + (1 - polyak) * online` each time its
     global step (env steps of all envs) crosses a multiple of `target_update_freq`, i.e. every
-    G = num_epochs * max(1, target_update_freq / num_envs) gradient steps. A hard copy every P
-    steps has a mean lag of P / 2; the soft update's is G (polyak / (1 - polyak) + 1/2):
-    P = G (1 + polyak) / (1 - polyak) matches them (P = G for polyak 0)."""
+    G = num_epochs * max(1, target_update_freq / num_envs) gradient steps: jaxnat's period G
+    with `tau = 1 - polyak`. `soft=False` (a jaxnat whose DQN has no `tau`): one hard copy every
+    P gradient steps with the soft update's mean lag, P / 2 = G (polyak / (1 - polyak) + 1/2),
+    so P = G (1 + polyak) / (1 - polyak) (P = G for polyak 0, rejax's hard copies)."""
     polyak = config.get("polyak", 0.99)  # rejax's default
     every = config.get("num_epochs", 1) * max(1.0, config.get("target_update_freq", 1) / config["num_envs"])
-    return max(1, round(every * (1 + polyak) / (1 - polyak)))
+    if soft:
+        return max(1, round(every)), 1.0 - polyak
+    return max(1, round(every * (1 + polyak) / (1 - polyak))), 1.0
 
 
 def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None) -> tuple[object, list[str]]:
@@ -394,9 +398,10 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
             double_dqn=bool(c.get("ddqn", True)), trunk=trunk, lr=c["learning_rate"], gamma=c["gamma"],
             eps_start=float(c["eps_start"]), eps_end=float(c["eps_end"]),
             exploration_steps=int(c["exploration_fraction"] * c["total_timesteps"]),
-            learning_starts=learning_starts, target_update_period=target_period(c),
+            learning_starts=learning_starts,
         )
         fields = _fields(DQNConfig)
+        values["target_update_period"], values["tau"] = target_update(c, soft="tau" in fields)
         if "loss" in fields:
             values["loss"] = "mse"
         else:
@@ -411,7 +416,12 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
         differences.append("parameters: jaxnat's count includes its network's value head, which DQN never "
                            "trains or reads (one dense unit on the last hidden layer)")
         polyak = c.get("polyak", 0.99)
-        if polyak:
+        if polyak and "tau" in fields:
+            differences.append(
+                f"target network: soft updates on both sides (rejax polyak {polyak} every "
+                f"{c.get('target_update_freq', 1)} env steps, jaxnat tau {config.tau:.2g} every "
+                f"{config.target_update_period} gradient steps, counted from its first gradient step)")
+        elif polyak:
             differences.append(
                 f"target network: rejax soft updates (polyak {polyak} every "
                 f"{c.get('target_update_freq', 1)} env steps), jaxnat a hard copy every "

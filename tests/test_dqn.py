@@ -160,6 +160,32 @@ def test_target_network_update_period_and_learning_start():
     assert not same(runner.train_state.params, initial)
 
 
+def test_soft_target_updates_move_a_fraction_tau_of_the_way():
+    """With `tau < 1` each target update (the same gradient steps as a copy's) moves the target
+    `tau` of the way to the online network (Polyak averaging), and only then."""
+    env, params = make_probe("sign")
+    config = DQNConfig(total_timesteps=64, num_envs=2, num_steps=1, gradient_steps=1, batch_size=4,
+                       buffer_size=64, optimizer="adam", lr=1e-2, learning_starts=4,
+                       target_update_period=3, tau=0.25, trunk="mlp")
+    learner = make_dqn(config, env, params)
+    run = _jit(functools.partial(learner.run, num_updates=1))
+    runner = learner.init(jax.random.key(0))
+    moved = []
+    for update in range(1, 9):
+        previous_target = runner.target_params
+        runner, _ = run(runner)
+        leaves = zip(jax.tree.leaves(runner.target_params), jax.tree.leaves(previous_target),
+                     jax.tree.leaves(runner.train_state.params))
+        if int(runner.train_state.step) % 3 == 0 and int(runner.train_state.step) > 0:
+            leaves = list(leaves)
+            for target, previous, online in leaves:
+                np.testing.assert_allclose(target, 0.25 * online + 0.75 * previous, rtol=1e-6, atol=1e-7)
+            assert not all(np.allclose(target, online) for target, _, online in leaves)  # not a copy
+            moved.append(True)
+        else:
+            moved.append(not all(np.array_equal(t, p) for t, p, _ in leaves))
+    assert moved == [False, False, False, True, False, False, True, False]
+
 def test_bad_config_is_a_clear_error():
     env, params = make_probe("sign")
     with pytest.raises(ValueError, match="optimizer 'sgd'"):
@@ -168,6 +194,9 @@ def test_bad_config_is_a_clear_error():
         make_dqn(DQNConfig(buffer_size=4, trunk="mlp"), env, params)
     with pytest.raises(ValueError, match="n_step=0"):
         make_dqn(DQNConfig(n_step=0, trunk="mlp"), env, params)
+    for tau in (0.0, 1.5):
+        with pytest.raises(ValueError, match=rf"^tau={tau} must be in \(0, 1\]"):
+            make_dqn(DQNConfig(tau=tau, trunk="mlp"), env, params)
     with pytest.raises(ValueError, match=r"^DQN loss 'l1' is not one of \('mse', 'huber'\)$"):
         make_dqn(DQNConfig(loss="l1", trunk="mlp"), env, params)
 

@@ -7,7 +7,9 @@ device, vmappable over seeds like `ppo.py`.
 One update: `num_steps` epsilon-greedy steps of `num_envs` envs go into the replay buffer,
 then `gradient_steps` TD-loss steps (`loss`: squared error, or Nature DQN's Huber) on
 minibatches of `batch_size` sampled uniformly from it (none before `learning_starts` env
-steps); the target network copies the online one every `target_update_period` gradient steps.
+steps); every `target_update_period` gradient steps the target network copies the online one
+(`tau=1`), or moves a fraction `tau` of the way to it (Polyak averaging, as rejax's and SB3's
+`tau < 1`).
 `double_dqn` picks the next action with the online network and values it with the target one
 (van Hasselt et al. 2016). `n_step` > 1 stores n-step returns (Sutton 1988; as Rainbow): the
 transition from `s_t` carries `r_t + gamma r_{t+1} + ... + gamma^{m-1} r_{t+m-1}` and
@@ -109,6 +111,7 @@ class DQNConfig:
     exploration_steps: int = 100_000  # env steps (per seed) of the linear epsilon decay
     learning_starts: int = 10_000  # env steps (per seed) before the first gradient step
     target_update_period: int = 1_000  # gradient steps
+    tau: float = 1.0  # target <- tau * online + (1 - tau) * target at each target update (1: a copy)
 
 
 class DQNState(NamedTuple):
@@ -240,6 +243,9 @@ def check_config(config: DQNConfig) -> None:
                          f"num_envs={config.num_envs} envs")
     if config.n_step < 1:
         raise ValueError(f"n_step={config.n_step} must be at least 1")
+    if isinstance(config.tau, (int, float)) and not 0 < config.tau <= 1:  # (a traced tau is not checked)
+        raise ValueError(f"tau={config.tau} must be in (0, 1]: 1 copies the online network, less moves the "
+                         "target that fraction of the way")
 
 
 def _stored(s: EnvStep) -> dict:
@@ -309,7 +315,10 @@ def make_dqn_parts(config: DQNConfig, observation_space, action_space) -> DQNPar
         stepped = train_state.apply_gradients(grads=grads)
         train_state = jax.tree.map(lambda new, old: jnp.where(learning, new, old), stepped, train_state)
         copy = learning & (train_state.step % config.target_update_period == 0)
-        target_params = jax.tree.map(lambda p, t: jnp.where(copy, p, t), train_state.params, target_params)
+        # tau = 1 selects the online parameters themselves: a hard copy, bit for bit.
+        moved = jax.tree.map(lambda p, t: jnp.where(config.tau == 1.0, p, optax.incremental_update(p, t, config.tau)),
+                             train_state.params, target_params)
+        target_params = jax.tree.map(lambda m, t: jnp.where(copy, m, t), moved, target_params)
         return (train_state, target_params, buffer), losses
 
     def learn(state: DQNState, key, learning, config=config) -> tuple[DQNState, dict]:
