@@ -341,20 +341,16 @@ def _apply(cls, values: dict, differences: list[str]):
     return cls(**{k: v for k, v in values.items() if k in names})
 
 
-def target_update(config: dict, soft: bool) -> tuple[int, float]:
+def target_update(config: dict) -> tuple[int, float]:
     """rejax DQN's target update as jaxnat's `(target_update_period, tau)`.
 
     rejax moves the target `target <- polyak * target + (1 - polyak) * online` each time its
     global step (env steps of all envs) crosses a multiple of `target_update_freq`, i.e. every
     G = num_epochs * max(1, target_update_freq / num_envs) gradient steps: jaxnat's period G
-    with `tau = 1 - polyak`. `soft=False` (a jaxnat whose DQN has no `tau`): one hard copy every
-    P gradient steps with the soft update's mean lag, P / 2 = G (polyak / (1 - polyak) + 1/2),
-    so P = G (1 + polyak) / (1 - polyak) (P = G for polyak 0, rejax's hard copies)."""
+    with `tau = 1 - polyak` (polyak 0, rejax's hard copies: tau 1, jaxnat's copies)."""
     polyak = config.get("polyak", 0.99)  # rejax's default
     every = config.get("num_epochs", 1) * max(1.0, config.get("target_update_freq", 1) / config["num_envs"])
-    if soft:
-        return max(1, round(every)), 1.0 - polyak
-    return max(1, round(every * (1 + polyak) / (1 - polyak))), 1.0
+    return max(1, round(every)), 1.0 - polyak
 
 
 def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None) -> tuple[object, list[str]]:
@@ -400,32 +396,17 @@ def jaxnat_config(env_id: str, algo: str, rejax_config: dict, trunk: str | None)
             exploration_steps=int(c["exploration_fraction"] * c["total_timesteps"]),
             learning_starts=learning_starts,
         )
-        fields = _fields(DQNConfig)
-        values["target_update_period"], values["tau"] = target_update(c, soft="tau" in fields)
-        if "loss" in fields:
-            values["loss"] = "mse"
-        else:
-            differences.append("TD loss: rejax squared error (optax.l2_loss), jaxnat Huber (delta 1)")
-        if "max_grad_norm" in fields:
-            values["max_grad_norm"] = c["max_grad_norm"]
-            differences.append(f"gradient clipping: rejax clips each element to +-{c['max_grad_norm']}, "
-                               "jaxnat the global norm")
-        else:
-            differences.append(f"gradient clipping: rejax clips each element to +-{c['max_grad_norm']}, jaxnat none")
+        values["target_update_period"], values["tau"] = target_update(c)
+        values["loss"] = "mse"
+        differences.append(f"gradient clipping: rejax clips each element to +-{c['max_grad_norm']}, jaxnat none")
         config = _apply(DQNConfig, values, differences)
         differences.append("parameters: jaxnat's count includes its network's value head, which DQN never "
                            "trains or reads (one dense unit on the last hidden layer)")
-        polyak = c.get("polyak", 0.99)
-        if polyak and "tau" in fields:
+        if config.tau < 1:
             differences.append(
-                f"target network: soft updates on both sides (rejax polyak {polyak} every "
+                f"target network: soft updates on both sides (rejax polyak {1 - config.tau:.2g} every "
                 f"{c.get('target_update_freq', 1)} env steps, jaxnat tau {config.tau:.2g} every "
                 f"{config.target_update_period} gradient steps, counted from its first gradient step)")
-        elif polyak:
-            differences.append(
-                f"target network: rejax soft updates (polyak {polyak} every "
-                f"{c.get('target_update_freq', 1)} env steps), jaxnat a hard copy every "
-                f"{config.target_update_period} gradient steps (same mean lag)")
         floor = float(jax.device_get(epsilon(config, learning_starts)))
         differences.append("before learning starts rejax acts uniformly at random, jaxnat epsilon-greedily "
                            f"(epsilon >= {floor:.2f})")
