@@ -139,7 +139,8 @@ from jaxnat.agents import A2CConfig, DQNConfig, PPOConfig, distributions, make_a
 from jaxnat.agents.dqn import epsilon  # noqa: E402
 from jaxnat.agents.normalize import normalize  # noqa: E402
 from jaxnat.agents.networks import Q_MLP  # noqa: E402
-from jaxnat.agents.rollout import env_action, is_box  # noqa: E402
+from jaxnat.agents.networks import is_box  # noqa: E402
+from jaxnat.agents.rollout import env_action  # noqa: E402
 from jaxnat.wrappers import Wrapper  # noqa: E402
 
 ENVS = ("CartPole-v1", "Acrobot-v1", "Breakout-MinAtar", "SpaceInvaders-MinAtar")

@@ -4,7 +4,7 @@ For each `--num-envs`, one game (`--game`, Breakout) with one background (`--bac
 video; also none / noise) at `--threads` ALE threads:
 
 - env alone: `jaxnat.make_vec` stepping uniformly random actions (the reference rate);
-- PPO: the trainer's own host path (`jaxnat.training.host.make_train_env` and `make_learner`,
+- PPO: the trainer's own host path (`jaxnat.training.host_backend.make_train_env` and `make_learner`,
   iterating `learner.updates` as `HostBackend` does): `--warmup` updates (compiling), then
   `--updates` timed updates of `num_envs x --num-steps` env steps each (rollout + update);
   for each `--parts`: 1 is the default one-batch loop, 2+ the pipelined loop
@@ -45,7 +45,7 @@ import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
 from jaxnat.agents.networks import default_trunk  # noqa: E402
 from jaxnat.atari.wrappers import ClipRewardWrapper  # noqa: E402
-from jaxnat.training.host import make_learner, make_train_env  # noqa: E402
+from jaxnat.training.host_backend import make_learner, make_train_env  # noqa: E402
 
 
 def env_alone(env, steps: int, rng) -> tuple[float, dict]:

@@ -189,7 +189,7 @@ def check_distributed(out: Path) -> None:
 def _train_atari(devices):
     """The data-parallel host PPO on this process's share of `ATARI_ENV`: `(params, history,
     the initial params)`."""
-    from jaxnat.training.host import make_learner, make_train_env
+    from jaxnat.training.host_backend import make_learner, make_train_env
 
     env = make_train_env(ATARI_ENV[0], ATARI_PPO.num_envs, ATARI_ENV[1], devices=devices)
     try:
@@ -219,7 +219,7 @@ def check_atari(out: Path) -> None:
     """Natural Atari's data-parallel host learner in one process: the whole batch on 1 and on
     4 devices trains the same parameters (`DIR/atari_reference.npz`: 1 device); bad input is
     refused in one line."""
-    from jaxnat.training.host import make_learner, make_train_env
+    from jaxnat.training.host_backend import make_learner, make_train_env
 
     _one_line_error(ValueError, "num_envs=6 does not split evenly over 4 devices: use num_envs=4 or 8",
                     make_train_env, ATARI_ENV[0], 6, ATARI_ENV[1], devices=4)

@@ -265,7 +265,7 @@ def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
     import json
 
     from jaxnat.atari.wrappers import ClipRewardWrapper
-    from jaxnat.training import host
+    from jaxnat.training import host_backend as host
     from jaxnat.train import main
     from jaxnat.training import RunSpec
     from jaxnat.training.checkpoints import Checkpoints
@@ -334,12 +334,12 @@ def test_jaxnat_train_env_parts_pipelines_records_and_resumes(tmp_path, monkeypa
     pytest.importorskip("ale_py")
     import json
 
-    from jaxnat.agents import rollout
+    from jaxnat.agents.rollout import on_policy_host
     from jaxnat.train import main
 
     calls = []
-    pipelined = rollout.host_steps_pipelined
-    monkeypatch.setattr(rollout, "host_steps_pipelined",
+    pipelined = on_policy_host.host_steps_pipelined
+    monkeypatch.setattr(on_policy_host, "host_steps_pipelined",
                         lambda env, *a, **k: calls.append(len(env.parts)) or pipelined(env, *a, **k))
     run_dir = tmp_path / "run"
     argv = [*ATARI, "--seeds", "1", "--algo", "ppo", *ALGO_ARGS["ppo"], "--env-parts", "2"]
@@ -374,7 +374,7 @@ def test_env_parts_errors(argv, message, tmp_path, capsys):
 def test_host_backend_builds_parts_and_no_more_test_envs_than_test_games():
     pytest.importorskip("ale_py")
     from jaxnat.training import RunSpec
-    from jaxnat.training.host import HostBackend
+    from jaxnat.training.host_backend import HostBackend
 
     kwargs = {"obs_size": 36, "num_threads": 1, "max_episode_steps": 10}
     config = CONFIGS["ppo"].replace(trunk="atari", num_envs=4)

@@ -188,7 +188,7 @@ def test_atari_cells_step_pipelined_parts_in_quick_only():
 def test_cells_compiled_ahead_train_to_the_same_results(smoke, tmp_path, monkeypatch):
     from rich.console import Console
 
-    from jaxnat.training import programs
+    from jaxnat.training import device_backend as programs
 
     plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="classify", out=tmp_path))
     built = []
@@ -377,7 +377,7 @@ def test_the_host_stream_stops_when_its_parent_is_gone(tmp_path):
 
 
 def test_the_estimate_with_host_cells_alongside_is_the_longer_stream():
-    from jaxnat.training.host import is_host_env
+    from jaxnat.training.host_backend import is_host_env
 
     cells = grid.build_grid(grid.PROFILES["quick"])
     assert all(c.host == is_host_env(c.env_id) for c in cells if c.env_id)

@@ -296,7 +296,7 @@ def test_dqn_runs_saved_before_the_loss_option_resume_with_huber():
 
 @pytest.mark.skipif(not _digits_available(), reason="Classify/Digits-v0 data not installed")
 def test_runs_that_differ_in_traced_params_share_compiled_programs():
-    from jaxnat.training import programs
+    from jaxnat.training import device_backend as programs
     from jaxnat.training.spec import RunSpec
 
     config = ALGORITHMS["ppo"].config(total_timesteps=256, num_envs=4, num_steps=32, trunk="mnist")

@@ -12,30 +12,26 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
+from jaxnat.agents.config import OnPolicyConfig, static
 from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
-                                   on_policy_host_learner, on_policy_learner, replay, static)
+                                   on_policy_host_learner, on_policy_learner, replay)
 
 __all__ = ["A2CConfig", "actor_critic_loss", "make_train", "make_a2c", "make_host_a2c"]
 
 
 @struct.dataclass
-class A2CConfig:
-    total_timesteps: int = static(1_000_000)
+class A2CConfig(OnPolicyConfig):
+    """A2C's settings: `OnPolicyConfig`'s fields with A2C's defaults, and its own."""
+
     num_envs: int = static(16)
     num_steps: int = static(5)
-    trunk: str | None = static(None)
-    dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
-    memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
-    # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
-    normalize_observations: bool | None = static(None)
-    normalize_rewards: bool | None = static(None)
     lr: float = 7e-4
-    rms_eps: float = 1e-5
-    rms_alpha: float = 0.99
-    gamma: float = 0.99
     gae_lambda: float = 1.0
     vf_coef: float = 0.5
-    ent_coef: float = 0.01
+    dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
+    memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
+    rms_eps: float = 1e-5
+    rms_alpha: float = 0.99
     max_grad_norm: float = 0.5
 
 

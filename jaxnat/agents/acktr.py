@@ -25,31 +25,27 @@ from flax import struct
 
 from jaxnat.agents import distributions, kfac
 from jaxnat.agents.a2c import actor_critic_loss
-from jaxnat.agents.rollout import Learner, UpdateRule, on_policy_learner, static
+from jaxnat.agents.config import OnPolicyConfig, static
+from jaxnat.agents.rollout import Learner, UpdateRule, on_policy_learner
 
 __all__ = ["ACKTRConfig", "make_train", "make_acktr"]
 
 
 @struct.dataclass
-class ACKTRConfig:
-    total_timesteps: int = static(1_000_000)
+class ACKTRConfig(OnPolicyConfig):
+    """ACKTR's settings: `OnPolicyConfig`'s fields with ACKTR's defaults, and its own."""
+
     num_envs: int = static(32)
     num_steps: int = static(20)
-    anneal_lr: bool = static(True)
-    trunk: str | None = static(None)
-    # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
-    normalize_observations: bool | None = static(None)
-    normalize_rewards: bool | None = static(None)
     lr: float = 0.25
+    gae_lambda: float = 1.0
+    vf_coef: float = 0.5
+    anneal_lr: bool = static(True)
     momentum: float = 0.9
     kl_clip: float = 0.001
     damping: float = 0.01
     stats_decay: float = 0.99
-    gamma: float = 0.99
-    gae_lambda: float = 1.0
-    vf_coef: float = 0.5
     vf_fisher_coef: float = 1.0
-    ent_coef: float = 0.01
 
 
 def _optimizer(config: ACKTRConfig, num_updates: int):

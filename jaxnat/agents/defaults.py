@@ -33,7 +33,7 @@ from typing import Any
 from jaxnat.agents.networks import is_box
 from jaxnat.agents.normalize import wants_normalization
 
-__all__ = ["CONTINUOUS_STATE", "family_defaults"]
+__all__ = ["CONTINUOUS_STATE", "NATURAL_ATARI", "family_defaults"]
 
 # Overrides of each config's defaults for Box actions with vector observations.
 CONTINUOUS_STATE: dict[str, dict[str, Any]] = {
@@ -44,12 +44,21 @@ CONTINUOUS_STATE: dict[str, dict[str, Any]] = {
 }
 
 
-def family_defaults(algo: str, observation_space, action_space) -> dict[str, Any]:
-    """The overrides of `algo`'s config defaults for an env with these spaces ({} for the
-    paper's families: vision, Atari, PixelMuJoCo from pixels or noise).
+# Overrides for Natural Atari (`family="NaturalAtari"`): Nature DQN's Huber loss, since its
+# rewards are clipped to [-1, 1] there too and Huber bounds the gradient of the rare large TD
+# errors (`dqn.DQNConfig` says why it is not the general default).
+NATURAL_ATARI: dict[str, dict[str, Any]] = {"dqn": dict(loss="huber")}
+
+
+def family_defaults(algo: str, observation_space, action_space=None, *, family: str | None = None) -> dict[str, Any]:
+    """The overrides of `algo`'s config defaults for an env with these spaces, or of this
+    `family` (an env id's prefix, e.g. "NaturalAtari"); {} for the paper's other families:
+    vision, PixelMuJoCo from pixels or noise. `resolve.config_for` applies them.
 
         config = PPOConfig(**family_defaults("ppo", env.observation_space(p), env.action_space(p)))
     """
-    if is_box(action_space) and wants_normalization(observation_space):
+    if family == "NaturalAtari":
+        return dict(NATURAL_ATARI.get(algo, {}))
+    if action_space is not None and is_box(action_space) and wants_normalization(observation_space):
         return dict(CONTINUOUS_STATE.get(algo, {}))
     return {}

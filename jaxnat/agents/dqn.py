@@ -57,9 +57,10 @@ from flax import struct
 from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions
+from jaxnat.agents.config import static
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_batch, count_updates, episode_metrics,
-                                   host_steps, host_updates, scan_learner, scan_steps, static, step_info, vector_env)
+                                   host_steps, host_updates, scan_learner, scan_steps, step_info, vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
 __all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_host_dqn", "make_dqn_parts",
@@ -124,8 +125,7 @@ class DQNState(NamedTuple):
 
 
 class DQNRunner(NamedTuple):
-    """The jitted loop's carry: `DQNState`'s fields (flat, so `runner.train_state` reads as for
-    PPO's runner) and the envs'."""
+    """The jitted loop's carry: `DQNState`'s fields, flat, and the envs'."""
 
     train_state: TrainState
     target_params: Any
@@ -139,11 +139,6 @@ class DQNRunner(NamedTuple):
     @property
     def learner(self) -> DQNState:
         return DQNState(**{name: getattr(self, name) for name in DQNState._fields})
-
-    @property
-    def normalizer(self) -> None:
-        """None: DQN reads raw observations (as `RunnerState.normalizer` when off)."""
-        return None
 
     def with_learner(self, learner: DQNState, **changes) -> DQNRunner:
         """This runner with `learner`'s fields, and `changes` to the others, by name."""
@@ -359,7 +354,21 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
         runner = runner.with_learner(state, env_state=env_state, obs=obs, key=key, update=runner.update + 1)
         return runner, {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
 
-    return scan_learner(config, init, update, _optimizer, parts.network, total_updates)
+    return scan_learner(config, init, update, _optimizer, parts.network, total_updates, _policy_of, _per_env)
+
+
+def _policy_of(runner: DQNRunner):
+    """What the greedy policy acts with (`Learner.policy_of`): the online network's parameters;
+    DQN reads raw observations."""
+    return runner.train_state.params, None
+
+
+def _per_env(runner: DQNRunner) -> DQNRunner:
+    """The runner's parts with an env axis (`Learner.per_env`): the envs', and the recent
+    one-step transitions (`[n_step, num_envs, ...]`: not first, so DQN does not split them;
+    it trains on whole seeds)."""
+    return DQNRunner(train_state=False, target_params=False, buffer=False, recent=False, env_state=True, obs=True,
+                     key=False, update=False)
 
 
 def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) -> HostLearner:

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = ["Moments", "Normalizer", "CLIP", "EPSILON", "init_moments", "update_moments", "init_normalizer",
-           "observe", "normalize", "scale_rewards", "wants_normalization", "switches"]
+           "observe", "normalize", "scale_rewards", "per_env", "wants_normalization", "switches"]
 
 CLIP = 10.0  # baselines' clipob and cliprew
 EPSILON = 1e-8
@@ -67,6 +67,13 @@ class Normalizer(NamedTuple):
     obs: Moments | None  # of the observations
     returns: Moments | None  # of the running discounted returns (scalars)
     running_return: jax.Array | None  # [num_envs]: each env's discounted return so far
+
+
+def per_env(normalizer: Normalizer) -> Normalizer:
+    """The parts with an env axis (True: the running returns), shared (False) or off (None):
+    what a data-parallel learner splits over devices (`rollout.Learner.per_env`)."""
+    return Normalizer(*(None if part is None else name == "running_return"
+                        for name, part in zip(Normalizer._fields, normalizer)))
 
 
 def wants_normalization(observation_space) -> bool:

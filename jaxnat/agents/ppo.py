@@ -27,33 +27,23 @@ import optax
 from flax import struct
 
 from jaxnat.agents import distributions
+from jaxnat.agents.config import OnPolicyConfig, static
 from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
-                                   on_policy_host_learner, on_policy_learner, replay, static)
+                                   on_policy_host_learner, on_policy_learner, replay)
 
 __all__ = ["PPOConfig", "make_train", "make_ppo", "make_host_ppo"]
 
 @struct.dataclass
-class PPOConfig:
-    # Static: they set shapes and loop lengths.
-    total_timesteps: int = static(1_000_000)
-    num_envs: int = static(8)
-    num_steps: int = static(128)
+class PPOConfig(OnPolicyConfig):
+    """PPO's settings: `OnPolicyConfig`'s (8 envs x 128 steps, lr 2.5e-4, gamma 0.99, GAE lambda
+    0.95, value coef 1.0, entropy 0.01) and PPO's own."""
+
     update_epochs: int = static(4)
     num_minibatches: int = static(4)
     anneal_lr: bool = static(True)
-    trunk: str | None = static(None)  # None: the paper's trunk for the observation size
     dtype: str = static("float32")  # the trunk's computation dtype: "float32" or "bfloat16" (GPU)
     memory: int = static(0)  # GRU state size (a recurrent policy); 0: feed-forward, as the authors
-    # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
-    normalize_observations: bool | None = static(None)
-    normalize_rewards: bool | None = static(None)
-    # Traced: may be vmapped.
-    lr: float = 2.5e-4
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
     clip_eps: float = 0.1
-    vf_coef: float = 1.0
-    ent_coef: float = 0.01
     max_grad_norm: float = 0.5
     weight_decay: float = 0.0  # decoupled (AdamW), scaled by the learning rate; 0: the authors' Adam
 

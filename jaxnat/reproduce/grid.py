@@ -66,7 +66,7 @@ DATASET_NAMES = {"mnist": "MNIST", "cifar10": "CIFAR-10", "cifar100": "CIFAR-100
 # dataset -> (embedded dataset, its env, its name) standing in when the dataset is not found.
 STAND_INS = {"mnist": ("digits", "Classify/Digits-v0", "Digits (OpenCV's 5,000 MNIST digits)"),
              "cifar10": ("fashion_mnist", "Classify/FashionMNIST-v0", "Fashion-MNIST")}
-ATARI_ALGOS = ("ppo", "a2c")  # the algorithms with a host loop (`jaxnat.training.host`)
+ATARI_ALGOS = ("ppo", "a2c")  # the algorithms with a host loop (`jaxnat.training.host_backend`)
 # `jaxnat train` settings that are not algorithm config fields, allowed in `Profile.overrides`
 # (and written as departures): the parts host-batched envs are stepped in, updates per evaluation.
 RUN_SETTINGS = {"env_parts": 1, "eval_every": None}  # name -> the value a cell without it has (None: auto)
@@ -262,7 +262,7 @@ def _classify_cells(profile: Profile) -> list[Cell]:
     sweep = [(w, SWEEP_FIXED_M) for w in SWEEP_WINDOWS] + [(SWEEP_FIXED_W, m) for m in SWEEP_STEPS]
     for w, m in dict.fromkeys(profile.subset("sweep", tuple(sweep))):
         # The params' own names (not the constructor's w=, M=): the sweep's cells then differ only
-        # in traced params and share compiled programs (`training.programs.compiled_program`).
+        # in traced params and share compiled programs (`training.device_backend.compiled_program`).
         cells.append(Cell(f"classify-sweep-w{w}-M{m}", "classify", "sweep", env_id,
                           {"window": w, "max_steps_in_episode": m}, "ppo",
                           None, budget, _settings("ppo", extra), {"dataset": "cifar10", "w": w, "M": m}, note, skip))

@@ -6,15 +6,15 @@ DQN on a jaxnat env over many seeds, into a run directory (`config.json`, `metri
     jaxnat train --env-id Classify/MNIST-v0 --algo a2c --lr 1e-3 --env-kwargs w=3 M=10
     jaxnat train --resume runs/Classify_Digits-v0-ppo-20250101-120000
 
-`trainer.py` is the one loop, over a backend: `programs.DeviceBackend` trains every seed at once
+`chunk_loop.py` is the one loop, over a backend: `device_backend.DeviceBackend` trains every seed at once
 in one compiled program (`jit(vmap(...))` over their keys) and resumes bit for bit (the state
 carries the PRNG keys), on one device or split over several (`--devices`, `placement.py`);
-`host.HostBackend` trains host-batched envs (Natural Atari).
+`host_backend.HostBackend` trains host-batched envs (Natural Atari).
 """
 
 from jaxnat.training.args import ConfigOverrides, TrainArgs, TrainError, parse_args, parse_env_kwargs
 from jaxnat.training.checkpoints import load_checkpoint
-from jaxnat.training.loop import TrainResult, main, prepare_programs, train
+from jaxnat.training.command import TrainResult, main, prepare_programs, train
 from jaxnat.training.placement import make_sharded_train
 from jaxnat.training.rundir import RunRecord, read_run, run_status
 from jaxnat.training.spec import RunSpec

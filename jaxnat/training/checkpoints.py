@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from jaxnat.training.args import TrainError
 from jaxnat.training.placement import resumed_devices
-from jaxnat.training.programs import compiled_program
+from jaxnat.training.device_backend import compiled_program
 from jaxnat.training.spec import RunSpec
 
 

@@ -42,9 +42,6 @@ from jaxnat.training.args import TrainError
 __all__ = ["SHARDS", "Placement", "device_count", "resumed_devices", "data_parallel", "make_sharded_train"]
 
 SHARDS = ("envs", "seeds")
-# Per-env fields of the on-policy runner (`rollout.RunnerState`), split in data-parallel runs
-# (and of its normaliser, `normalize.Normalizer`: the running returns).
-PER_ENV_FIELDS = ("env_state", "obs")
 
 
 def device_count(devices) -> int:
@@ -108,24 +105,17 @@ class Placement:
         """`make(config, env, params)` for this placement (data parallel over `AXIS` for envs)."""
         return functools.partial(make, axis_name=AXIS) if self.shard == "envs" else make
 
-    def runner_specs(self, runner):
+    def runner_specs(self, per_env):
         """PartitionSpecs of a vmapped runner (`[seeds, ...]` leaves), as a prefix of its tree
-        by field (a runner's static fields, e.g. its optimizer, differ between traces)."""
+        (a runner's static fields, e.g. its optimizer, differ between traces); `per_env`: the
+        learner's `per_env(runner)`, the parts with an env axis after the seeds'."""
         if self.shard == "seeds":
             return PartitionSpec(AXIS)
+        return jax.tree.map(lambda split: PartitionSpec(None, AXIS) if split else PartitionSpec(), per_env)
 
-        def fields(value, per_env):
-            return type(value)(**{name: None if v is None else PartitionSpec(None, AXIS) if name in per_env
-                                  else fields(v, ("running_return",)) if name == "normalizer" else PartitionSpec()
-                                  for name, v in value._asdict().items()})
-
-        return fields(runner, PER_ENV_FIELDS)
-
-    def specs(self, kind: str, like=None):
+    def specs(self, kind: str):
         """The specs of one argument or result: "replicated" (env params), "keys" (one per
-        seed), "runner" (`like`: its shape), "per_seed" (metrics, scores: `[seeds, ...]`)."""
-        if kind == "runner":
-            return self.runner_specs(like)
+        seed), "per_seed" (metrics, scores: `[seeds, ...]`); a runner's: `runner_specs`."""
         if self.shard == "seeds" and kind in ("keys", "per_seed"):
             return PartitionSpec(AXIS)
         return PartitionSpec()
@@ -140,17 +130,19 @@ class Placement:
             return jax.jit(fn)
         return shard_program(fn, self.mesh, in_specs, out_specs)
 
-    def learner_programs(self, algo: str, config, env, env_params, seeds: int, callback=None):
+    def learner_programs(self, algo: str, config, env, env_params, seeds: int, callback=None, learner=None):
         """`(init, chunk)`: `init(params, keys [seeds]) -> runner`, jitted for this placement,
         and `chunk(n)`, the jitted `(params, runner) -> (runner, metrics [seeds, n])` of `n`
         more updates (`callback(update, metrics)` on the host after each). `params`: env
-        params (`put` them with `specs("replicated")`); every seed is vmapped."""
+        params (`put` them with `specs("replicated")`); every seed is vmapped. `learner`: the
+        unsharded learner of `config` on `env`, when the caller built it already."""
         make = ALGORITHMS[algo].make
         placed = self.learner_factory(make)
         keys = jax.ShapeDtypeStruct((seeds,), jax.random.key(0).dtype)
-        # The runner's fields, from the unsharded learner (a sharded one traces only inside a
+        # The runner's layout, from the unsharded learner (a sharded one traces only inside a
         # shard_map): its specs.
-        runner = self.specs("runner", jax.eval_shape(jax.vmap(make(config, env, env_params).init), keys))
+        learner = learner or make(config, env, env_params)
+        runner = self.runner_specs(learner.per_env(jax.eval_shape(jax.vmap(learner.init), keys)))
         replicated = self.specs("replicated")
 
         def init(params, keys):  # networks.init_params loops over seeds

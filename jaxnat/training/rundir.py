@@ -12,7 +12,6 @@ import importlib
 import json
 import platform
 from pathlib import Path
-from typing import Any
 
 import jax
 
@@ -20,14 +19,6 @@ import jaxnat
 from jaxnat.agents.rollout import count_updates
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import SPEC_FIELDS_ADDED, RunSpec, auto_eval_every
-
-
-@dataclasses.dataclass
-class TrainResult:
-    run_dir: Path
-    runner: Any  # the vmapped RunnerState
-    summary: dict
-    complete: bool
 
 
 def versions() -> dict:

@@ -6,8 +6,8 @@ import dataclasses
 import math
 from typing import Any
 
-from jaxnat.agents import ALGORITHMS, defaults, normalize
-from jaxnat.agents.networks import default_trunk
+from jaxnat.agents import ALGORITHMS, resolve_config as resolve_agent_config
+from jaxnat.agents.resolve import env_family
 from jaxnat.training.args import CORE_CONFIG_FIELDS, TrainArgs, TrainError
 
 TARGET_EVALUATIONS = 20  # --eval-every's default aims at about this many evaluations
@@ -28,12 +28,15 @@ class RunSpec:
     seed: int
     eval_every: int
     eval_episodes: int
-    env_parts: int = 1  # host-batched envs: the parts the batch is stepped in (`host.make_train_env`)
+    env_parts: int = 1  # host-batched envs: the parts the batch is stepped in (`host_backend.make_train_env`)
     # Where it runs (`placement.Placement`): None, one device; "envs", each seed's envs split over
     # `devices` devices (data parallel: a learner of its own); "seeds", whole seeds on each.
     # `devices` is where the run is now: a resumed run may change it, never `shard`.
     devices: int = 1
     shard: str | None = None
+    # Where each config value came from (`jaxnat.agents.resolve`: default, family, given,
+    # derived); None for runs written before it was recorded. Says nothing about the result.
+    config_sources: dict | None = dataclasses.field(default=None, compare=False)
 
     @property
     def num_updates(self) -> int:
@@ -69,6 +72,7 @@ class RunSpec:
             "env_parts": self.env_parts,
             "devices": self.devices,
             "shard": self.shard,
+            **({} if self.config_sources is None else {"config_sources": self.config_sources}),
             "num_updates": self.num_updates,
             "steps_per_update": self.steps_per_update,
         }
@@ -91,6 +95,7 @@ class RunSpec:
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
             eval_every=int(data["eval_every"]), eval_episodes=int(data["eval_episodes"]),
             env_parts=int(data["env_parts"]), devices=int(data["devices"]), shard=data["shard"],
+            config_sources=data.get("config_sources"),
         )
 
 
@@ -104,11 +109,11 @@ def check_algo(algo: str) -> None:
 
 
 def resolve_config(args: TrainArgs, observation_space, action_space=None):
-    """The algorithm's config: the env family's defaults (`agents.defaults`: MuJoCo settings for
-    Box actions on state vectors), every override applied, the trunk and normalisation resolved."""
-    config_cls = ALGORITHMS[args.algo].config
-    names = {f.name for f in dataclasses.fields(config_cls)}
-    values = {} if action_space is None else defaults.family_defaults(args.algo, observation_space, action_space)
+    """The run's config and where each value came from (`jaxnat.agents.resolve_config`, which
+    this feeds with the command line's settings): `(config, sources)`. `action_space` None: a
+    host-batched env."""
+    names = {f.name for f in dataclasses.fields(ALGORITHMS[args.algo].config)}
+    given = {}
     for field in dataclasses.fields(args.config):
         value = getattr(args.config, field.name)
         if value is None:
@@ -118,17 +123,9 @@ def resolve_config(args: TrainArgs, observation_space, action_space=None):
                       if field.name in {f.name for f in dataclasses.fields(algorithm.config)}]
             raise TrainError(f"--{field.name.replace('_', '-')} is not a setting of {args.algo} (it belongs to "
                              f"{', '.join(owners)})")
-        values[field.name] = value
-    for name in CORE_CONFIG_FIELDS:
-        if getattr(args, name) is not None:
-            values[name] = getattr(args, name)
-    config = config_cls(**values)
-    if config.trunk is None:
-        config = config.replace(trunk=default_trunk(observation_space))
-    if "normalize_observations" in names:  # saved resolved, as the trunk
-        observations, rewards = normalize.switches(config, observation_space)
-        config = config.replace(normalize_observations=observations, normalize_rewards=rewards)
-    return config
+        given[field.name] = value
+    given.update({name: getattr(args, name) for name in CORE_CONFIG_FIELDS})
+    return resolve_agent_config(args.algo, observation_space, action_space, given, family=env_family(args.env_id))
 
 
 def auto_eval_every(num_updates: int) -> int:

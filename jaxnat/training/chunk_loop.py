@@ -1,8 +1,8 @@
 """The one training loop of `jaxnat train`: the run directory, chunks of updates, evaluation,
 checkpoints, resume, the curve and the summary, over a `Backend` that trains the seeds.
 
-Two backends: `programs.DeviceBackend` (pure-JAX envs: every seed in one compiled, vmapped
-program; the test split is scored after every chunk) and `host.HostBackend` (host-batched
+Two backends: `device_backend.DeviceBackend` (pure-JAX envs: every seed in one compiled, vmapped
+program; the test split is scored after every chunk) and `host_backend.HostBackend` (host-batched
 envs, Natural Atari: one seed after another from a Python loop; the test split is scored once,
 when a seed ends). A backend trains *groups* of seeds (the device backend one group of all
 seeds, the host backend one group per seed); the loop here is the same for both:

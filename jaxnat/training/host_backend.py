@@ -5,7 +5,7 @@ use the agents' host learners (`rollout.host_steps`), one seed after another, on
 clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
 (train and test) are whole games with unclipped rewards. When a seed's last update is done,
 its policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
-sampled and greedy, on at most `eval_episodes` envs. `trainer.run_training` does the rest, as
+sampled and greedy, on at most `eval_episodes` envs. `chunk_loop.run_training` does the rest, as
 for every run: the run directory, checkpoints (`checkpoints/seed_<s>/`, every `--eval-every`
 updates), `--resume`, the summary.
 
@@ -112,13 +112,8 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
                          f"with {', '.join(HOST_ALGORITHMS)}")
     env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     check_split_kwargs(env_kwargs)
-    with host_errors(args.env_id):
-        config = resolve_config(args, observation_space(args.env_id, env_kwargs))
-    if args.algo == "dqn" and args.config.loss is None:
-        # Nature DQN's Huber loss for Atari: its rewards are clipped to [-1, 1] here too, and
-        # Huber bounds the gradient of the rare large TD errors (DQNConfig says why it is not
-        # the general default).
-        config = config.replace(loss="huber")
+    with host_errors(args.env_id):  # (DQN takes Nature DQN's Huber loss here: `agents.defaults`)
+        config, sources = resolve_config(args, observation_space(args.env_id, env_kwargs))
     check_env_parts(args.env_parts, args.algo, config.num_envs)
     eval_episodes = args.eval_episodes
     if eval_episodes > MAX_EVAL_EPISODES:
@@ -126,7 +121,7 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
     return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes,
-                   args.env_parts)
+                   args.env_parts, config_sources=sources)
 
 
 def check_env_parts(parts: int, algo: str, num_envs: int) -> None:
@@ -149,7 +144,7 @@ def host_errors(env_id: str):
 
 
 class HostBackend:
-    """`trainer.Backend` for host-batched envs: one seed after another, each from a fresh
+    """`chunk_loop.Backend` for host-batched envs: one seed after another, each from a fresh
     learner state; the emulators are built once (train and test split) and reused by every
     seed. Checkpoints: `checkpoints/seed_<s>/`, the learner's `HostState`."""
 
@@ -175,7 +170,7 @@ class HostBackend:
         return self.learner.init(jax.random.key(group[0]))
 
     def update_of(self, state) -> int:
-        return int(state.update)
+        return int(self.learner.updates_of(state))
 
     def begin(self, group, state) -> None:
         self._updates = self.learner.updates(state)  # new games, seeded from the state's key
@@ -184,7 +179,7 @@ class HostBackend:
         rows = []
         for state, metrics, _ in itertools.islice(self._updates, num_updates):
             rows.append(metrics)
-            progress(state.update, metrics)
+            progress(self.learner.updates_of(state), metrics)
         return state, {name: np.asarray([[row[name] for row in rows]]) for name in rows[0]}
 
     def evaluate(self, group, state) -> dict:

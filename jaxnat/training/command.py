@@ -1,5 +1,5 @@
 """`jaxnat train`: set up or resume a run, pick its backend (device or host) and hand both to
-`trainer.run_training`, which trains chunk by chunk, evaluates, checkpoints and reports."""
+`chunk_loop.run_training`, which trains chunk by chunk, evaluates, checkpoints and reports."""
 
 from __future__ import annotations
 
@@ -9,20 +9,32 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import jax
 
 from jaxnat.cli import exit_status
 from jaxnat.sharding import initialize_from_env
 from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
-from jaxnat.training.host import HostBackend, is_host_env, new_host_spec
+from jaxnat.training.host_backend import HostBackend, is_host_env, new_host_spec
 from jaxnat.training.placement import Placement, device_count, resumed_devices
-from jaxnat.training.programs import compiled_program, make_envs, split_argument
-from jaxnat.training.rundir import (TrainResult, args_json, check_counts, new_run_dir, open_resumed, versions,
+from jaxnat.training.device_backend import compiled_program, make_envs, split_argument
+from jaxnat.training.rundir import (args_json, check_counts, new_run_dir, open_resumed, versions,
                                     with_eval_every)
 from jaxnat.training.spec import RunSpec, check_algo, resolve_config
-from jaxnat.training.trainer import run_training
+from jaxnat.training.chunk_loop import run_training
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """What `train` hands back: the run directory, the final state of the last seeds trained
+    (the device backend's vmapped runner, or a host seed's `HostState`), the summary written
+    to `summary.json`, and whether every seed finished."""
+
+    run_dir: Path
+    runner: Any
+    summary: dict
+    complete: bool
 
 
 def _setup(args: TrainArgs, console):
@@ -51,8 +63,8 @@ def _setup(args: TrainArgs, console):
     envs = make_envs(spec)  # handed on to the programs, which need them too
     env, params, *_ = envs
     try:
-        config = resolve_config(args, env.observation_space(params), env.action_space(params))
-        spec = dataclasses.replace(spec, config=config)
+        config, sources = resolve_config(args, env.observation_space(params), env.action_space(params))
+        spec = dataclasses.replace(spec, config=config, config_sources=sources)
     except (TypeError, ValueError) as err:
         raise TrainError(str(err)) from None
     if devices is not None:
@@ -97,9 +109,12 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
                  if spec.shard == "envs" else f"{spec.seeds // spec.devices} seeds per device")
         table.add_row("devices", f"{spec.devices} ({split})")
     static = {f.name for f in dataclasses.fields(spec.config) if not f.metadata.get("pytree_node", True)}
+    sources = spec.config_sources or {}
     for field in dataclasses.fields(spec.config):
         tag = " (static)" if field.name in static else ""
-        table.add_row(f"{field.name}{tag}", repr(getattr(spec.config, field.name)))
+        source = sources.get(field.name)
+        table.add_row(f"{field.name}{tag}", repr(getattr(spec.config, field.name))
+                      + ("" if source in (None, "default") else f"  [dim]({source})[/dim]"))
     table.add_row("run dir", str(run_dir))
     console.print(table)
 
@@ -120,7 +135,7 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
     if initialize_from_env() and jax.process_count() > 1:
         raise TrainError(f"jaxnat train writes its run directory from one process, and this is one of "
                          f"{jax.process_count()} (JAX_NUM_PROCESSES): train over several processes with "
-                         "jaxnat.training.make_sharded_train, Natural Atari with jaxnat.training.host.make_learner"
+                         "jaxnat.training.make_sharded_train, Natural Atari with jaxnat.training.host_backend.make_learner"
                          "(..., devices='all') (docs/api.md, 'Several devices and hosts')")
     console = console or Console()
     spec, run_dir, saved, envs = _setup(args, console)

@@ -66,7 +66,7 @@ def _update_callback(update, metrics) -> None:
 
 
 class DeviceBackend:
-    """`trainer.Backend` for pure-JAX envs: the compiled functions of one run spec (init, a chunk
+    """`chunk_loop.Backend` for pure-JAX envs: the compiled functions of one run spec (init, a chunk
     of updates, evaluation), every seed at once in one vmapped program; the test split is
     scored after every chunk; checkpoints in `checkpoints/` hold the vmapped runner state.
     With `spec.shard`, the programs run on `spec.devices` devices (`placement.Placement`)."""
@@ -82,9 +82,11 @@ class DeviceBackend:
         # The env params (datasets, window, time limit, ...) are arguments of every program, not
         # constants baked into it: runs that differ only in traced params (the w/M sweep) can run
         # the same compiled programs (`may_serve`, `reuse_for`).
+        # Built once here for its network, its runner's layout and its errors; the programs
+        # build it again inside their traces, on traced env params. What a placement cannot
+        # shard, `Placement.resolve` refused already.
         try:
             self.learner = make_learner(spec.config, env, params)
-            self.placement.learner_factory(make_learner)(spec.config, env, params)  # refuses what it cannot shard
         except ValueError as err:  # trunk/observation mismatch, run shorter than one rollout
             raise TrainError(str(err)) from None
         self.params, self.test_params = self._place_params(params, test_params)
@@ -101,7 +103,7 @@ class DeviceBackend:
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
         place = self.placement
         init_program, self._chunk_program = place.learner_programs(spec.algo, spec.config, env, params, spec.seeds,
-                                                                   _update_callback)
+                                                                   _update_callback, self.learner)
         # The runner's shape is the init program's own trace, which lowering it reuses, so the
         # chunks take exactly the tree init returns.
         self.runner_shape = jax.eval_shape(init_program, self.params, keys)
@@ -112,8 +114,8 @@ class DeviceBackend:
             "init": self._lower(init_program, self.params, keys),
             "evaluate": self._lower(place.program(evaluate, (replicated, scored, place.specs("keys"), scored),
                                                   per_seed),
-                                    self.test_params, *_unplaced((self.runner_shape.train_state.params, keys,
-                                                                  self.runner_shape.normalizer))),
+                                    self.test_params, *_unplaced(_policy_and_keys(self.learner, self.runner_shape,
+                                                                                  keys))),
             "chance": self._lower(place.program(chance, (replicated, place.specs("keys")), per_seed),
                                   self.test_params, keys)}
         self._compiled: dict[Any, Any] = {}
@@ -179,9 +181,9 @@ class DeviceBackend:
     def place(self, state):
         """A runner (e.g. restored from a checkpoint written on another device count) laid out as
         this backend's programs take it."""
-        return self.placement.put(state, self.placement.specs("runner", state))
+        return self.placement.put(state, self.placement.runner_specs(self.learner.per_env(state)))
 
-    # The trainer's interface (`trainer.Backend`): one group of every seed.
+    # The trainer's interface (`chunk_loop.Backend`): one group of every seed.
 
     def checkpoint_dir(self, group) -> str:
         return "checkpoints"
@@ -190,7 +192,7 @@ class DeviceBackend:
         return self._program("init")(self.params, self.keys())
 
     def update_of(self, state) -> int:
-        return int(np.asarray(state.update)[0])
+        return int(np.asarray(self.learner.updates_of(state))[0])
 
     def begin(self, group, state) -> None:
         pass
@@ -205,7 +207,7 @@ class DeviceBackend:
             _SINK = None
 
     def evaluate(self, group, state) -> dict:
-        params, normalizer = self.placement.put((state.train_state.params, state.normalizer), self._scored)
+        params, normalizer = self.placement.put(self.learner.policy_of(state), self._scored)
         return jax.device_get(self._program("evaluate")(self.test_params, params, self.eval_keys(), normalizer))
 
     def chance(self) -> dict:
@@ -247,6 +249,12 @@ def _structural_kwargs(env_id: str) -> set[str]:
     return own | set(constructor_parameters(env_id))
 
 
+def _policy_and_keys(learner, runner, keys) -> tuple:
+    """The evaluation program's arguments after the env params: `(params, keys, normalizer)`."""
+    params, normalizer = learner.policy_of(runner)
+    return params, keys, normalizer
+
+
 def _unplaced(tree):
     """Shapes and dtypes of `tree` without their shardings (a program placing them its own way)."""
     return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), tree)
@@ -258,7 +266,7 @@ def _signature(tree):
 
 
 _PROGRAMS: collections.OrderedDict = collections.OrderedDict()
-# Three: the run training now, the next one compiled ahead (`loop.prepare_programs`) and the one
+# Three: the run training now, the next one compiled ahead (`command.prepare_programs`) and the one
 # before, whose programs the next may reuse.
 _CACHED_PROGRAMS = 3
 
