@@ -22,6 +22,7 @@ __all__ = [
     "registered_envs",
     "spec",
     "close_matches",
+    "constructor_parameters",
     "make",
     "make_vec",
 ]
@@ -130,11 +131,23 @@ def _load_entry_point(env_spec: EnvSpec) -> Callable[..., Any]:
     return getattr(module, attr)
 
 
+def _entry_parameters(entry: Callable[..., Any]) -> dict[str, inspect.Parameter]:
+    target = entry.__init__ if inspect.isclass(entry) else entry
+    return {name: p for name, p in inspect.signature(target).parameters.items()
+            if name not in ("self", "args", "kwargs")}
+
+
+def constructor_parameters(id: str) -> dict[str, inspect.Parameter]:
+    """The parameters of `id`'s entry point (a class's `__init__`) by name, without `self`,
+    `*args` and `**kwargs`: the keyword arguments `make` passes to the constructor rather than
+    to the params. Imports the entry point: an unknown id raises `UnknownEnvError`, a missing
+    optional dependency `MissingDependencyError`."""
+    return _entry_parameters(_load_entry_point(spec(id)))
+
+
 def _split_kwargs(entry: Callable[..., Any], kwargs: dict, env_id: str) -> tuple[dict, dict]:
     """Split kwargs into constructor kwargs and params overrides, rejecting unknown names."""
-    target = entry.__init__ if inspect.isclass(entry) else entry
-    signature = inspect.signature(target)
-    ctor_names = {n for n in signature.parameters if n not in ("self", "args", "kwargs")}
+    ctor_names = set(_entry_parameters(entry))
     params_type = getattr(entry, "params_type", None)
     param_names = {f.name for f in dataclasses.fields(params_type)} if params_type else set()
     ctor = {k: v for k, v in kwargs.items() if k in ctor_names}

@@ -253,12 +253,22 @@ def enable_deterministic_ops() -> None:
 
 
 def _backends_started() -> bool:
-    """Whether JAX has created a backend (XLA has read its flags); False if JAX no longer says."""
+    """Whether JAX has created a backend (XLA has read its flags); False if JAX no longer says.
+
+    JAX has no public "are the backends up?" (only `jax._src.xla_bridge` has one). Its public
+    config option `jax_num_cpu_devices` is documented to be settable only before JAX starts its
+    backends: `jax.config.update` then refuses a new value with `RuntimeError`. So ask it for a
+    different value and put the old one back; before any backend exists the change is unseen
+    (nothing reads the option until a CPU backend is created)."""
     try:
-        from jax._src import xla_bridge
-        return bool(xla_bridge.backends_are_initialized())
-    except (ImportError, AttributeError):
+        current = jax.config.jax_num_cpu_devices
+        jax.config.update("jax_num_cpu_devices", 2 if current == 1 else 1)
+    except RuntimeError:
+        return True
+    except AttributeError:  # the option is gone: JAX no longer says
         return False
+    jax.config.update("jax_num_cpu_devices", current)
+    return False
 
 
 def _run_thrice(fn, key, repeats: int, compare):

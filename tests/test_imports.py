@@ -21,6 +21,9 @@ FORBIDDEN = {
     **{env: {"agents", "training"} for env in ("vision_envs", "mjx_pixel", "atari", "datasets", "natural",
                                                "wrappers", "compat")},
 }
+# The data packages are layered one way: `natural` (frame banks, noise, the clutter scenes) builds on
+# `datasets` (finding, caching and decoding files, its errors); `datasets` never imports `natural`.
+FORBIDDEN["datasets"] = FORBIDDEN["datasets"] | {"natural"}
 
 
 def _module_name(path: Path) -> str:

@@ -181,7 +181,7 @@ def test_localize_env_on_the_tiny_tree(tree):
 # ---------------------------------------------------------------------------------------------
 # Clutter
 
-clutter = pytest.importorskip("jaxnat.datasets.clutter")
+clutter = pytest.importorskip("jaxnat.natural.clutter")
 
 
 def _require_embedded_data():

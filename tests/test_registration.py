@@ -76,6 +76,17 @@ def test_params_in_range_and_arrays_pass(toy_registered):
     assert obs.shape[0] == 2
 
 
+def test_constructor_parameters_are_the_kwargs_make_routes_to_the_constructor(toy_registered):
+    from jaxnat.registration import constructor_parameters
+
+    parameters = constructor_parameters(toy_registered)
+    assert {"dataset", "split", "start"} <= set(parameters) and "self" not in parameters
+    assert parameters["start"].default == "random"
+    assert "window" not in parameters  # a params field, not a constructor argument
+    with pytest.raises(UnknownEnvError):
+        constructor_parameters("Test/NoSuchEnv-v0")
+
+
 def test_make_vec(toy_registered):
     env = jaxnat.make_vec(toy_registered, 6, window=2)
     assert isinstance(env, VmapWrapper)
@@ -94,6 +105,10 @@ def test_missing_optional_dependency_names_the_fix(tmp_path, monkeypatch):
     jaxnat.register("Test/NeedsMissing-v0", "env_with_missing_dep:Env", extra="atari")
     with pytest.raises(MissingDependencyError, match=r"pip install 'jaxnat\[atari\]'"):
         jaxnat.make("Test/NeedsMissing-v0")
+    from jaxnat.registration import constructor_parameters
+
+    with pytest.raises(MissingDependencyError):
+        constructor_parameters("Test/NeedsMissing-v0")
 
 
 def test_import_stays_light():

@@ -12,8 +12,10 @@ Datasets (`DATASETS`) and their splits ("train", "test"):
 - "image_folder": your own `root/{train,test}/<class>/*.png` (`image_folder`); needs `root`.
 
 Localization data (photos with a class per pixel, `segmentation.SegmentationDataset`) has its own
-loaders: `cityscapes.load(split, root=...)` (the release layout) and `clutter.load(split)` (real
-objects pasted on natural backgrounds, built from the embedded data).
+loaders: `cityscapes.load(split, root=...)` (the release layout) here, and
+`jaxnat.natural.clutter.load(split)` (real objects pasted on natural backgrounds, built from the
+embedded data), which lives above this package: `jaxnat.natural` builds on `jaxnat.datasets`,
+never the reverse.
 
 Files are found by `locate` (explicit `root`, then `$JAXNAT_DATA_DIR/<name>`, then
 ~/.cache/jaxnat/data/<name>, then Debian package locations) and fetched by `download`. Decoded

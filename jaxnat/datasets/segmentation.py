@@ -1,7 +1,7 @@
 """`SegmentationDataset`: photos with a class per pixel, the data behind `Localize/*`.
 
 Both localization datasets return one: Cityscapes (`cityscapes.py`) and the embedded clutter
-scenes (`clutter.py`). Decoded datasets are cached on disk like the image datasets
+scenes (`jaxnat.natural.clutter`). Decoded datasets are cached on disk like the image datasets
 (`cache.py`), keyed on their source files and build settings.
 """
 

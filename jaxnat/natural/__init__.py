@@ -24,6 +24,11 @@
 - Noise (`noise.py`): the noise controls' named laws (`NOISE_LAWS`: `"authors"`, N(0,1)*50
   clipped at 0, the paper repository's law and `DEFAULT_NOISE`; `"centred"`, N(127.5, 50)
   rounded), `gaussian_noise` and `constant_color`, each with a NumPy twin.
+- Clutter scenes (`clutter.py`, imported on its own: `from jaxnat.natural import clutter`):
+  digits and Fashion-MNIST items pasted on these backgrounds, the data of `Localize/Clutter-v0`.
+
+This package builds on `jaxnat.datasets` (its cache, errors and loaders); `jaxnat.datasets`
+never imports it.
 """
 
 from jaxnat.natural.bank import (

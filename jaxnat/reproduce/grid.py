@@ -215,7 +215,7 @@ def dataset_choice(dataset: str) -> tuple[str | None, str, str]:
     real = {"mnist": "Classify/MNIST-v0", "cifar10": "Classify/CIFAR10-v0", "cifar100": "Classify/CIFAR100-v0",
             "cityscapes": "Localize/Cityscapes-v0", "clutter": "Localize/Clutter-v0"}[dataset]
     if dataset == "clutter":  # built from opencv-doc's photos and videos, the digits and Fashion-MNIST
-        from jaxnat.datasets.clutter import background_files
+        from jaxnat.natural.clutter import background_files
 
         if _found(background_files) and _files_found("digits") and _files_found("fashion_mnist"):
             return real, "", ""

@@ -110,19 +110,12 @@ class TrainArgs:
 
 
 def constructor_parameters(env_id: str) -> dict[str, inspect.Parameter]:
-    """The parameters of the env's entry point ({} when it cannot be imported: `jaxnat.make`
-    then says which dependency is missing, or the id is unknown)."""
-    import importlib
-
-    import jaxnat
+    """`jaxnat.registration.constructor_parameters`, or {} when the entry point cannot be
+    imported (`jaxnat.make` then says which dependency is missing, or the id is unknown)."""
+    from jaxnat import registration
 
     try:
-        entry = jaxnat.spec(env_id).entry_point
-        if isinstance(entry, str):
-            module, _, attr = entry.partition(":")
-            entry = getattr(importlib.import_module(module), attr)
-        target = entry.__init__ if inspect.isclass(entry) else entry
-        return dict(inspect.signature(target).parameters)
+        return registration.constructor_parameters(env_id)
     except (ImportError, LookupError, TypeError, ValueError):
         return {}
 

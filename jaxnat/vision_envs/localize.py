@@ -10,7 +10,7 @@ section 2 (the paper's task; where the authors' code differs, this env follows t
   `val` (Cityscapes `test` has no public labels); 19 training classes by default, or the 30
   annotated classes with `labels="all"` (`jaxnat.datasets.cityscapes`). Clutter: real digits
   and Fashion-MNIST items pasted on natural photos, classes 0-9 digits and 10-19 fashion items
-  (`jaxnat.datasets.clutter`).
+  (`jaxnat.natural.clutter`).
 - **Goal**: `params.goals` is bool `[N, K]`: the classes that may be asked for in each image,
   i.e. present in it (at least one pixel), not void, in the `classes` subset, and with no pixel
   under the start footprint (so no episode is won before the first move). Images without such
@@ -261,7 +261,7 @@ def _load(name: str, split: str, *, root, image_size, labels, num_images, object
     if labels is not None or root is not None:
         raise ValueError("labels and root are options of Cityscapes; the clutter scenes are built "
                          "from the embedded opencv-doc and Fashion-MNIST data")
-    from jaxnat.datasets import clutter
+    from jaxnat.natural import clutter
 
     options = {k: v for k, v in [("num_images", num_images), ("objects", objects), ("seed", seed),
                                  ("backgrounds", backgrounds)] if v is not None}

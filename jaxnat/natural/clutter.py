@@ -31,6 +31,9 @@ splits. `backgrounds=` (a folder, glob or list of photos and/or videos) replaces
 copy of those files on a machine without opencv-doc, or your own clips.
 
 Built scenes are cached on disk like the decoded datasets.
+
+It sits in `jaxnat.natural`, above both the backgrounds and the dataset plumbing it composes
+(`jaxnat.datasets` never imports `jaxnat.natural`).
 """
 
 from __future__ import annotations
@@ -40,12 +43,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from jaxnat import natural
-from jaxnat.natural import sources as _natural_sources
+from jaxnat import datasets, natural
 from jaxnat.datasets import digits, locate
 from jaxnat.datasets.base import DatasetNotFoundError
 from jaxnat.datasets.idx import CLASS_NAMES as _IDX_CLASS_NAMES
 from jaxnat.datasets.segmentation import VOID, SegmentationDataset, cached
+from jaxnat.natural import sources as _natural_sources
 
 __all__ = ["load", "build", "background_frames", "background_files", "object_items", "scene",
            "CLASS_NAMES", "THRESHOLD", "DEFAULT_NUM_IMAGES"]
@@ -88,8 +91,6 @@ def background_frames(split: str, shape: tuple[int, int], sources=None) -> natur
 def object_items(split: str):
     """(uint8 [M, 28, 28] intensities, int32 [M] clutter classes) of the split's objects: the
     digits and Fashion-MNIST items its scenes paste (step 2 of the module docstring)."""
-    from jaxnat import datasets
-
     sheet = datasets.load("digits", split)
     fashion = datasets.load("fashion_mnist", split)
     items = np.concatenate([sheet.images[..., 0], fashion.images[..., 0]])
