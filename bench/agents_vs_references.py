@@ -503,12 +503,12 @@ def run_jaxnat(env_id, algo, config, seeds, episodes):
             return env_action(distributions.mode(logits), action_space)
         return policy
 
-    state = (runner.train_state.params, getattr(runner, "normalizer", None))
+    state = learner.policy_of(runner)
     returns = scores(policy_of, state, env, env_params, jax.random.split(jax.random.key(1), seeds), episodes)
     trunk = getattr(network, "trunk", None) or config.trunk or "default"
     trunk = f"{trunk} on flattened observations" if flat else trunk
     return {"returns": returns, "compile_s": compile_s, "train_s": train_s,
-            "params": count_params(runner.train_state.params), "network": trunk}
+            "params": count_params(state[0]), "network": trunk}
 
 
 class SizedDQN(rejax.DQN):

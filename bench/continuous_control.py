@@ -96,20 +96,19 @@ def train_seeds(env, params, config, make, seeds: int, key=0):
 def state_bench(args) -> None:
     import jax
     import jaxnat
-    from jaxnat.agents import PPOConfig, defaults, make_ppo
+    from jaxnat.agents import config_for, make_ppo
     from jaxnat.agents.rollout import make_evaluate
 
     rows = []
     for robot in args.robots:
         env, params = jaxnat.make(f"MuJoCo/{robot}-v0", physics=args.physics)
-        overrides = defaults.family_defaults("ppo", env.observation_space(params), env.action_space(params))
-        config = PPOConfig(**{**overrides, "num_envs": args.num_envs, "num_steps": args.num_steps,
-                              "total_timesteps": args.total_timesteps, "trunk": "mlp"})
+        config = config_for("ppo", env, params, num_envs=args.num_envs, num_steps=args.num_steps,
+                            total_timesteps=args.total_timesteps, trunk="mlp")
         runner, metrics, learner, compile_s, train_s = train_seeds(env, params, config, make_ppo, args.seeds)
         test_env, test_params = jaxnat.make(f"MuJoCo/{robot}-v0", autoreset=False, physics=args.physics)
         evaluate = jax.jit(jax.vmap(make_evaluate(learner.network, test_env, test_params, args.eval_episodes)))
-        scores = jax.device_get(evaluate(runner.train_state.params,
-                                         jax.random.split(jax.random.key(1), args.seeds), runner.normalizer))
+        params_, normalizer = learner.policy_of(runner)
+        scores = jax.device_get(evaluate(params_, jax.random.split(jax.random.key(1), args.seeds), normalizer))
         train_mean, train_ci = common.mean_ci(final_training_return(metrics, 0.05))
         sampled_mean, sampled_ci = common.mean_ci(scores["sampled_return"])
         row = {"robot": robot, "physics": args.physics, "seeds": args.seeds, "steps_per_seed": learner.num_updates * config.num_envs

@@ -106,7 +106,7 @@ def main(argv=None):
             for greedy in (True, False):
                 for mask in (False, True):
                     play = make_play(learner.network, split_env, split_params, args.eval_episodes, greedy, mask)
-                    score = jax.jit(jax.vmap(play))(runner.train_state.params, keys)
+                    score = jax.jit(jax.vmap(play))(learner.policy_of(runner)[0], keys)
                     name = f"{split}_{'greedy' if greedy else 'sampled'}{'_masked' if mask else ''}"
                     row[name] = float(np.mean(score))
         rows.append(row)

@@ -76,7 +76,7 @@ def main(argv=None):
         greedy, accuracy = [], []
         for _ in range(QUARTERS):
             runner, _ = run(runner, stacked)
-            scores = jax.device_get(evaluate(runner.train_state.params, keys))
+            scores = jax.device_get(evaluate(learner.policy_of(runner)[0], keys))
             greedy.append(np.asarray(scores["greedy_return"]).reshape(len(LEARNING_RATES), -1))
             accuracy.append(np.asarray(scores["greedy_terminated_fraction"]).reshape(len(LEARNING_RATES), -1))
         for i, lr in enumerate(LEARNING_RATES):

@@ -218,7 +218,7 @@ def run_jaxnat(env_id: str, steps: int, seeds: int, episodes: int) -> dict:
     t0 = time.perf_counter()
     runner, _ = jax.block_until_ready(train(keys))
     train_s = time.perf_counter() - t0
-    scores = jax.device_get(score(runner.train_state.params, keys))
+    scores = jax.device_get(score(learner.policy_of(runner)[0], keys))
     env_steps = learner.num_updates * NUM_ENVS * NUM_STEPS
     return {"side": f"jaxnat PPO ({jax.default_backend()})", "seeds": seeds, "env_steps_per_seed": env_steps,
             "setup_s": compile_s, "train_s": train_s, "env_s": None,

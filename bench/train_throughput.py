@@ -48,7 +48,7 @@ def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: i
     t0 = time.perf_counter()
     runner = jax.jit(jax.vmap(learner.init))(keys)
     run = run.lower(runner).compile()
-    evaluate = evaluate.lower(runner.train_state.params, keys).compile()
+    evaluate = evaluate.lower(learner.policy_of(runner)[0], keys).compile()
     compile_s = time.perf_counter() - t0
 
     if chunk > learner.num_updates:
@@ -60,8 +60,8 @@ def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: i
         t0 = time.perf_counter()
         runner, metrics = jax.block_until_ready(run(runner))
         train_s += time.perf_counter() - t0
-        scores = jax.device_get(evaluate(runner.train_state.params, keys))
-        updates = int(runner.update[0])
+        scores = jax.device_get(evaluate(learner.policy_of(runner)[0], keys))
+        updates = int(learner.updates_of(runner)[0])
         row = {
             "updates": updates,
             "env_steps_per_seed": updates * per_update,

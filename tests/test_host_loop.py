@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from jaxnat.agents import a2c, dqn, ppo
-from jaxnat.agents.dqn import make_host_dqn
+from jaxnat.agents.dqn_host import make_host_dqn
 from jaxnat.agents.rollout import EnvStep, evaluate_host, host_steps_pipelined, on_policy_host_learner
 from jaxnat.atari.wrappers import PipelinedVecEnv
 from jaxnat.agents.probes import make_probe
@@ -74,7 +74,7 @@ def trained(probe: str, algo: str, gamma: float = 0.99, parts: int = 1, **static
         config = CONFIGS[algo].replace(gamma=gamma)
         env = (HostProbe(probe, config.num_envs) if parts == 1 else
                PipelinedVecEnv([HostProbe(probe, config.num_envs // parts) for _ in range(parts)]))
-        learner = on_policy_host_learner(config, env, RULES[algo], FAST)
+        learner = on_policy_host_learner(config, env, FAST, rule=RULES[algo])
     state, history = learner.train(jax.random.key(0))
     return learner, learner.params(state), history
 
@@ -194,10 +194,10 @@ def test_terminal_steps_do_not_bootstrap():
 
 def test_batch_size_must_match_the_env():
     with pytest.raises(ValueError, match="num_envs"):
-        on_policy_host_learner(CONFIGS["ppo"], HostProbe("sign", 3), ppo.RULE)
+        on_policy_host_learner(CONFIGS["ppo"], HostProbe("sign", 3), rule=ppo.RULE)
     with pytest.raises(ValueError, match="less than one rollout"):
         on_policy_host_learner(CONFIGS["ppo"].replace(total_timesteps=10), HostProbe("sign", 4),
-                               ppo.RULE)
+                               rule=ppo.RULE)
 
 
 def test_dqn_host_loop_learns_two_steps_with_nstep_returns():
@@ -222,7 +222,7 @@ def test_checkpoint_round_trip_continues_exactly(algo, tmp_path):
         make = lambda: make_host_dqn(config, HostProbe("two_step", 4), FAST)  # noqa: E731
     else:
         config = CONFIGS["ppo"].replace(total_timesteps=4 * 16 * 6)
-        make = lambda: on_policy_host_learner(config, HostProbe("two_step", 4), ppo.RULE, FAST)  # noqa: E731
+        make = lambda: on_policy_host_learner(config, HostProbe("two_step", 4), FAST, rule=ppo.RULE)  # noqa: E731
     learner = make()
     state, _ = learner.run(learner.init(jax.random.key(3)), num_updates=3)
     checkpoints = Checkpoints(tmp_path / "checkpoints")

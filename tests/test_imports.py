@@ -113,3 +113,46 @@ def test_bench_scripts_compile(script):
     compile-time error (a misplaced `global`, say) would otherwise reach the GPU first."""
     path = ROOT.parent / "bench" / script
     compile(path.read_text(), str(path), "exec")
+
+
+# The fields only learners' runners have (`rollout.RunnerState`, `dqn.DQNRunner`,
+# `rollout.HostState`), and the ones they share with other objects (an env wrapper's state has
+# `env_state`), which count only on a runner's usual names.
+RUNNER_ONLY_FIELDS = {"train_state", "normalizer", "target_params", "buffer", "recent"}
+RUNNER_SHARED_FIELDS = {"update", "learner", "env_state", "obs", "memory", "key"}
+RUNNER_NAMES = {"runner", "runners", "state", "saved", "restored", "resumed"}
+
+
+def _runner_field_reads(path: Path) -> list[str]:
+    """`file:line: expression` for each read of a runner's field in `path` (a method call such
+    as `dict.update(...)` is not a field read)."""
+    tree = ast.parse(path.read_text(), str(path))
+    called = {id(node.func) for node in ast.walk(tree) if isinstance(node, ast.Call)}
+    found = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Attribute) or id(node) in called:
+            continue
+        base = node.value.attr if isinstance(node.value, ast.Attribute) else getattr(node.value, "id", None)
+        if node.attr in RUNNER_ONLY_FIELDS or (node.attr in RUNNER_SHARED_FIELDS and base in RUNNER_NAMES):
+            found.append((node.lineno, f"{path.name}:{node.lineno}: {ast.unparse(node)}"))
+    return [read for _, read in sorted(found)]
+
+
+def test_nothing_outside_the_agents_names_a_runners_fields():
+    """The learner seam: training, reproduce, jaxnat's other modules that may use the agents,
+    the benches and scripts read a runner only through its learner (`Learner.policy_of`,
+    `per_env`, `updates_of`; `HostLearner.params`, `updates_of`), so an algorithm may change what
+    its runner holds without touching them. (The env packages may not import the agents at
+    all: `test_package_layering`.)"""
+    envs = {package for package, forbidden in FORBIDDEN.items() if "agents" in forbidden}
+    files = [p for p in ROOT.rglob("*.py") if p.relative_to(ROOT).parts[0] not in envs | {"agents"}]
+    files += sorted((ROOT.parent / "bench").glob("*.py")) + sorted((ROOT.parent / "scripts").glob("*.py"))
+    assert [read for path in files for read in _runner_field_reads(path)] == []
+
+
+def test_the_runner_field_finder_finds_field_reads(tmp_path):
+    path = tmp_path / "probe.py"
+    path.write_text("x = runner.train_state.params\nstate.update\nd.update({})\nwrapped.env_state\n"
+                    "self.learner.init(key)\nn = state.normalizer\n")
+    assert [line.split(": ", 1)[1] for line in _runner_field_reads(path)] == [
+        "runner.train_state", "state.update", "state.normalizer"]

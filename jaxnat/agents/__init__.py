@@ -11,7 +11,8 @@ from jaxnat.agents.a2c import A2CConfig, make_a2c, make_host_a2c
 from jaxnat.agents.acktr import ACKTRConfig, make_acktr
 from jaxnat.agents.algorithms import ALGORITHMS, Algorithm
 from jaxnat.agents.config import OnPolicyConfig
-from jaxnat.agents.dqn import DQNConfig, make_dqn, make_host_dqn
+from jaxnat.agents.dqn import DQNConfig, make_dqn
+from jaxnat.agents.dqn_host import make_host_dqn
 from jaxnat.agents.ppo import PPOConfig, make_host_ppo, make_ppo
 from jaxnat.agents.resolve import Resolved, config_for, resolve_config
 

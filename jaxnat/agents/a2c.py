@@ -7,13 +7,15 @@ returns (GAE lambda 1.0), max grad norm 0.5, 16 envs.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import optax
 from flax import struct
 
 from jaxnat.agents import distributions
 from jaxnat.agents.config import OnPolicyConfig, static
-from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
+from jaxnat.agents.rollout import (Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
                                    on_policy_host_learner, on_policy_learner, replay)
 
 __all__ = ["A2CConfig", "actor_critic_loss", "make_train", "make_a2c", "make_host_a2c"]
@@ -73,10 +75,8 @@ def make_a2c(config: A2CConfig, env, env_params, axis_name=None) -> Learner:
     return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
-def make_host_a2c(config: A2CConfig, env, compiler_options: dict | None = None, devices=None) -> HostLearner:
-    """The A2C learner on a host-batched env (Natural Atari): `rollout.on_policy_host_learner`
-    (`devices`: data parallel over them and every process, one env batch per process)."""
-    return on_policy_host_learner(config, env, RULE, compiler_options, devices)
+# `make_host_a2c(config, env, compiler_options=None, devices=None) -> HostLearner`: as PPO's.
+make_host_a2c = functools.partial(on_policy_host_learner, rule=RULE)
 
 
 def make_train(config: A2CConfig, env, env_params):

@@ -6,7 +6,8 @@ from typing import Callable, NamedTuple
 
 from jaxnat.agents.a2c import A2CConfig, make_a2c, make_host_a2c
 from jaxnat.agents.acktr import ACKTRConfig, make_acktr
-from jaxnat.agents.dqn import DQNConfig, make_dqn, make_host_dqn
+from jaxnat.agents.dqn import DQNConfig, make_dqn
+from jaxnat.agents.dqn_host import make_host_dqn
 from jaxnat.agents.ppo import PPOConfig, make_host_ppo, make_ppo
 
 __all__ = ["Algorithm", "ALGORITHMS"]

@@ -41,8 +41,8 @@ PureJaxRL's Q-network, one ReLU MLP of 120 and 84 units, rather than the actor-c
 tanh MLPs of 64 (see `DQNConfig`).
 
 The pieces (`DQNParts`: init, act, store, learn) serve both drivers of `jaxnat.agents.rollout`:
-`make_dqn` (jitted, JAX envs) and `make_host_dqn` (host-batched envs such as Natural Atari,
-where the env steps in Python).
+`make_dqn` here (jitted, JAX envs) and `dqn_host.make_host_dqn` (host-batched envs such as
+Natural Atari, where the env steps in Python).
 """
 
 from __future__ import annotations
@@ -59,12 +59,12 @@ from flax.training.train_state import TrainState
 from jaxnat.agents import distributions
 from jaxnat.agents.config import static
 from jaxnat.agents.networks import init_params, make_actor_critic
-from jaxnat.agents.rollout import (EnvStep, HostLearner, Learner, check_host_batch, count_updates, episode_metrics,
-                                   host_steps, host_updates, scan_learner, scan_steps, step_info, vector_env)
+from jaxnat.agents.rollout import (EnvStep, Learner, count_updates, episode_metrics, scan_learner, scan_steps, step_info,
+                                   vector_env)
 from jaxnat.agents.replay import ReplayBuffer, replay_add, replay_init, replay_sample
 
-__all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "make_dqn", "make_host_dqn", "make_dqn_parts",
-           "make_train", "nstep_transition", "td_error_loss", "td_loss"]
+__all__ = ["DQNConfig", "DQNRunner", "DQNState", "DQNParts", "epsilon", "learning_on", "step_callbacks", "make_dqn",
+           "make_dqn_parts", "make_train", "nstep_transition", "td_error_loss", "td_loss"]
 
 OPTIMIZERS = {  # name -> (config -> the optax optimizer)
     "rmsprop": lambda c: optax.rmsprop(c.lr, decay=c.rms_decay, eps=c.rms_eps, centered=True),
@@ -176,7 +176,7 @@ def _optimizer(config: DQNConfig):
     return _pick(OPTIMIZERS, config.optimizer, "optimizer")(config)
 
 
-def _learning(config: DQNConfig, update):
+def learning_on(config: DQNConfig, update):
     """Whether update number `update` (from 0) takes its gradient steps: by its end, the seed's
     envs have made `learning_starts` steps."""
     return (update + 1) * config.num_steps * config.num_envs >= config.learning_starts
@@ -249,7 +249,7 @@ def _stored(s: EnvStep) -> dict:
             "terminated": s.terminated, "done": s.done}
 
 
-def _step_callbacks(config: DQNConfig, first_step, act: Callable, store: Callable, rate_of: Callable):
+def step_callbacks(config: DQNConfig, first_step, act: Callable, store: Callable, rate_of: Callable):
     """Both drivers' `(policy, observe)` for one update whose first step (per env) is
     `first_step`: epsilon-greedy actions at each step's rate (`rate_of(env steps)`), every step
     `store`d; a step's record is `(episode info, rate)`."""
@@ -344,13 +344,13 @@ def make_dqn(config: DQNConfig, env, env_params) -> Learner:
 
     def update(runner: DQNRunner, config):
         first_step = runner.update * config.num_steps  # per env, before this update
-        policy, observe = _step_callbacks(config, first_step, parts.act, functools.partial(parts.store, config=config),
+        policy, observe = step_callbacks(config, first_step, parts.act, functools.partial(parts.store, config=config),
                                           functools.partial(epsilon, config))
         (state, env_state, obs, key), (infos, rates) = scan_steps(
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             runner.learner, runner.env_state, runner.obs, runner.key)
         key, key_learn = jax.random.split(key)
-        state, losses = parts.learn(state, key_learn, _learning(config, runner.update), config)
+        state, losses = parts.learn(state, key_learn, learning_on(config, runner.update), config)
         runner = runner.with_learner(state, env_state=env_state, obs=obs, key=key, update=runner.update + 1)
         return runner, {**episode_metrics(infos), **losses, "epsilon": rates[-1]}
 
@@ -369,42 +369,6 @@ def _per_env(runner: DQNRunner) -> DQNRunner:
     it trains on whole seeds)."""
     return DQNRunner(train_state=False, target_params=False, buffer=False, recent=False, env_state=True, obs=True,
                      key=False, update=False)
-
-
-def make_host_dqn(config: DQNConfig, env, compiler_options: dict | None = None) -> HostLearner:
-    """The host-loop DQN learner on a batched host env (`rollout.host_steps`): per env step one
-    jitted epsilon-greedy call and one jitted `store` into the device buffer (donated: updated
-    in place); per update one jitted `learn`. The replay buffer lives on the device
-    (`buffer_size` x 2 observations: for 84x84x4 Atari frames 56 KB per transition, 5.6 GB at
-    the default 100k)."""
-    num_updates = check_host_batch(config, env)
-    parts = make_dqn_parts(config, env.single_observation_space, env.single_action_space)
-    jit = functools.partial(jax.jit, compiler_options=compiler_options)
-    act = jit(parts.act)
-    # On the device, without a host sync: the rate goes straight into `act`.
-    exploration = jit(lambda env_steps: epsilon(config, env_steps))
-    store = jit(parts.store, donate_argnums=0)  # the buffer is updated in place
-
-    @functools.partial(jit, donate_argnums=0)
-    def learn(state: DQNState, key, learning, infos: list):
-        state, losses = parts.learn(state, key, learning)
-        infos = jax.tree.map(lambda *steps: jnp.stack(steps), *infos)
-        return state, {**episode_metrics(infos), **losses}
-
-    space = env.single_observation_space
-
-    @jit
-    def init(key) -> DQNState:
-        return parts.init(key, jnp.zeros((config.num_envs, *space.shape), space.dtype))
-
-    def update(state: DQNState, obs, key, index):
-        policy, observe = _step_callbacks(config, index * config.num_steps, act, store, exploration)
-        (state, obs, key), records = host_steps(env, config.num_steps, policy, observe, state, obs, key)
-        key, key_learn = jax.random.split(key)
-        state, metrics = learn(state, key_learn, _learning(config, index), [info for info, _ in records])
-        return state, obs, key, {**metrics, "epsilon": records[-1][1]}
-
-    return host_updates(env, parts.network, num_updates, init, update, lambda s: s.learner.train_state.params, jit)
 
 
 def make_train(config: DQNConfig, env, env_params):

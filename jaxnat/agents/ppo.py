@@ -21,6 +21,8 @@ key), so it splits evenly over any device count (`num_steps` must divide by
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import optax
@@ -28,7 +30,7 @@ from flax import struct
 
 from jaxnat.agents import distributions
 from jaxnat.agents.config import OnPolicyConfig, static
-from jaxnat.agents.rollout import (HostLearner, Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
+from jaxnat.agents.rollout import (Learner, UpdateRule, clip_by_global_norm, dtype_and_memory,
                                    on_policy_host_learner, on_policy_learner, replay)
 
 __all__ = ["PPOConfig", "make_train", "make_ppo", "make_host_ppo"]
@@ -162,10 +164,10 @@ def make_ppo(config: PPOConfig, env, env_params, axis_name=None) -> Learner:
     return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
-def make_host_ppo(config: PPOConfig, env, compiler_options: dict | None = None, devices=None) -> HostLearner:
-    """The PPO learner on a host-batched env (Natural Atari): `rollout.on_policy_host_learner`
-    (`devices`: data parallel over them and every process, one env batch per process)."""
-    return on_policy_host_learner(config, env, RULE, compiler_options, devices)
+# `make_host_ppo(config, env, compiler_options=None, devices=None) -> HostLearner`: the PPO
+# learner on a host-batched env (Natural Atari), `rollout.on_policy_host_learner` (`devices`:
+# data parallel over them and every process, one env batch per process).
+make_host_ppo = functools.partial(on_policy_host_learner, rule=RULE)
 
 
 def make_train(config: PPOConfig, env, env_params):

@@ -27,8 +27,8 @@ from jaxnat.sharding import AXIS, device_mesh, local_copy, process_share, put_gl
 __all__ = ["on_policy_host_learner"]
 
 
-def on_policy_host_learner(config, env, rule: UpdateRule, compiler_options: dict | None = None,
-                           devices=None) -> HostLearner:
+def on_policy_host_learner(config, env, compiler_options: dict | None = None, devices=None, *,
+                           rule: UpdateRule) -> HostLearner:
     """The host-loop on-policy learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched
     host env: per env step one jitted policy call, and one value call on final observations
     when an episode ended; per update the rollout goes to the device once and one jitted
