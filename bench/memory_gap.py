@@ -28,7 +28,7 @@ import jaxnat  # noqa: E402
 from jaxnat.agents import distributions, ppo  # noqa: E402
 from jaxnat.agents.networks import Memory, initial_memory  # noqa: E402
 from jaxnat.agents.rollout import act  # noqa: E402
-from jaxnat.training.args import parse_env_kwargs  # noqa: E402
+from jaxnat.training import parse_env_kwargs  # noqa: E402
 
 
 def make_play(network, env, env_params, num_episodes: int, greedy: bool, mask_wrong: bool):

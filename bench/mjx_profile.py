@@ -89,7 +89,7 @@ def variant_env(name: str, change):
                                          foot_spheres=fast.foot_spheres).build(env.robot)
     else:
         base.PhysicsSettings(**change).apply(env.model)
-    with base._full_precision():
+    with jax.default_matmul_precision("float32"):  # as MJXEnv traces its physics
         env.mjx_model = mjx.put_model(env.model, impl="jax")
     return env
 
@@ -140,7 +140,7 @@ def stage_times(env, data) -> dict[str, float]:
               "constraints": lambda d: mjx.make_constraint(m, d), "dynamics": dynamics,
               "solve": lambda d: mjx.solve(m, d)}
     times = {}
-    with base._full_precision():
+    with jax.default_matmul_precision("float32"):  # as MJXEnv traces its physics
         d = jax.jit(jax.vmap(positions))(data)
         for label, fn in stages.items():
             fn = jax.jit(jax.vmap(fn))

@@ -29,7 +29,7 @@ import common  # noqa: E402
 import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
 from jaxnat.agents.rollout import make_evaluate  # noqa: E402
-from jaxnat.training.args import parse_env_kwargs  # noqa: E402
+from jaxnat.training import parse_env_kwargs  # noqa: E402
 
 
 def train_in_chunks(learner, test_env, test_params, *, per_update: int, seeds: int, chunk: int,

@@ -218,15 +218,13 @@ def check_training_determinism(env_id: str, algo: str = "ppo", num_envs: int = 6
     does; the trained parameters, optimizer and normaliser state, env state and metrics must be
     the same bit for bit. The report names the first differing field (`step` and `env` None).
     """
-    from jaxnat.agents import ALGORITHMS
-    from jaxnat.agents.defaults import family_defaults
+    from jaxnat.agents import ALGORITHMS, config_for
     from jaxnat.registration import make
 
     env, params = make(env_id, **env_kwargs)
-    spec = ALGORITHMS[algo]
-    settings = {**family_defaults(algo, env.observation_space(params), env.action_space(params)),
-                "num_envs": num_envs, "num_steps": num_steps, "total_timesteps": updates * num_envs * num_steps}
-    learner = spec.make(spec.config(**settings), env, params)
+    config = config_for(algo, env, params, num_envs=num_envs, num_steps=num_steps,
+                        total_timesteps=updates * num_envs * num_steps)
+    learner = ALGORITHMS[algo].make(config, env, params)
     difference, seconds = _run_thrice(learner.train, jax.random.key(seed), repeats, _first_leaf_difference)
     return DeterminismReport(env_id, num_envs, updates * num_steps, difference is None, difference, seconds,
                              f"{algo}, {updates} updates")
