@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from jaxnat.reproduce import command, findings, grid, stats
+from jaxnat.reproduce import command, estimates, findings, grid, host_stream, stats
+from jaxnat.reproduce.cells import append_jsonl
 from jaxnat.reproduce.report import CellResult
 from jaxnat.training import read_run
 
@@ -57,13 +58,16 @@ def test_rerun_skips_finished_cells_and_gives_the_same_report(smoke):
 
 
 def test_a_killed_cell_resumes_to_the_uninterrupted_result(smoke, tmp_path):
-    from jaxnat import train
+    from rich.console import Console
+
+    from jaxnat.training import train
 
     plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="classify", out=tmp_path))
     cell = plan.cells[0]
     fast = {"xla_backend_optimization_level": 0}
-    assert train.main(cell.train_argv(plan.seeds, tmp_path / cell.name), compiler_options=fast,
-                      stop_after_chunks=1) == 0
+    stopped = train(cell.train_args(plan.seeds, tmp_path / cell.name), console=Console(quiet=True),
+                    compiler_options=fast, stop_after_chunks=1)
+    assert not stopped.complete
     assert command.main(["--profile", "smoke", "--only", "classify", "--out", str(tmp_path), "--report-only"]) == 0
     assert "incomplete (interrupted" in (tmp_path / "report.md").read_text()
     assert command.main(["--profile", "smoke", "--only", "classify", "--out", str(tmp_path)]) == 0
@@ -165,13 +169,42 @@ def test_a_folder_of_other_settings_is_refused(smoke, tmp_path, capsys):
     assert "holds a run with other settings" in capsys.readouterr().err
 
 
-def test_atari_cells_step_pipelined_parts_in_quick_only():
+def _train_argv(cell, seeds, run_dir, resume):
+    """The cell's `jaxnat train` command line, as `jaxnat reproduce` built it to parse back in
+    its own process before cells were handed to the trainer as `TrainArgs`."""
+    argv = ["--env-id", cell.env_id, "--algo", cell.algo, "--seeds", str(seeds),
+            "--total-timesteps", str(cell.budget.total_timesteps),
+            "--eval-episodes", str(cell.budget.eval_episodes)]
+    argv += ["--resume", str(run_dir)] if resume else ["--run-dir", str(run_dir)]
+    if cell.env_kwargs:
+        argv += ["--env-kwargs", *(f"{k}={v}" for k, v in cell.env_kwargs.items())]
+    if cell.trunk is not None:
+        argv += ["--trunk", cell.trunk]
+    for key, value in cell.overrides.items():
+        argv += [f"--{key.replace('_', '-')}", str(value)]
+    return argv
+
+
+def test_cell_train_args_are_its_parsed_command_line(tmp_path):
+    """Every cell of every profile, new or resumed: the typed arguments are what `jaxnat train`
+    parses from the cell's command line, to the values' types and the names given."""
     from jaxnat.training import parse_args
 
+    for profile in grid.PROFILES.values():
+        for cell in grid.build_grid(profile):
+            if cell.env_id is None:  # not runnable here: never trained
+                continue
+            for resume in (False, True):
+                args = cell.train_args(profile.seeds, tmp_path / cell.name, resume=resume)
+                parsed = parse_args(_train_argv(cell, profile.seeds, tmp_path / cell.name, resume))
+                assert args == parsed and repr(args) == repr(parsed), (profile.name, cell.name, resume)
+
+
+def test_atari_cells_step_pipelined_parts_in_quick_only():
     for name, parts in (("smoke", 1), ("quick", 2), ("paper", 1)):
         cells = grid.build_grid(grid.PROFILES[name], ("atari",))
         for cell in cells:
-            args = parse_args(cell.train_argv(5, "run"))
+            args = cell.train_args(5, "run")
             assert args.env_parts == parts, (name, cell.name)
             if name == "quick":  # two parts of 128 envs, whole updates
                 assert args.num_envs == 256 and args.config.num_steps == 32
@@ -277,7 +310,7 @@ def test_host_cells_alongside_train_the_same_cells_and_report(smoke, tmp_path):
     rows = [json.loads(line) for line in (out / "timings.jsonl").read_text().splitlines()]
     assert sorted(r["cell"] for r in rows) == sorted(trained)
     assert all(r["outcome"] == "finished" and r["overlapped"] for r in rows)
-    assert (out / "logs" / command.HOST_STREAM_LOG).is_file()
+    assert (out / "logs" / host_stream.HOST_STREAM_LOG).is_file()
     assert "| elapsed" in report.read_text()
     for name in names:
         assert _eval_rows(out, name) == _eval_rows(smoke, name), name
@@ -313,7 +346,7 @@ def test_a_failing_host_cell_is_reported(smoke, tmp_path, device_cells_copied):
 def test_a_host_stream_that_dies_fails_its_cells(tmp_path, monkeypatch, device_cells_copied):
     import sys
 
-    monkeypatch.setattr(command, "_child_argv", lambda *_: [sys.executable, "-c", "raise SystemExit(3)"])
+    monkeypatch.setattr(host_stream, "child_argv", lambda *_: [sys.executable, "-c", "raise SystemExit(3)"])
     report, output = _run(tmp_path)
     assert "exited with status 3 before this cell finished" in output
     assert f"| `{ATARI_CELL}` | not run (failed): the host stream" in report.read_text()
@@ -365,7 +398,7 @@ def test_the_host_stream_stops_when_its_parent_is_gone(tmp_path):
 
     plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="atari", out=tmp_path))
     read_end, write_end = os.pipe()
-    child = subprocess.Popen(command._child_argv(plan, plan.cells, write_end), stdin=subprocess.PIPE,
+    child = subprocess.Popen(host_stream.child_argv(plan, plan.cells, write_end), stdin=subprocess.PIPE,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write_end,))
     os.close(write_end)
     child.stdin.close()  # as when the parent dies
@@ -381,14 +414,14 @@ def test_the_estimate_with_host_cells_alongside_is_the_longer_stream():
 
     cells = grid.build_grid(grid.PROFILES["quick"])
     assert all(c.host == is_host_env(c.env_id) for c in cells if c.env_id)
-    streams = command.split_streams(cells, overlap=True)
+    streams = estimates.split_streams(cells, overlap=True)
     assert streams["host"] == [c for c in cells if c.experiment == "atari"]
     assert streams["device"] == [c for c in cells if c.experiment != "atari"]
-    device, host = (sum(command.estimate_seconds(c, 5, "gpu") for c in streams[k]) for k in ("device", "host"))
-    assert command.estimate_total(streams, 5, "gpu") == pytest.approx(max(device, host))
-    assert command.estimate_total(command.split_streams(cells, overlap=False), 5, "gpu") == pytest.approx(device + host)
+    device, host = (sum(estimates.estimate_seconds(c, 5, "gpu") for c in streams[k]) for k in ("device", "host"))
+    assert estimates.estimate_total(streams, 5, "gpu") == pytest.approx(max(device, host))
+    assert estimates.estimate_total(estimates.split_streams(cells, overlap=False), 5, "gpu") == pytest.approx(device + host)
     only_device = [c for c in cells if not c.host]
-    assert command.split_streams(only_device, overlap=True) == {"all": only_device}
+    assert estimates.split_streams(only_device, overlap=True) == {"all": only_device}
 
 
 def test_concurrent_timing_lines_never_interleave(tmp_path):
@@ -397,6 +430,6 @@ def test_concurrent_timing_lines_never_interleave(tmp_path):
     path = tmp_path / "timings.jsonl"
     rows = [{"cell": f"c{i}", "message": str(i) * 20_000} for i in range(64)]
     with ThreadPoolExecutor(8) as pool:
-        list(pool.map(lambda row: command.append_jsonl(path, row), rows))
+        list(pool.map(lambda row: append_jsonl(path, row), rows))
     written = [json.loads(line) for line in path.read_text().splitlines()]
     assert sorted(written, key=lambda r: int(r["cell"][1:])) == rows

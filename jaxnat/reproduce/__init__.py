@@ -13,9 +13,11 @@ cores) train in a second process alongside the others (`--sequential`: every cel
 a CPU). The report, `<out>/report.md` with one PNG per paper figure, is built from the cells' own
 files once every cell has ended.
 
-Modules: `grid` (profiles and cells), `command` (the command line and the loop over cells),
-`hoststream` (the second process's entry point),
-`report` (curves, tables, figures), `findings` (the paper's claims and their verdicts),
+Modules: `grid` (profiles, cells and their `jaxnat train` arguments, the plan), `command` (the
+command line and the run over the cells), `estimates` (wall times, the streams), `cells`
+(training cells in a process, compiling ahead, timing lines), `board` (the progress board),
+`host_stream` (the host cells in a second process; `hoststream` is its `python -m` entry
+point), `report` (curves, tables, figures), `findings` (the paper's claims and their verdicts),
 `stats` (bootstrap intervals).
 """
 

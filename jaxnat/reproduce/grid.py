@@ -1,4 +1,5 @@
-"""The experiment grid of `jaxnat reproduce`: one `Cell` per training run, by profile.
+"""The experiment grid of `jaxnat reproduce`: one `Cell` per training run, by profile, and the
+`Plan` of one command (the cells it runs, their seeds, the folder they go to).
 
 The cells follow the experiments section of Zhang, Wu and Pineau (2018):
 
@@ -36,14 +37,19 @@ and the cell says so. CIFAR-100 has no stand-in: its cells are reported as not r
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from jaxnat.agents import ALGORITHMS
 from jaxnat.atari.games import AUTHORS_GAMES
 from jaxnat.datasets import DatasetNotFoundError, locate
 from jaxnat.datasets.cityscapes import find_files as cityscapes_files
 
-__all__ = ["EXPERIMENTS", "HOST_EXPERIMENTS", "PROFILES", "Budget", "Profile", "Cell", "build_grid", "dataset_choice"]
+if TYPE_CHECKING:
+    from jaxnat.training import TrainArgs
+
+__all__ = ["EXPERIMENTS", "HOST_EXPERIMENTS", "PROFILES", "Budget", "Profile", "Cell", "Plan", "build_grid",
+           "dataset_choice"]
 
 EXPERIMENTS = ("classify", "localize", "atari", "mujoco")
 # The experiments whose cells `jaxnat train` runs on its host backend (host-batched envs: ALE
@@ -176,18 +182,24 @@ class Cell:
         """Whether the cell trains on the host backend (`HOST_EXPERIMENTS`)."""
         return self.experiment in HOST_EXPERIMENTS
 
-    def train_argv(self, seeds: int, run_dir) -> list[str]:
-        """The `jaxnat train` command line of this cell."""
-        argv = ["--env-id", self.env_id, "--algo", self.algo, "--seeds", str(seeds),
-                "--total-timesteps", str(self.budget.total_timesteps),
-                "--eval-episodes", str(self.budget.eval_episodes), "--run-dir", str(run_dir)]
-        if self.env_kwargs:
-            argv += ["--env-kwargs", *(f"{k}={v}" for k, v in self.env_kwargs.items())]
+    def train_args(self, seeds: int, run_dir, *, resume: bool = False) -> TrainArgs:
+        """The arguments `jaxnat.training.train` runs this cell with: a new run into `run_dir`,
+        or (`resume`) the run there continued. They are what `jaxnat.training.parse_args` makes
+        of the cell's `jaxnat train` command line, `given` included (the arguments it names:
+        with `--resume`, one given at its default value must still match the run's)."""
+        from jaxnat.training import ConfigOverrides, TrainArgs
+
+        fields = {"env_id": self.env_id, "algo": self.algo, "seeds": seeds,
+                  "total_timesteps": self.budget.total_timesteps, "eval_episodes": self.budget.eval_episodes,
+                  "resume" if resume else "run_dir": Path(run_dir)}
+        if self.env_kwargs:  # as given on a command line: `KEY=VALUE` texts, read by the trainer
+            fields["env_kwargs"] = tuple(f"{k}={v}" for k, v in self.env_kwargs.items())
         if self.trunk is not None:
-            argv += ["--trunk", self.trunk]
-        for key, value in self.overrides.items():
-            argv += [f"--{key.replace('_', '-')}", str(value)]
-        return argv
+            fields["trunk"] = self.trunk
+        top, config = {f.name for f in dataclasses.fields(TrainArgs)}, {}
+        for key, value in self.overrides.items():  # run settings (num_envs, env_parts, ...) or config fields
+            (fields if key in top else config)[key] = value
+        return TrainArgs(**fields, config=ConfigOverrides(**config), given=tuple(sorted({*fields, *config})))
 
 
 def _settings(algo: str, overrides: dict) -> dict:
@@ -308,3 +320,15 @@ def build_grid(profile: Profile, only: tuple[str, ...] = EXPERIMENTS) -> list[Ce
     cells = [cell for experiment in EXPERIMENTS if experiment in only for cell in _BUILDERS[experiment](profile)]
     return [dataclasses.replace(cell, env_kwargs={**cell.env_kwargs, **profile.env_kwargs[cell.experiment]})
             if cell.experiment in profile.env_kwargs else cell for cell in cells]
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What one `jaxnat reproduce` trains and reports: the `cells` of `profile` for the
+    experiments in `only`, each with `seeds` seeds, in `out` (`command.make_plan` builds it)."""
+
+    profile: Profile
+    only: tuple[str, ...]
+    seeds: int
+    out: Path
+    cells: list[Cell]

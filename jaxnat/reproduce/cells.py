@@ -1,0 +1,126 @@
+"""Training cells in this process, one after another (`train_cells`): each is handed to
+`jaxnat.training.train` as its typed arguments (`Cell.train_args`), logged to
+`<out>/logs/<cell>.log` and timed by a line of `<out>/timings.jsonl`. On an accelerator each
+cell's programs compile while the cell before trains (`CompileAhead`). Both streams of cells
+train this way: the device cells in `jaxnat reproduce`'s process, the host cells in the host
+stream's (`host_stream`)."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import time
+from pathlib import Path
+
+from jaxnat.reproduce.estimates import estimate_seconds
+from jaxnat.reproduce.grid import Cell, Plan
+
+
+def append_jsonl(path: Path, row: dict) -> None:
+    """Append `row` to `path` as one JSON line, in one `write` to a file opened for appending and
+    under an exclusive lock where the OS has one: two processes appending at once (the streams
+    of cells) never interleave their lines."""
+    import os
+
+    data = (json.dumps(row) + "\n").encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        try:
+            import fcntl
+        except ImportError:  # no POSIX locks (Windows): O_APPEND alone places each write at the end
+            fcntl = None
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def timing_row(cell: Cell, plan: Plan, seconds: float, resumed: bool, outcome: str, platform: str,
+               started: float, overlapped: bool) -> dict:
+    """A line of `<out>/timings.jsonl`: `start` (Unix time) and `overlapped` (run as one of two
+    streams at once) let the report tell the elapsed time from the sum of the cells'."""
+    return {"cell": cell.name, "experiment": cell.experiment, "seconds": seconds,
+            "estimate": estimate_seconds(cell, plan.seeds, platform), "resumed": resumed,
+            "outcome": outcome.split(":")[0], "message": outcome, "platform": platform,
+            "date": datetime.datetime.now().isoformat(timespec="seconds"), "start": started,
+            "overlapped": overlapped}
+
+
+class CompileAhead:
+    """Compiles the next cell's programs on a worker thread while the current cell trains: XLA
+    compiles on the host's cores while the run keeps the accelerator busy, so a grid of short
+    cells is not paced by its compiles. The programs are traced and lowered on the calling
+    thread first (`jaxnat.training.prepare_programs`; JAX's tracing is not shared across
+    threads), then `train` finds them compiled in the process's cache. A failure here is left
+    for `train` to report."""
+
+    def __init__(self, enabled: bool, compiler_options: dict | None):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.enabled, self.compiler_options = enabled, compiler_options
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="compile-ahead") if enabled else None
+        self.pending = None
+
+    def start(self, args) -> None:
+        """Lower the programs of the run `args` (a `jaxnat.training.TrainArgs`) describes and
+        start compiling them (None: nothing to compile)."""
+        if not self.enabled or args is None:
+            return
+        from jaxnat.training import prepare_programs
+
+        try:
+            compile_programs = prepare_programs(args, compiler_options=self.compiler_options)
+        except Exception:  # noqa: BLE001 (train reports it, in its own words, when the cell runs)
+            return
+        self.pending = self.pool.submit(compile_programs)
+
+    def wait(self) -> None:
+        """Block until the compile started last is done (its errors are left for `train`)."""
+        if self.pending is not None:
+            self.pending.exception()
+            self.pending = None
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, *, platform: str,
+                compile_ahead: bool, overlapped: bool) -> None:
+    """Train `cells` one after another (compiling each one's programs while the one before
+    trains when `compile_ahead`), each logged to `<out>/logs/<cell>.log` and timed in
+    `<out>/timings.jsonl`; `board` (`board.Board`, or the host stream's `Events`) is told of
+    each start and outcome. A `TrainError` fails its cell and the next one starts; anything
+    else (Ctrl-C included) propagates."""
+    from rich.console import Console
+
+    from jaxnat.training import TrainError, train
+
+    compiler_options = {"xla_backend_optimization_level": 0} if plan.profile.fast_compile else None
+    logs = plan.out / "logs"
+    logs.mkdir(exist_ok=True)
+    ahead = CompileAhead(compile_ahead, compiler_options)
+    runs = [c.train_args(plan.seeds, plan.out / c.name, resume=resumed[c.name]) for c in cells]
+    try:
+        ahead.start(runs[0] if runs else None)
+        for index, cell in enumerate(cells):
+            board.start(cell, resumed[cell.name])
+            started, start = time.time(), time.perf_counter()
+            ahead.wait()  # this cell's programs (their compile time is counted in this cell)
+            ahead.start(runs[index + 1] if index + 1 < len(cells) else None)
+            with (logs / f"{cell.name}.log").open("a") as log:
+                log_console = Console(file=log, width=120, force_terminal=False)
+                try:
+                    train(runs[index], console=log_console, compiler_options=compiler_options)
+                    outcome = "finished"
+                except TrainError as err:
+                    outcome = f"failed: {err}"
+            seconds = time.perf_counter() - start
+            append_jsonl(plan.out / "timings.jsonl", timing_row(cell, plan, seconds, resumed[cell.name], outcome,
+                                                                platform, started, overlapped))
+            board.done(cell, outcome, seconds)
+    finally:
+        ahead.close()

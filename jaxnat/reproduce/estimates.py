@@ -1,0 +1,52 @@
+"""How long the cells of `jaxnat reproduce` take, roughly: the estimate printed before starting
+and the progress bar's plan, per cell and per stream of cells (the device cells, and the host
+cells alongside them on an accelerator), on this machine's platform."""
+
+from __future__ import annotations
+
+from jaxnat.reproduce.grid import Cell
+
+# Rough env steps/s (all seeds of a cell together) and the seconds a cell spends besides
+# training (compiling, where it is not hidden behind the cell before, evaluating, test play),
+# per experiment, for the estimate printed before starting (with host cells alongside, that of
+# the longer stream: `estimate_total`); the progress bar's ETA then follows the measured pace.
+# The GPU figures follow the quick profile's cells (bench/reproduce_cost.py; Atari: 256 envs in
+# two parts, the seeds one after another).
+RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2},
+         "gpu": {"classify": 3.2e4, "localize": 1.5e4, "atari": 1e4, "mujoco": 2.5e4}}
+COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
+             "gpu": {"classify": 8, "localize": 23, "atari": 106, "mujoco": 35}}
+
+
+def detect_platform() -> str:
+    """"cpu" when JAX runs on the CPU, else "gpu" (an accelerator): the key of `RATES`."""
+    import jax
+
+    return "cpu" if jax.default_backend() == "cpu" else "gpu"
+
+
+def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
+    """A rough wall time of `cell` (compile + training + evaluation), for the ETA."""
+    steps = cell.budget.total_timesteps * seeds
+    return COMPILE_S[platform][cell.experiment] + steps / RATES[platform][cell.experiment]
+
+
+def split_streams(cells: list[Cell], overlap: bool) -> dict[str, list[Cell]]:
+    """The cells as the streams that run at the same time, each in grid order: `{"device": ...,
+    "host": ...}` when `overlap` and both kinds have cells, else `{"all": cells}` (one after
+    another)."""
+    device, host = [c for c in cells if not c.host], [c for c in cells if c.host]
+    return {"device": device, "host": host} if overlap and device and host else {"all": list(cells)}
+
+
+def estimate_total(streams: dict[str, list[Cell]], seeds: int, platform: str) -> float:
+    """The estimated wall time of `streams` (`split_streams`): the longest stream, as they run at
+    the same time (the sum of its cells' `estimate_seconds`). Contention between the streams
+    (the accelerator's time, the host's cores while compiling) is not counted."""
+    return max((sum(estimate_seconds(c, seeds, platform) for c in cells) for cells in streams.values()), default=0.0)
+
+
+def duration(seconds: float) -> str:
+    """`1h05m` or `4m07s`: an estimate as printed."""
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m" if seconds >= 3600 else f"{seconds // 60}m{seconds % 60:02d}s"
