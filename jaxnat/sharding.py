@@ -10,7 +10,9 @@ Contract:
   machine (or, after `initialize_from_env`, the cluster) does not have is a `ValueError` that
   says how many there are.
 - `device_mesh(devices)` is a 1-D `jax.sharding.Mesh` over them, its one axis named `AXIS`,
-  of `Auto` type (so `jax.shard_map` and jit's sharding propagation both accept it).
+  of `Auto` type (so `jax.shard_map` and jit's sharding propagation both accept it). A mesh of
+  several GPUs switches the process from XLA's Shardy partitioner to GSPMD
+  (`avoid_shardy_crash`), unless `JAXNAT_SHARDY=1`.
 - `check_split(count, shards, what)` refuses a batch that does not divide evenly, naming the
   nearest counts that do.
 - `process_share(count, devices)` is this process's contiguous part `(first, size)` of a batch
@@ -26,22 +28,24 @@ Contract:
 
 from __future__ import annotations
 
-import os
-from typing import Sequence
-
 import functools
+import os
+import warnings
+from typing import Sequence
 
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-__all__ = ["AXIS", "ENV_VARS", "resolve_devices", "device_mesh", "check_split", "nearest_multiples", "sharded",
+__all__ = ["AXIS", "ENV_VARS", "SHARDY_ENV_VAR", "resolve_devices", "device_mesh", "avoid_shardy_crash", "check_split", "nearest_multiples", "sharded",
            "replicated", "shardings", "process_share", "put_global", "shard_program", "local_copy",
            "initialize_from_env"]
 
 AXIS = "devices"  # the mesh axis that envs (or seeds) are split along
 # What `initialize_from_env` reads: the coordinator's host:port, the process count, this process's id.
 ENV_VARS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
+# Set to 1 to keep JAX's Shardy partitioner on meshes of several GPUs (`avoid_shardy_crash`).
+SHARDY_ENV_VAR = "JAXNAT_SHARDY"
 
 
 def resolve_devices(devices, flag: str = "devices=") -> list:
@@ -71,10 +75,32 @@ def resolve_devices(devices, flag: str = "devices=") -> list:
 
 
 def device_mesh(devices) -> Mesh:
-    """A 1-D mesh (axis `AXIS`) over `resolve_devices(devices)`."""
-    if isinstance(devices, Mesh):
-        return devices
-    return Mesh(np.asarray(resolve_devices(devices)), (AXIS,))
+    """A 1-D mesh (axis `AXIS`) over `resolve_devices(devices)` (`avoid_shardy_crash` first)."""
+    mesh = devices if isinstance(devices, Mesh) else Mesh(np.asarray(resolve_devices(devices)), (AXIS,))
+    avoid_shardy_crash(mesh)
+    return mesh
+
+
+def avoid_shardy_crash(mesh: Mesh) -> bool:
+    """Switch this process to the GSPMD partitioner (`jax_use_shardy_partitioner=False`, with a
+    warning, once) when `mesh` spans several GPUs, unless `JAXNAT_SHARDY=1`; whether it did.
+
+    XLA's Shardy partitioner, JAX's default, crashes the process (a segmentation fault in its
+    `shardy-xla` pass) compiling MuJoCo MJX's physics inside a `jax.shard_map` over 2+ GPUs,
+    which every sharded MuJoCo and PixelMuJoCo program is; the smallest such program is
+    `mjx.kinematics` vmapped under `shard_map` (seen with jaxlib 0.11.2 on 2 H100s;
+    `tests/test_sharding.py` keeps it; bench/results/scaling.md has the isolation). GSPMD
+    compiles and runs it, and every other sharded program of jaxnat the same. The setting is
+    the process's, read when a program is lowered, so it changes here, before any program on
+    the mesh is built, rather than around each program."""
+    gpus = {d.platform for d in mesh.devices.flat} == {"gpu"} and mesh.size > 1
+    if not gpus or os.environ.get(SHARDY_ENV_VAR) == "1" or not jax.config.jax_use_shardy_partitioner:
+        return False
+    jax.config.update("jax_use_shardy_partitioner", False)
+    warnings.warn(f"jaxnat: a mesh of {mesh.size} GPUs: switched JAX to the GSPMD partitioner "
+                  "(jax_use_shardy_partitioner=False), since Shardy crashes compiling MJX physics under "
+                  f"shard_map on several GPUs; set {SHARDY_ENV_VAR}=1 to keep Shardy", stacklevel=2)
+    return True
 
 
 def nearest_multiples(count: int, shards: int) -> list[int]:

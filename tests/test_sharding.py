@@ -132,3 +132,37 @@ def test_resuming_on_fewer_devices_names_the_flag():
     with pytest.raises(TrainError, match="^this run was on 8 devices and there is 1 here: continue on them with "
                                          "--devices 1 "):
         resumed_devices(8)
+
+
+# The smallest program that crashed XLA's Shardy partitioner on 2 GPUs (a segmentation fault
+# while compiling): MJX's kinematics, vmapped, under jax.shard_map over a mesh of 2 devices.
+# Run in a child process, so a crash fails this test instead of ending the suite.
+SHARDY_CRASH = """
+import jax, jax.numpy as jnp
+from mujoco import mjx
+from jax.sharding import NamedSharding, PartitionSpec
+from jaxnat import sharding
+from jaxnat.mjx_pixel.models import load_model
+
+mesh = sharding.device_mesh(2)
+model = mjx.put_model(load_model("swimmer"), impl="jax")
+data = mjx.make_data(model)
+batch = jax.vmap(lambda q: data.replace(qpos=q))(jnp.tile(data.qpos, (4, 1)) + 0.01 * jnp.arange(4)[:, None])
+spec = PartitionSpec(sharding.AXIS)
+step = sharding.shard_program(jax.vmap(lambda d: mjx.kinematics(model, d)), mesh, (spec,), spec)
+out = step(jax.device_put(batch, NamedSharding(mesh, spec)))
+print("xpos", float(jnp.abs(out.xpos).sum()))
+"""
+
+
+def test_mjx_under_shard_map_compiles_on_two_devices():
+    """On 2+ devices (skipped on one): the program that crashed Shardy compiles and runs
+    (`sharding.avoid_shardy_crash` switches a mesh of GPUs to GSPMD)."""
+    import jax
+
+    pytest.importorskip("mujoco.mjx")
+    if jax.device_count() < 2:
+        pytest.skip("needs 2 devices")
+    done = subprocess.run([sys.executable, "-c", SHARDY_CRASH], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, f"exit {done.returncode}: {done.stdout[-1000:]}{done.stderr[-2000:]}"
+    assert any(line.startswith("xpos ") for line in done.stdout.splitlines()), done.stdout[-1000:]
