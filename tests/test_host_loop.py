@@ -313,11 +313,29 @@ def jaxnat_make_vec(spec, split):
     return jaxnat.make_vec(spec.env_id, spec.config.num_envs, split=split, **spec.env_kwargs)
 
 
-def test_algorithm_without_host_loop_is_a_clear_error(capsys):
+def test_algorithm_without_host_loop_is_a_clear_error(capsys, monkeypatch):
+    """Every algorithm has a host loop today; one without it is refused in one line."""
     from jaxnat.train import main
+    from jaxnat.training import host_backend
 
+    monkeypatch.setattr(host_backend, "HOST_ALGORITHMS", ("ppo", "a2c", "dqn"))
     assert main(["--env-id", "NaturalAtari/Breakout-v0", "--algo", "acktr"]) == 2
     assert "acktr has no host loop" in capsys.readouterr().err
+
+
+def test_acktr_learns_the_sign_probe_on_the_host():
+    """ACKTR on a host-batched env, as the paper ran it on Atari: K-FAC statistics from the
+    host rollouts (`acktr.make_host_acktr`)."""
+    from jaxnat.agents.acktr import ACKTRConfig, make_host_acktr
+
+    config = ACKTRConfig(total_timesteps=4096, num_envs=4, num_steps=8, trunk="mlp")
+    learner = make_host_acktr(config, HostProbe("sign", 4), FAST)
+    state, history = learner.train(jax.random.key(0))
+    assert np.nanmean([h["episode_return"] for h in history[-5:]]) >= 0.9
+    greedy = evaluate_host(learner, learner.params(state), HostProbe("sign", 4), 20, jax.random.key(1), greedy=True)
+    assert (greedy == 1.0).all()
+    with pytest.raises(TypeError):  # one device: K-FAC's factors are the whole batch's
+        make_host_acktr(config, HostProbe("sign", 4), FAST, devices=2)
 
 
 def test_host_runs_check_counts_as_the_jitted_path(capsys, tmp_path):

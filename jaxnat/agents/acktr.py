@@ -26,9 +26,9 @@ from flax import struct
 from jaxnat.agents import distributions, kfac
 from jaxnat.agents.a2c import actor_critic_loss
 from jaxnat.agents.config import OnPolicyConfig, static
-from jaxnat.agents.rollout import Learner, UpdateRule, on_policy_learner
+from jaxnat.agents.rollout import HostLearner, Learner, UpdateRule, on_policy_host_learner, on_policy_learner
 
-__all__ = ["ACKTRConfig", "make_train", "make_acktr"]
+__all__ = ["ACKTRConfig", "make_train", "make_acktr", "make_host_acktr"]
 
 
 @struct.dataclass
@@ -94,6 +94,13 @@ RULE = UpdateRule(make_optimizer=_optimizer, update_step=_update)
 def make_acktr(config: ACKTRConfig, env, env_params) -> Learner:
     """The ACKTR learner (`init`, `run`, `train`, `network`, `num_updates`)."""
     return on_policy_learner(config, env, env_params, RULE)
+
+
+def make_host_acktr(config: ACKTRConfig, env, compiler_options: dict | None = None) -> HostLearner:
+    """The ACKTR learner on a host-batched env (Natural Atari), as the paper ran it: each update's
+    K-FAC statistics come from the host rollout, on the device (`rollout.on_policy_host_learner`).
+    One device: K-FAC's factors are the whole batch's."""
+    return on_policy_host_learner(config, env, compiler_options, rule=RULE)
 
 
 def make_train(config: ACKTRConfig, env, env_params):

@@ -53,7 +53,7 @@ EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_O
 
 HOST_ALGORITHMS = tuple(name for name, algorithm in ALGORITHMS.items() if algorithm.make_host is not None)
 # The host learners that step a `PipelinedVecEnv` in turn (`rollout.on_policy_host_learner`).
-PIPELINED_ALGORITHMS = ("ppo", "a2c")
+PIPELINED_ALGORITHMS = ("ppo", "a2c", "acktr")
 # The host learners that train data parallel (`make_learner(..., devices=)`).
 DATA_PARALLEL_ALGORITHMS = tuple(name for name in HOST_ALGORITHMS
                                  if "devices" in inspect.signature(ALGORITHMS[name].make_host).parameters)
