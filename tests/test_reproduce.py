@@ -1,8 +1,7 @@
 """`jaxnat reproduce`: the smoke profile end to end, skipping finished cells on a rerun, resuming
-a killed cell, the bootstrap interval on hand-made data, the findings' verdicts, and one-line
-errors for bad arguments."""
+a killed cell, the bootstrap interval on hand-made data, and one-line errors for bad arguments
+(the findings' verdicts on hand-made results: test_verdicts.py)."""
 
-import dataclasses
 import json
 
 import numpy as np
@@ -10,7 +9,6 @@ import pytest
 
 from jaxnat.reproduce import command, estimates, findings, grid, host_stream, stats
 from jaxnat.reproduce.cells import append_jsonl
-from jaxnat.reproduce.report import CellResult
 from jaxnat.training import read_run
 
 pytestmark = pytest.mark.xdist_group("reproduce")
@@ -102,45 +100,6 @@ def test_binned_curve_means_each_seed_within_each_bin():
     centres, values = stats.binned_curve(steps, per_seed, bins=2)
     np.testing.assert_allclose(centres, [1.5, 3.5])
     np.testing.assert_allclose(values, [[2.0, 5.0], [8.0, 8.0]])
-
-
-def _result(experiment, figure, algo, returns, **labels):
-    cell = grid.Cell(f"{experiment}-{algo}-{labels}", experiment, figure, "X/Y-v0", {}, algo, None,
-                     grid.Budget(10), {}, labels)
-    train = np.tile(np.asarray(returns, np.float64), (10, 1))
-    empty = np.zeros((0, len(returns)))
-    return CellResult(cell, True, len(returns), np.arange(1.0, 11.0), train, np.zeros(0), empty, empty, None, 1.0)
-
-
-def test_findings_judge_hand_made_results():
-    classify = [_result("classify", "classify-cnn", algo, [r] * 3, dataset=d, trunk="cnn")
-                for d, scores in (("mnist", {"ppo": 0.95, "a2c": 0.5, "acktr": 0.97}),
-                                  ("cifar10", {"ppo": 0.4, "a2c": 0.2, "acktr": 0.6}))
-                for algo, r in scores.items()]
-    verdicts = {f.rule.__name__: f.judge(classify).verdict for f in findings.FINDINGS}
-    assert verdicts["_close_to_one"] == "reproduced"
-    assert verdicts["_a2c_worst"] == "reproduced"
-    assert verdicts["_cifar_harder"] == "reproduced"
-    assert verdicts["_noise_as_good"] == "not run"
-    worse = [r for r in classify if r.cell.algo != "acktr"]
-    worse.append(_result("classify", "classify-cnn", "acktr", [0.1] * 3, dataset="mnist", trunk="cnn"))
-    assert next(f for f in findings.FINDINGS if f.rule.__name__ == "_a2c_worst").judge(worse).verdict == \
-        "not reproduced"
-    rule = next(f for f in findings.FINDINGS if f.rule.__name__ == "_video_lowers_atari")
-    none = _result("atari", "atari", "ppo", [1.0, 2.0, 3.0], game="Breakout", background="none")
-    for video, verdict in (([0.1, 0.2, 0.3], "reproduced"), ([1.5, 1.9, 2.0], "reproduced by the means only"),
-                           ([3.0, 3.0, 3.0], "not reproduced")):
-        video = _result("atari", "atari", "ppo", video, game="Breakout", background="video")
-        assert rule.judge([none, video]).verdict.startswith(verdict)
-    pixels = _result("mujoco", "mujoco", "ppo", [100.0, 110.0, 120.0], robot="Hopper", observation="checker")
-    for noise, verdict in ((105.0, "reproduced"), (50.0, "not reproduced")):
-        results = [pixels, _result("mujoco", "mujoco", "ppo", [noise] * 3, robot="Hopper", observation="noise")]
-        assert next(f for f in findings.FINDINGS if f.rule.__name__ == "_noise_as_good").judge(results).verdict == verdict
-    # A pixel policy no better than the random one shows nothing about open loop.
-    untrained = dataclasses.replace(pixels, chance=130.0)
-    results = [untrained, _result("mujoco", "mujoco", "ppo", [105.0] * 3, robot="Hopper", observation="noise")]
-    verdict = next(f for f in findings.FINDINGS if f.rule.__name__ == "_noise_as_good").judge(results)
-    assert verdict.verdict.startswith("not shown") and "random policy 130" in verdict.numbers
 
 
 @pytest.mark.parametrize("argv, message", [

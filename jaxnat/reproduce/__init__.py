@@ -17,8 +17,8 @@ Modules: `grid` (profiles, cells and their `jaxnat train` arguments, the plan), 
 command line and the run over the cells), `estimates` (wall times, the streams), `cells`
 (training cells in a process, compiling ahead, timing lines), `board` (the progress board),
 `host_stream` (the host cells in a second process; `hoststream` is its `python -m` entry
-point), `report` (curves, tables, figures), `findings` (the paper's claims and their verdicts),
-`stats` (bootstrap intervals).
+point), `report` (curves, tables, figures), `findings` (the paper's claims), `verdicts` (how a claim is
+judged), `stats` (bootstrap intervals).
 """
 
 from jaxnat.reproduce.command import ReproduceArgs, ReproduceError, main, make_plan, reproduce

@@ -6,7 +6,11 @@ Per cell: the training curve (each seed's episode return, binned over env steps;
 seeds with a 95% bootstrap band), the final training return (each seed's mean over the last 10%
 of its updates in which an episode ended: the paper's figures plot training returns), and the
 final test-split returns of the greedy and the sampled policy (the last evaluation), each with a
-95% bootstrap interval over seeds. Findings: `findings.py`.
+95% bootstrap interval over seeds, and the untrained policy's sampled test return (the evaluation
+at update 0: the learning gate of every verdict). Findings: `findings.py`, judged by the rules of
+`verdicts.py`; each findings row gives the share of the paper's env-step budget
+(`grid.PAPER_BUDGETS`) its cells trained, and a report whose cells trained less opens with a
+banner saying its verdicts are not evidence about the paper.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxnat.reproduce.findings import FINDINGS, Verdict, noise_control_pairs
-from jaxnat.reproduce.grid import DATASET_NAMES, ROBOTS, Cell
+from jaxnat.reproduce.grid import DATASET_NAMES, PAPER_BUDGETS, ROBOTS, Cell
 from jaxnat.reproduce.stats import Interval, binned_curve, bootstrap_band, bootstrap_ci
 
 __all__ = ["CellResult", "load_result", "write_report", "FIGURES"]
@@ -57,21 +61,29 @@ class CellResult:
 
     @property
     def final_train(self) -> Interval:
+        return self.train_at(None)
+
+    def train_at(self, steps: float | None) -> Interval:
+        """The final training return of the run up to `steps` env steps per seed (None: all of it):
+        each seed's mean over the last 10% of those updates in which an episode ended."""
         finals = []
-        for column in self.train.T:
+        for column in self.train[self.steps <= steps].T if steps is not None else self.train.T:
             ended = column[np.isfinite(column)]
             count = max(1, int(round(len(ended) * FINAL_FRACTION)))
             finals.append(ended[-count:].mean() if len(ended) else np.nan)
         return bootstrap_ci(finals)
 
-    def early_train(self, fraction: float = 0.2) -> Interval:
-        """The mean training return over the first `fraction` of the steps."""
-        if self.steps.size == 0:
-            return bootstrap_ci([])
-        rows = self.steps <= self.steps.max() * fraction
-        with np.errstate(invalid="ignore"):
-            means = [np.nanmean(c[rows]) if np.isfinite(c[rows]).any() else np.nan for c in self.train.T]
-        return bootstrap_ci(means)
+    @property
+    def untrained(self) -> Interval | None:
+        """The untrained policy's sampled test return (the evaluation at update 0), or None when the
+        run has none (host runs evaluate once, at the end)."""
+        first = np.flatnonzero(self.eval_steps == 0)
+        return bootstrap_ci(self.sampled[first[0]]) if first.size else None
+
+    @property
+    def budget_share(self) -> float:
+        """The env steps per seed trained, as a share of the paper's (`grid.PAPER_BUDGETS`)."""
+        return (float(self.steps.max()) if self.steps.size else 0.0) / PAPER_BUDGETS[self.cell.experiment]
 
     @property
     def final_greedy(self) -> Interval:
@@ -255,6 +267,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     finished = [r for r in results if r.complete]
 
     lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
+    lines += budget_banner(finished)
     saved = [r.cell.name for r in results]
     versions = _run_versions(out / saved[0]) if saved else _versions()
     lines += [f"- Written {datetime.datetime.now().isoformat(timespec='seconds')} by `jaxnat reproduce --profile "
@@ -285,14 +298,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
                   for experiment, v in departures.items()]
         lines += [""]
 
-    lines += ["## Findings", "", "| the paper's claim | verdict | numbers |", "|---|---|---|"]
-    for finding in FINDINGS:
-        if finding.experiment not in plan.only:
-            verdict = Verdict("not run", f"--only leaves out {finding.experiment}")
-        else:
-            verdict = finding.judge(finished)
-        lines.append(f"| {finding.claim} | **{verdict.verdict}** | {verdict.numbers} |")
-    lines += [""]
+    lines += findings_section(finished, plan.only)
 
     lines += ["## Figures", ""]
     for stem, (title, *_rest) in FIGURES.items():
@@ -303,14 +309,15 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         lines += [f"### {title}", "", f"![{title}]({stem}.png)", ""]
 
     lines += ["## Final returns (mean [95% bootstrap CI] over seeds)", "",
-              "| cell | env | seeds | env steps/seed | train (last 10%) | test greedy | test sampled | random policy (test) |",
-              "|---|---|---|---|---|---|---|---|"]
+              "| cell | env | seeds | env steps/seed | train (last 10%) | test greedy | test sampled | random policy (test) "
+              "| untrained policy (test, sampled) |", "|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         chance = "—" if r.chance is None else f"{r.chance:.3g}"
         steps = int(r.steps.max()) if r.steps.size else 0
         mark = "" if r.complete else " (incomplete)"
+        untrained = "not recorded" if r.untrained is None else str(r.untrained)
         lines.append(f"| `{r.cell.name}`{mark} | {r.cell.env_id} {_kwargs(r.cell.env_kwargs)} | {r.seeds} | {steps:,} | "
-                     f"{r.final_train} | {r.final_greedy} | {r.final_sampled} | {chance} |")
+                     f"{r.final_train} | {r.final_greedy} | {r.final_sampled} | {chance} | {untrained} |")
     lines += [""]
     if missing:
         lines += ["## Cells not finished or not run", "", "| cell | why |", "|---|---|"]
@@ -318,6 +325,46 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     path = out / "report.md"
     path.write_text("\n".join(lines))
     return path
+
+
+def _percent(share: float) -> str:
+    return f"{share:.0%}" if share >= 0.1 else f"{100 * share:.2g}%"
+
+
+def _share(verdict: Verdict) -> str:
+    """The least and the most of the paper's budget the verdict's cells trained, as percentages."""
+    if verdict.share is None:
+        return "—"
+    low, high = verdict.share
+    return _percent(low) if _percent(low) == _percent(high) else f"{_percent(low)}–{_percent(high)}"
+
+
+def budget_banner(finished: list[CellResult]) -> list[str]:
+    """The report's opening lines when a finished cell trained less than the paper's budget."""
+    shares = [r.budget_share for r in finished]
+    if not shares or min(shares) >= 1.0:
+        return []
+    span = _share(Verdict("", "", tuple(finished)))
+    return [f"> **These verdicts are not evidence about the paper.** Its cells trained {span} of the paper's "
+            "env-step budget per seed (10M agent steps per cell; Natural Atari's 10M agent steps are 40M frames: "
+            "`jaxnat.reproduce.grid.PAPER_BUDGETS`). What a claim says at the paper's budget can come out "
+            "otherwise at a smaller one: the verdicts say what this code does at these budgets.", ""]
+
+
+def findings_section(finished: list[CellResult], only: tuple[str, ...]) -> list[str]:
+    """The findings table: each claim's verdict (`verdicts.py`'s rules), the share of the paper's
+    budget its cells trained, and its comparisons."""
+    lines = ["## Findings", "", "Verdicts: reproduced (95% intervals apart, in the paper's order), contradicted "
+             "(apart, the reverse order), inconclusive (intervals overlap), not shown (the cell the comparison "
+             "needs did not beat its untrained policy), not run; rules in `jaxnat/reproduce/verdicts.py`.", "",
+             "| the paper's claim | verdict | share of the paper's budget | comparisons |", "|---|---|---|---|"]
+    for finding in FINDINGS:
+        if not set(finding.experiments) & set(only):
+            verdict = Verdict("not run", f"--only leaves out {' and '.join(finding.experiments)}")
+        else:
+            verdict = finding.judge(finished)
+        lines.append(f"| {finding.claim} | **{verdict.verdict}** | {_share(verdict)} | {verdict.numbers} |")
+    return lines + [""]
 
 
 def _kwargs(kwargs: dict) -> str:
