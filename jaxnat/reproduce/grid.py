@@ -8,8 +8,8 @@ The cells follow the experiments section of Zhang, Wu and Pineau (2018):
   window `w` in {2, 5, 7} at `M=20`, and steps per episode `M` in {10, 20, 40} at `w=5`.
 - **localize**: Cityscapes (when present) and `Localize/Clutter-v0` (always) x the three
   algorithms x the two trunks.
-- **atari**: the authors' 16 games x background none / noise / video x PPO and A2C (the host
-  loop has no ACKTR), test play on the held-out videos.
+- **atari**: the authors' 16 games x background none / noise / video x PPO, A2C, ACKTR and DQN
+  (the four the paper evaluated there), test play on the held-out videos.
 - **mujoco**: the four PixelMuJoCo robots x checker floor / video floor / pure-noise observation x
   PPO, A2C, ACKTR.
 
@@ -72,7 +72,7 @@ DATASET_NAMES = {"mnist": "MNIST", "cifar10": "CIFAR-10", "cifar100": "CIFAR-100
 # dataset -> (embedded dataset, its env, its name) standing in when the dataset is not found.
 STAND_INS = {"mnist": ("digits", "Classify/Digits-v0", "Digits (OpenCV's 5,000 MNIST digits)"),
              "cifar10": ("fashion_mnist", "Classify/FashionMNIST-v0", "Fashion-MNIST")}
-ATARI_ALGOS = ("ppo", "a2c")  # the algorithms with a host loop (`jaxnat.training.host_backend`)
+ATARI_ALGOS = ("ppo", "a2c", "acktr", "dqn")  # the paper evaluated all four on Atari; each has a host loop
 # `jaxnat train` settings that are not algorithm config fields, allowed in `Profile.overrides`
 # (and written as departures): the parts host-batched envs are stepped in, updates per evaluation.
 RUN_SETTINGS = {"env_parts": 1, "eval_every": None}  # name -> the value a cell without it has (None: auto)
