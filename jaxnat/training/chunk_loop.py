@@ -3,9 +3,10 @@ checkpoints, resume, the curve and the summary, over a `Backend` that trains the
 
 Two backends: `device_backend.DeviceBackend` (pure-JAX envs: every seed in one compiled, vmapped
 program; the test split is scored after every chunk) and `host_backend.HostBackend` (host-batched
-envs, Natural Atari: one seed after another from a Python loop; the test split is scored once,
-when a seed ends). A backend trains *groups* of seeds (the device backend one group of all
-seeds, the host backend one group per seed); the loop here is the same for both:
+envs, Natural Atari: one seed after another from a Python loop; the test split is scored before
+a seed's first update and when it ends). Both score the untrained policy at update 0. A
+backend trains *groups* of seeds (the device backend one group of all seeds, the host backend
+one group per seed); the loop here is the same for both:
 
     for each group: restore its latest checkpoint (if any), drop the records written after it,
         then chunk by chunk: train `eval_every` updates, append `metrics.jsonl` rows, evaluate
@@ -134,7 +135,10 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                     console.print(f"{label}finished before")
                     continue
                 last_chunk_steps = 0
-                if backend.evaluates_each_chunk and update not in evaluated:  # the untrained policy
+                # The untrained policy (update 0), for every backend: the reproduction's verdicts
+                # ask whether a cell learned beyond it. A device run resumed at a state never
+                # scored is scored too.
+                if update not in evaluated and (backend.evaluates_each_chunk or update == 0):
                     evaluate(group, state, update, None)
                 backend.begin(group, state)
                 progress = Progress(console, spec, len(group), update)

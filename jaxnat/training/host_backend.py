@@ -3,8 +3,9 @@
 The jitted, vmapped trainer needs a pure-JAX env; ALE runs in C++ on the host, so these runs
 use the agents' host learners (`rollout.host_steps`), one seed after another, on rewards
 clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
-(train and test) are whole games with unclipped rewards. When a seed's last update is done,
-its policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
+(train and test) are whole games with unclipped rewards. Before a seed's first update (the
+untrained policy, the baseline a trained one must beat) and when its last update is done, its
+policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
 sampled and greedy, on at most `eval_episodes` envs. `chunk_loop.run_training` does the rest, as
 for every run: the run directory, checkpoints (`checkpoints/seed_<s>/`, every `--eval-every`
 updates), `--resume`, the summary.
