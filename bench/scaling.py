@@ -1,14 +1,19 @@
 """Scaling over devices: env steps/s on 1, 2, 4 ... devices, and the scaling efficiency.
 
-Three workloads, each with a fixed number of envs per device (weak scaling: the global batch
-grows with the devices), timed after compiling, on the default JAX backend:
+Workloads, each with a fixed number of envs per device (weak scaling: the global batch grows
+with the devices), timed after compiling, on the default JAX backend:
 
 - `classify`: `jaxnat.make_vec(<classify id>, n, devices=d)` stepped in one jitted `lax.scan`
   under random actions (`Classify/Digits-v0`: embedded data);
-- `pixel`: the same with `PixelMuJoCo/Hopper-v0`, `observation="pixels"` (MJX physics and the
-  pure-JAX renderer, one frame per agent step; needs `jaxnat[mujoco]`);
+- `localize`: the same with `Localize/Clutter-v0` (digits on natural photos);
+- `pixel`: the same with `PixelMuJoCo/<robot>-v0`, `observation="pixels"`, for each of
+  `--pixel-robots` on `--pixel-floor` (MJX physics and the pure-JAX renderer, one frame per
+  agent step; needs `jaxnat[mujoco]`; `video` needs opencv-doc's videos);
 - `ppo`: PPO end to end, `jaxnat train --devices d`'s programs (`training.placement`: each
-  device steps its envs, gradients averaged with `pmean`), env steps/s over timed chunks.
+  device steps its envs, gradients averaged with `pmean`), env steps/s over timed chunks, on
+  Classify;
+- `ppo-pixel`: the same from pixels, `PixelMuJoCo/<first of --pixel-robots>-v0` with
+  `physics="fast"`.
 
 Efficiency at `d` devices = steps/s(d) / (d x steps/s(1)): 100% is perfect scaling. On a CPU
 with simulated devices (`XLA_FLAGS=--xla_force_host_platform_device_count=4`) the devices
@@ -97,9 +102,11 @@ def main() -> None:
     parser.add_argument("--devices", type=int, nargs="+", default=None,
                         help="device counts (default: 1, 2, 4 ... up to every device)")
     parser.add_argument("--workloads", nargs="+", default=["classify", "pixel", "ppo"],
-                        choices=["classify", "pixel", "ppo"])
+                        choices=["classify", "localize", "pixel", "ppo", "ppo-pixel"])
     parser.add_argument("--classify-id", default="Classify/Digits-v0")
-    parser.add_argument("--pixel-id", default="PixelMuJoCo/Hopper-v0")
+    parser.add_argument("--pixel-robots", nargs="+", default=["Hopper"],
+                        choices=["Ant", "HalfCheetah", "Hopper", "Swimmer"])
+    parser.add_argument("--pixel-floor", default="checker", choices=["checker", "video"])
     parser.add_argument("--envs-per-device", type=int, default=None, help="classify (default: GPU 16384, CPU 256)")
     parser.add_argument("--pixel-envs-per-device", type=int, default=None, help="pixel (default: GPU 1024, CPU 16)")
     parser.add_argument("--ppo-envs-per-device", type=int, default=None, help="ppo (default: GPU 1024, CPU 16)")
@@ -113,21 +120,34 @@ def main() -> None:
     available = jax.device_count()
     counts = args.devices or [d for d in (2 ** i for i in range(16)) if d <= available]
     per_device = {"classify": args.envs_per_device or (16384 if gpu else 256),
+                  "localize": args.envs_per_device or (4096 if gpu else 32),
                   "pixel": args.pixel_envs_per_device or (1024 if gpu else 16),
                   "ppo": args.ppo_envs_per_device or (1024 if gpu else 16)}
-    rows = []
+    per_device["ppo-pixel"] = per_device["pixel"]
+    pixel = {"observation": "pixels", "floor": args.pixel_floor}
+    # (workload, env id, env kwargs, timer) for every row group: each robot is a group of its own.
+    groups = []
     for workload in args.workloads:
+        if workload in ("classify", "localize"):
+            env_id = args.classify_id if workload == "classify" else "Localize/Clutter-v0"
+            groups.append((workload, env_id, {}, time_env))
+        elif workload == "pixel":
+            groups += [(workload, f"PixelMuJoCo/{robot}-v0", pixel, time_env) for robot in args.pixel_robots]
+        elif workload == "ppo":
+            groups.append((workload, args.classify_id, {}, time_ppo))
+        else:
+            groups.append((workload, f"PixelMuJoCo/{args.pixel_robots[0]}-v0", {**pixel, "physics": "fast"}, time_ppo))
+    rows = []
+    for workload, env_id, kwargs, timer in groups:
         base = None
         for devices in counts:
             num_envs = per_device[workload] * devices
-            if workload == "classify":
-                result = time_env(args.classify_id, {}, num_envs, devices, args.steps, args.repeats)
-            elif workload == "pixel":
-                result = time_env(args.pixel_id, {"observation": "pixels"}, num_envs, devices, args.steps, args.repeats)
+            if timer is time_env:
+                result = time_env(env_id, kwargs, num_envs, devices, args.steps, args.repeats)
             else:
-                result = time_ppo(args.classify_id, {}, num_envs, devices, args.steps, args.ppo_updates, args.repeats)
+                result = time_ppo(env_id, kwargs, num_envs, devices, args.steps, args.ppo_updates, args.repeats)
             base = base if base is not None else result["steps_per_s"] / devices
-            row = {"workload": workload, "env": args.pixel_id if workload == "pixel" else args.classify_id,
+            row = {"workload": workload, "env": env_id + (f" ({args.pixel_floor} floor)" if "floor" in kwargs else ""),
                    "devices": devices, "num_envs": num_envs, **result,
                    "per_device": result["steps_per_s"] / devices,
                    "efficiency": result["steps_per_s"] / (devices * base) if counts[0] == 1 else None}
@@ -145,10 +165,10 @@ def main() -> None:
         "setting": (f"{available} simulated devices (XLA_FLAGS=--xla_force_host_platform_device_count) on a "
                     f"{info['cpu_cores']}-core CPU: the devices share the cores, so these numbers show that the "
                     "sharded path runs, not speed" if simulated else f"{available} {info['device']} devices"),
-        "weak scaling": (f"envs per device: classify {per_device['classify']}, pixel {per_device['pixel']}, "
-                         f"ppo {per_device['ppo']}; {args.steps} steps per timed call"
-                         + (f", ppo {args.ppo_updates} updates (2 epochs x 2 minibatches)" if "ppo" in args.workloads
-                            else "")),
+        "weak scaling": ("envs per device: " + ", ".join(f"{w} {per_device[w]}" for w in args.workloads)
+                         + f"; {args.steps} steps per timed call"
+                         + (f", ppo {args.ppo_updates} updates (2 epochs x 2 minibatches)"
+                            if {"ppo", "ppo-pixel"} & set(args.workloads) else "")),
         "efficiency": "steps/s(d) / (d x steps/s(1))",
     }
     if "ppo" in args.workloads:
