@@ -155,6 +155,31 @@ def test_setup_errors(argv, message, tmp_path, capsys):
     assert message in _error(capsys)
 
 
+@needs_digits
+@pytest.mark.parametrize("argv, message", [
+    (["--num-envs", "0"], "--num-envs must be at least 1"),
+    (["--num-envs", "-8"], "--num-envs must be at least 1"),
+    (["--num-steps", "0"], "--num-steps must be at least 1"),
+    (["--total-timesteps", "0"], "--total-timesteps must be at least 1"),
+    (["--total-timesteps", "-512"], "--total-timesteps must be at least 1"),
+    (["--seeds", "0"], "--seeds must be at least 1"),
+    (["--eval-episodes", "-1"], "--eval-episodes must be at least 1"),
+    (["--total-timesteps", "100"], "--total-timesteps 100 is less than one rollout of 128 env steps"),
+])
+def test_counts_are_refused_in_one_line_before_compiling(argv, message, tmp_path, capsys, monkeypatch):
+    from jaxnat.training import command
+
+    def reached(*_, **__):
+        raise AssertionError("compiled")
+
+    monkeypatch.setattr(command, "compiled_program", reached)
+    small = ["--trunk", "mnist", "--num-envs", "8", "--num-steps", "16"]
+    assert train.main([*small, *argv, "--run-dir", str(tmp_path / "r")]) == 2
+    err = _error(capsys)
+    assert message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "r").exists()
+
+
 def test_env_kwargs_with_a_string_default_stay_strings():
     # `background=none` names Natural Atari's "none" background: `none` reads as None only where
     # the constructor's default is not a string.
