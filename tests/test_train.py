@@ -18,6 +18,7 @@ import dataclasses
 from jaxnat import cli, train
 from jaxnat.agents import ALGORITHMS
 from jaxnat.training import checkpoints
+from jaxnat.training import command as train_command
 from jaxnat.training import spec as spec_module
 
 FAST = {"xla_backend_optimization_level": 0}
@@ -48,6 +49,10 @@ def _error(capsys) -> str:
     assert "Traceback" not in err
     assert err.startswith("jaxnat train: error: "), err
     return err
+
+
+def _not_reached(*_, **__):
+    raise AssertionError("compiled: the error should have come first")
 
 
 def _check_run_dir(run_dir):
@@ -167,17 +172,25 @@ def test_setup_errors(argv, message, tmp_path, capsys):
     (["--total-timesteps", "100"], "--total-timesteps 100 is less than one rollout of 128 env steps"),
 ])
 def test_counts_are_refused_in_one_line_before_compiling(argv, message, tmp_path, capsys, monkeypatch):
-    from jaxnat.training import command
-
-    def reached(*_, **__):
-        raise AssertionError("compiled")
-
-    monkeypatch.setattr(command, "compiled_program", reached)
+    monkeypatch.setattr(train_command, "compiled_program", _not_reached)
     small = ["--trunk", "mnist", "--num-envs", "8", "--num-steps", "16"]
     assert train.main([*small, *argv, "--run-dir", str(tmp_path / "r")]) == 2
     err = _error(capsys)
     assert message in err and err.count("\n") == 1, err
     assert not (tmp_path / "r").exists()
+
+
+@needs_digits
+@pytest.mark.parametrize("argv, message", [
+    (["--lr", "-1"], "lr=-1.0 is out of range: lr must be > 0"),
+    (["--gamma", "1.5"], "gamma=1.5 is out of range: gamma must be in (0, 1]"),
+    (["--algo", "dqn", "--eps-end", "1.5"], "eps_end=1.5 is out of range: eps_end must be in [0, 1]"),
+])
+def test_config_values_out_of_range_are_refused_before_compiling(argv, message, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(train_command, "compiled_program", _not_reached)
+    assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
+    err = _error(capsys)
+    assert message in err and err.count("\n") == 1, err
 
 
 def test_env_kwargs_with_a_string_default_stay_strings():
