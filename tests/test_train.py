@@ -8,6 +8,7 @@ interrupted and resumed runs of the resume test do not compile again.
 
 import collections
 import json
+import os
 
 import jax
 import numpy as np
@@ -191,6 +192,24 @@ def test_config_values_out_of_range_are_refused_before_compiling(argv, message, 
     assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
     err = _error(capsys)
     assert message in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("env_id", ["Classify/Digits-v0", "NaturalAtari/Breakout-v0"])
+def test_an_unwritable_run_dir_is_refused_before_building_anything(env_id, tmp_path, capsys, monkeypatch):
+    for name in ("make_envs", "new_host_spec", "compiled_program"):
+        monkeypatch.setattr(train_command, name, _not_reached)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for run_dir in (blocker / "run", blocker):  # under a regular file, and the file itself
+        assert train.main(["--env-id", env_id, "--run-dir", str(run_dir)]) == 2
+        err = _error(capsys)
+        assert f"--run-dir {run_dir} is not writable" in err and err.count("\n") == 1, err
+    if os.geteuid() != 0:  # (root writes anywhere)
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        assert train.main(["--env-id", env_id, "--run-dir", str(locked / "run")]) == 2
+        assert "is not writable" in _error(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) in (["file"], ["file", "locked"])
 
 
 def test_env_kwargs_with_a_string_default_stay_strings():

@@ -18,7 +18,7 @@ from typing import Annotated, Optional
 
 import tyro
 
-from jaxnat.cli import exit_status
+from jaxnat.cli import exit_status, unwritable
 from jaxnat.reproduce.board import Board
 from jaxnat.reproduce.cells import train_cells
 from jaxnat.reproduce.estimates import detect_platform, duration, estimate_seconds, estimate_total, split_streams
@@ -79,13 +79,10 @@ def make_plan(args: ReproduceArgs) -> Plan:
 
 
 def _check_writable(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as err:
-        raise ReproduceError(f"--out {out} is not writable ({err.strerror or err}); choose another folder") from None
+    reason = unwritable(out)
+    if reason is not None:
+        raise ReproduceError(f"--out {out} is not writable ({reason}); choose another folder")
+    out.mkdir(parents=True, exist_ok=True)  # the cells' logs go there
 
 
 def _default_overlap(platform: str) -> bool:

@@ -16,6 +16,7 @@ from pathlib import Path
 import jax
 
 import jaxnat
+from jaxnat.cli import unwritable
 from jaxnat.agents.rollout import count_updates
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import SPEC_FIELDS_ADDED, RunSpec, auto_eval_every
@@ -113,10 +114,16 @@ def with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
 
 
 def new_run_dir(args: TrainArgs) -> Path:
+    """A new run's directory (`--run-dir`, else `default_run_dir`): refused if it holds a run, or
+    cannot be created and written (checked now, before anything is built; nothing is left)."""
     run_dir = Path(args.run_dir) if args.run_dir is not None else default_run_dir(args.env_id, args.algo)
     if (run_dir / "config.json").exists():
         raise TrainError(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
                          "or choose another --run-dir")
+    reason = unwritable(run_dir)
+    if reason is not None:
+        where = "--run-dir" if args.run_dir is not None else "the default run directory"
+        raise TrainError(f"{where} {run_dir} is not writable ({reason}); choose another --run-dir")
     return run_dir
 
 
