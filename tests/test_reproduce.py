@@ -112,6 +112,22 @@ def _result(experiment, figure, algo, returns, **labels):
     return CellResult(cell, True, len(returns), np.arange(1.0, 11.0), train, np.zeros(0), empty, empty, None, 1.0)
 
 
+def test_figure_curves_are_drawn_through_steps_without_finished_episodes(tmp_path, monkeypatch):
+    """Steps where no seed finished an episode (NaN) leave the curve a line through the others."""
+    from matplotlib.figure import Figure
+
+    from jaxnat.reproduce import report
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *_, **__: figures.append(figure))
+    result = _result("classify", "classify-cnn", "ppo", [1.0, 3.0], dataset="mnist")
+    result.train[1::2] = np.nan  # steps 2, 4, ..., 10: no episode ended
+    report.plot_figure(tmp_path / "f.png", "title", {"panel": [("ppo", result)]})
+    line = figures[0].axes[0].lines[0]
+    np.testing.assert_array_equal(line.get_xdata(), [1.0, 3.0, 5.0, 7.0, 9.0])
+    np.testing.assert_array_equal(line.get_ydata(), [2.0] * 5)
+
+
 def test_findings_judge_hand_made_results():
     classify = [_result("classify", "classify-cnn", algo, [r] * 3, dataset=d, trunk="cnn")
                 for d, scores in (("mnist", {"ppo": 0.95, "a2c": 0.5, "acktr": 0.97}),

@@ -212,6 +212,27 @@ def test_an_unwritable_run_dir_is_refused_before_building_anything(env_id, tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) in (["file"], ["file", "locked"])
 
 
+def test_the_curve_is_drawn_through_updates_without_finished_episodes(tmp_path, monkeypatch):
+    """Updates in which no episode ended have no train return (NaN): the curve is a line through
+    the updates that have one, not isolated (invisible) points between gaps."""
+    from matplotlib.figure import Figure
+
+    from jaxnat.training import records
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *_, **__: figures.append(figure))
+    spec = spec_module.RunSpec("Classify/Digits-v0", {}, "ppo", ALGORITHMS["ppo"].config(num_envs=8, num_steps=16),
+                               seeds=2, seed=0, eval_every=2, eval_episodes=16)
+    returns = {1: (1.0, 2.0), 2: (None, None), 3: (3.0, None), 4: (None, None), 5: (5.0, 6.0), 6: (None, None)}
+    rows = [{"update": u, "seed": s, "episode_return": r[s], "terminated_fraction": r[s]}
+            for u, r in returns.items() for s in (0, 1)]
+    records.plot(tmp_path / "curve.png", spec, records.History.load(spec, rows, []))
+    for ax in figures[0].axes[:2]:
+        train = ax.lines[0]
+        np.testing.assert_array_equal(train.get_xdata(), [128, 384, 640])  # updates 1, 3, 5 x 128 steps
+        np.testing.assert_array_equal(train.get_ydata(), [1.5, 3.0, 5.5])
+
+
 def test_env_kwargs_with_a_string_default_stay_strings():
     # `background=none` names Natural Atari's "none" background: `none` reads as None only where
     # the constructor's default is not a string.
