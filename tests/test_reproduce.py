@@ -172,6 +172,18 @@ def test_bad_arguments_get_one_line_and_write_nothing(argv, message, tmp_path, c
     assert not (out / "report.md").exists()
 
 
+@pytest.mark.parametrize("platform, profile", [("cpu", "smoke"), ("gpu", "quick")])
+def test_without_profile_a_cpu_runs_smoke_and_says_so(platform, profile, tmp_path, monkeypatch, capsys):
+    plans = []
+    monkeypatch.setattr(command, "detect_platform", lambda: platform)
+    monkeypatch.setattr(command, "run_cells", lambda plan, *_, **__: plans.append(plan) or {})
+    monkeypatch.setattr("jaxnat.reproduce.report.write_report", lambda plan, outcomes: plan.out / "report.md")
+    assert command.main(["--out", str(tmp_path)]) == 0
+    assert [plan.profile.name for plan in plans] == [profile]
+    note = "no --profile given: running the smoke profile on this CPU (pass --profile quick or paper to run more)"
+    assert (note in capsys.readouterr().out) == (platform == "cpu")
+
+
 def test_unwritable_out_is_refused(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")
