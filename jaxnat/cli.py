@@ -42,6 +42,35 @@ def exit_status(command: Callable[[], object], user_error: type[Exception], prog
     return 0
 
 
+def unwritable(folder) -> str | None:
+    """Why `folder` cannot be created and written to (e.g. "Not a directory"), or None when it
+    can: creates what is missing of it, writes and deletes a file there, then removes the
+    folders it created. What a command checks of its output folder before it starts, so that a
+    long run does not fail at its first write."""
+    from pathlib import Path
+
+    folder = Path(folder)
+    missing = []
+    parent = folder
+    while not parent.exists() and parent != parent.parent:
+        missing.append(parent)
+        parent = parent.parent
+    created = []
+    try:
+        for path in reversed(missing):
+            path.mkdir()
+            created.append(path)
+        probe = folder / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        return err.strerror or str(err)
+    finally:
+        for path in reversed(created):
+            path.rmdir()
+    return None
+
+
 def main(argv=None) -> int:
     """Dispatch `argv` (default: sys.argv[1:]) to a command; returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)

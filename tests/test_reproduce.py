@@ -102,6 +102,27 @@ def test_binned_curve_means_each_seed_within_each_bin():
     np.testing.assert_allclose(values, [[2.0, 5.0], [8.0, 8.0]])
 
 
+def test_figure_curves_are_drawn_through_steps_without_finished_episodes(tmp_path, monkeypatch):
+    """Steps where no seed finished an episode (NaN) leave the curve a line through the others."""
+    from matplotlib.figure import Figure
+
+    from jaxnat.reproduce import report
+    from jaxnat.reproduce.report import CellResult
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *_, **__: figures.append(figure))
+    cell = grid.Cell("classify-ppo", "classify", "classify-cnn", "X/Y-v0", {}, "ppo", None, grid.Budget(10), {},
+                     {"dataset": "mnist"})
+    train = np.tile([1.0, 3.0], (10, 1))
+    train[1::2] = np.nan  # steps 2, 4, ..., 10: no episode ended
+    empty = np.zeros((0, 2))
+    result = CellResult(cell, True, 2, np.arange(1.0, 11.0), train, np.zeros(0), empty, empty, None, 1.0)
+    report.plot_figure(tmp_path / "f.png", "title", {"panel": [("ppo", result)]})
+    line = figures[0].axes[0].lines[0]
+    np.testing.assert_array_equal(line.get_xdata(), [1.0, 3.0, 5.0, 7.0, 9.0])
+    np.testing.assert_array_equal(line.get_ydata(), [2.0] * 5)
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--profile", "smok"], "unknown --profile 'smok' (did you mean 'smoke'?)"),
     (["--only", "classify,atary"], "unknown --only name 'atary' (did you mean 'atari'?)"),
@@ -113,6 +134,18 @@ def test_bad_arguments_get_one_line_and_write_nothing(argv, message, tmp_path, c
     err = capsys.readouterr().err.strip()
     assert err.startswith("jaxnat reproduce: error: ") and message in err and "\n" not in err
     assert not (out / "report.md").exists()
+
+
+@pytest.mark.parametrize("platform, profile", [("cpu", "smoke"), ("gpu", "quick")])
+def test_without_profile_a_cpu_runs_smoke_and_says_so(platform, profile, tmp_path, monkeypatch, capsys):
+    plans = []
+    monkeypatch.setattr(command, "detect_platform", lambda: platform)
+    monkeypatch.setattr(command, "run_cells", lambda plan, *_, **__: plans.append(plan) or {})
+    monkeypatch.setattr("jaxnat.reproduce.report.write_report", lambda plan, outcomes: plan.out / "report.md")
+    assert command.main(["--out", str(tmp_path)]) == 0
+    assert [plan.profile.name for plan in plans] == [profile]
+    note = "no --profile given: running the smoke profile on this CPU (pass --profile quick or paper to run more)"
+    assert (note in capsys.readouterr().out) == (platform == "cpu")
 
 
 def test_unwritable_out_is_refused(tmp_path, capsys):

@@ -8,6 +8,7 @@ interrupted and resumed runs of the resume test do not compile again.
 
 import collections
 import json
+import os
 
 import jax
 import numpy as np
@@ -18,6 +19,7 @@ import dataclasses
 from jaxnat import cli, train
 from jaxnat.agents import ALGORITHMS
 from jaxnat.training import checkpoints
+from jaxnat.training import command as train_command
 from jaxnat.training import spec as spec_module
 
 FAST = {"xla_backend_optimization_level": 0}
@@ -48,6 +50,10 @@ def _error(capsys) -> str:
     assert "Traceback" not in err
     assert err.startswith("jaxnat train: error: "), err
     return err
+
+
+def _not_reached(*_, **__):
+    raise AssertionError("compiled: the error should have come first")
 
 
 def _check_run_dir(run_dir):
@@ -153,6 +159,78 @@ def test_unknown_algo(tmp_path, capsys):
 def test_setup_errors(argv, message, tmp_path, capsys):
     assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
     assert message in _error(capsys)
+
+
+@needs_digits
+@pytest.mark.parametrize("argv, message", [
+    (["--num-envs", "0"], "--num-envs must be at least 1"),
+    (["--num-envs", "-8"], "--num-envs must be at least 1"),
+    (["--num-steps", "0"], "--num-steps must be at least 1"),
+    (["--total-timesteps", "0"], "--total-timesteps must be at least 1"),
+    (["--total-timesteps", "-512"], "--total-timesteps must be at least 1"),
+    (["--seeds", "0"], "--seeds must be at least 1"),
+    (["--eval-episodes", "-1"], "--eval-episodes must be at least 1"),
+    (["--total-timesteps", "100"], "--total-timesteps 100 is less than one rollout of 128 env steps"),
+])
+def test_counts_are_refused_in_one_line_before_compiling(argv, message, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(train_command, "compiled_program", _not_reached)
+    small = ["--trunk", "mnist", "--num-envs", "8", "--num-steps", "16"]
+    assert train.main([*small, *argv, "--run-dir", str(tmp_path / "r")]) == 2
+    err = _error(capsys)
+    assert message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "r").exists()
+
+
+@needs_digits
+@pytest.mark.parametrize("argv, message", [
+    (["--lr", "-1"], "lr=-1.0 is out of range: lr must be > 0"),
+    (["--gamma", "1.5"], "gamma=1.5 is out of range: gamma must be in (0, 1]"),
+    (["--algo", "dqn", "--eps-end", "1.5"], "eps_end=1.5 is out of range: eps_end must be in [0, 1]"),
+])
+def test_config_values_out_of_range_are_refused_before_compiling(argv, message, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(train_command, "compiled_program", _not_reached)
+    assert train.main([*argv, "--run-dir", str(tmp_path / "r")]) == 2
+    err = _error(capsys)
+    assert message in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("env_id", ["Classify/Digits-v0", "NaturalAtari/Breakout-v0"])
+def test_an_unwritable_run_dir_is_refused_before_building_anything(env_id, tmp_path, capsys, monkeypatch):
+    for name in ("make_envs", "new_host_spec", "compiled_program"):
+        monkeypatch.setattr(train_command, name, _not_reached)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for run_dir in (blocker / "run", blocker):  # under a regular file, and the file itself
+        assert train.main(["--env-id", env_id, "--run-dir", str(run_dir)]) == 2
+        err = _error(capsys)
+        assert f"--run-dir {run_dir} is not writable" in err and err.count("\n") == 1, err
+    if os.geteuid() != 0:  # (root writes anywhere)
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        assert train.main(["--env-id", env_id, "--run-dir", str(locked / "run")]) == 2
+        assert "is not writable" in _error(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) in (["file"], ["file", "locked"])
+
+
+def test_the_curve_is_drawn_through_updates_without_finished_episodes(tmp_path, monkeypatch):
+    """Updates in which no episode ended have no train return (NaN): the curve is a line through
+    the updates that have one, not isolated (invisible) points between gaps."""
+    from matplotlib.figure import Figure
+
+    from jaxnat.training import records
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *_, **__: figures.append(figure))
+    spec = spec_module.RunSpec("Classify/Digits-v0", {}, "ppo", ALGORITHMS["ppo"].config(num_envs=8, num_steps=16),
+                               seeds=2, seed=0, eval_every=2, eval_episodes=16)
+    returns = {1: (1.0, 2.0), 2: (None, None), 3: (3.0, None), 4: (None, None), 5: (5.0, 6.0), 6: (None, None)}
+    rows = [{"update": u, "seed": s, "episode_return": r[s], "terminated_fraction": r[s]}
+            for u, r in returns.items() for s in (0, 1)]
+    records.plot(tmp_path / "curve.png", spec, records.History.load(spec, rows, []))
+    for ax in figures[0].axes[:2]:
+        train = ax.lines[0]
+        np.testing.assert_array_equal(train.get_xdata(), [128, 384, 640])  # updates 1, 3, 5 x 128 steps
+        np.testing.assert_array_equal(train.get_ydata(), [1.5, 3.0, 5.5])
 
 
 def test_env_kwargs_with_a_string_default_stay_strings():

@@ -18,7 +18,7 @@ from typing import Annotated, Optional
 
 import tyro
 
-from jaxnat.cli import exit_status
+from jaxnat.cli import exit_status, unwritable
 from jaxnat.reproduce.board import Board
 from jaxnat.reproduce.cells import train_cells
 from jaxnat.reproduce.estimates import detect_platform, duration, estimate_seconds, estimate_total, split_streams
@@ -37,8 +37,9 @@ class ReproduceArgs:
     """Run the paper's experiments (a grid of `jaxnat train` runs) and write a findings report.
     Rerunning the same command skips finished cells and resumes an interrupted one."""
 
-    profile: Annotated[str, tyro.conf.arg(metavar="{" + ",".join(PROFILES) + "}")] = "quick"
-    """smoke: every cell type, tiny budgets, minutes on a CPU; quick: every finding, reduced budgets (one sitting on one GPU); paper: the paper's budgets (run piecewise with --only)."""
+    profile: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(PROFILES) + "}",
+                                                    help_behavior_hint="")] = None
+    """smoke: every cell type, tiny budgets, minutes on a CPU; quick: every finding, reduced budgets (one sitting on one GPU); paper: the paper's budgets (run piecewise with --only). Unset: smoke on a CPU, quick on an accelerator."""
     only: Annotated[str, tyro.conf.arg(metavar=",".join(EXPERIMENTS))] = ",".join(EXPERIMENTS)
     """Comma-separated experiments to run and report."""
     seeds: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
@@ -56,13 +57,19 @@ def parse_args(argv=None) -> ReproduceArgs:
     return tyro.cli(ReproduceArgs, args=argv, prog=PROG, description=inspect.cleandoc(ReproduceArgs.__doc__))
 
 
+def default_profile() -> str:
+    """The profile without `--profile`: smoke on a CPU (the others take hours there), else quick."""
+    return "smoke" if detect_platform() == "cpu" else "quick"
+
+
 def make_plan(args: ReproduceArgs) -> Plan:
     """Check the arguments (one-line `ReproduceError`s) and build the grid."""
-    if args.profile not in PROFILES:
-        close = difflib.get_close_matches(args.profile, PROFILES, n=1)
+    name = default_profile() if args.profile is None else args.profile
+    if name not in PROFILES:
+        close = difflib.get_close_matches(name, PROFILES, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ReproduceError(f"unknown --profile {args.profile!r}{hint}; profiles: {', '.join(PROFILES)}")
-    profile = PROFILES[args.profile]
+        raise ReproduceError(f"unknown --profile {name!r}{hint}; profiles: {', '.join(PROFILES)}")
+    profile = PROFILES[name]
     only = tuple(name.strip() for name in args.only.split(",") if name.strip())
     unknown = [name for name in only if name not in EXPERIMENTS]
     if unknown or not only:
@@ -79,13 +86,10 @@ def make_plan(args: ReproduceArgs) -> Plan:
 
 
 def _check_writable(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as err:
-        raise ReproduceError(f"--out {out} is not writable ({err.strerror or err}); choose another folder") from None
+    reason = unwritable(out)
+    if reason is not None:
+        raise ReproduceError(f"--out {out} is not writable ({reason}); choose another folder")
+    out.mkdir(parents=True, exist_ok=True)  # the cells' logs go there
 
 
 def _default_overlap(platform: str) -> bool:
@@ -171,6 +175,9 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None)
 
     console = console or Console()
     plan = make_plan(args)
+    if args.profile is None and plan.profile.name == "smoke":
+        console.print("no --profile given: running the smoke profile on this CPU (pass --profile quick or paper "
+                      "to run more)", highlight=False, soft_wrap=True)
     if args.sequential:
         overlap = False
     outcomes = {} if args.report_only else run_cells(plan, console, overlap=overlap)

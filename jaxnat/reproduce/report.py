@@ -164,6 +164,8 @@ def plot_figure(path: Path, title: str, panels: dict) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    from jaxnat.training.records import line_with_band
+
     n = len(panels)
     columns = min(n, 4)
     rows = -(-n // columns)
@@ -175,9 +177,7 @@ def plot_figure(path: Path, title: str, panels: dict) -> None:
             color = f"C{i % 10}"
             x, per_seed = binned_curve(r.steps, r.train)
             if len(x):
-                mean, low, high = bootstrap_band(per_seed)
-                ax.plot(x, mean, color=color, label=f"{label} (train)")
-                ax.fill_between(x, low, high, color=color, alpha=0.2, linewidth=0)
+                line_with_band(ax, x, *bootstrap_band(per_seed), f"{label} (train)", color=color)
             if len(r.eval_steps):
                 mean, low, high = bootstrap_band(r.sampled)
                 ax.errorbar(r.eval_steps, mean, yerr=[mean - low, high - mean], color=color, linestyle="--",

@@ -45,6 +45,7 @@ def _setup(args: TrainArgs, console):
         return _resumed_placement(spec, args, console), run_dir, saved, None
     check_algo(args.algo)
     check_counts(args)
+    run_dir = new_run_dir(args)  # an unwritable one is refused now, not after compiling
     if args.shard is not None and args.devices is None:
         raise TrainError(f"--shard {args.shard} places work on devices: give --devices N (or all) too")
     devices = None if args.devices is None else device_count(args.devices)
@@ -52,7 +53,6 @@ def _setup(args: TrainArgs, console):
         if args.devices is not None:
             raise TrainError(f"--devices places JAX envs on devices; {args.env_id} is emulated on the host, one ALE "
                              "batch per process: leave --devices out")
-        run_dir = new_run_dir(args)
         return with_eval_every(new_host_spec(args, console), args), run_dir, None, None
     if args.env_parts != 1:
         raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
@@ -70,7 +70,7 @@ def _setup(args: TrainArgs, console):
     if devices is not None:
         spec = dataclasses.replace(spec, devices=devices, shard=args.shard or "envs")
         Placement.resolve(spec.algo, spec.config, spec.seeds, spec.devices, spec.shard)  # one-line errors now
-    return with_eval_every(spec, args), new_run_dir(args), None, envs
+    return with_eval_every(spec, args), run_dir, None, envs
 
 
 def _resumed_placement(spec: RunSpec, args: TrainArgs, console) -> RunSpec:

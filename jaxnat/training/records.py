@@ -92,6 +92,21 @@ def terminated_label(env_id: str) -> str:
     return "accuracy" if env_id.split("/")[0] in ("Classify", "Localize") else "terminated"
 
 
+def line_with_band(ax, x, mean, low, high, label: str, **style):
+    """Draw `mean` against `x` as a line with a shaded band from `low` to `high`; returns the line.
+
+    Points where `mean` is not finite (an update in which no episode ended, in any seed) are left
+    out, so the line joins the points on either side of a gap. Plotted as they are, with NaN, the
+    line would break at every gap, and a value between two gaps would be an invisible point, the
+    curve gone where episodes end less often than every update (long episodes, few envs).
+    Carrying the last value over the gap instead would draw flat stretches nobody measured."""
+    x, mean, low, high = (np.asarray(a, np.float64) for a in (x, mean, low, high))
+    keep = np.isfinite(mean)
+    line, = ax.plot(x[keep], mean[keep], label=label, **style)
+    ax.fill_between(x[keep], low[keep], high[keep], alpha=0.2, color=line.get_color(), linewidth=0)
+    return line
+
+
 def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None) -> None:
     """Return and accuracy against env steps: train, test greedy and test sampled (mean ± std
     over seeds), and the uniform random policy's test scores (`chance`) as a dashed line."""
@@ -110,8 +125,7 @@ def plot(path: Path, spec: RunSpec, history: History, chance: dict | None = None
         mean = nanmean(per_seed, 1)
         centred = np.where(np.isfinite(per_seed), per_seed - mean[:, None], np.nan)
         std = np.sqrt(nanmean(centred**2, 1))
-        line, = ax.plot(x, mean, label=label, **style)
-        ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color(), linewidth=0)
+        line_with_band(ax, x, mean, mean - std, mean + std, label, **style)
 
     label = terminated_label(spec.env_id)
     panels = (("return", history.returns, "Episode return", "return"),

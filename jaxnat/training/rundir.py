@@ -16,6 +16,7 @@ from pathlib import Path
 import jax
 
 import jaxnat
+from jaxnat.cli import unwritable
 from jaxnat.agents.rollout import count_updates
 from jaxnat.training.args import TrainArgs, TrainError, parse_env_kwargs
 from jaxnat.training.spec import SPEC_FIELDS_ADDED, RunSpec, auto_eval_every
@@ -88,26 +89,41 @@ def open_resumed(args: TrainArgs):
 
 
 def check_counts(args: TrainArgs) -> None:
-    for name in ("seeds", "eval_episodes", "env_parts", "eval_every"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
-            raise TrainError(f"--{name.replace('_', '-')} must be at least 1")
+    """Refuse counts below 1 (a new run's, before anything is built): the loop's sizes."""
+    counts = {name: getattr(args, name) for name in ("seeds", "eval_episodes", "env_parts", "eval_every",
+                                                      "total_timesteps", "num_envs")}
+    counts["num_steps"] = args.config.num_steps
+    for name, value in counts.items():
+        if value is not None and value < 1:
+            raise TrainError(f"--{name.replace('_', '-')} must be at least 1 (got {value})")
 
 
 def with_eval_every(spec: RunSpec, args: TrainArgs) -> RunSpec:
-    """`spec` with its chunk length (`--eval-every`, else about 20 evaluations over the run)."""
+    """`spec` with its chunk length (`--eval-every`, else about 20 evaluations over the run);
+    refuses a run shorter than one rollout (`count_updates`)."""
     try:
         count_updates(spec.config)  # at least one
-    except ValueError as err:
-        raise TrainError(str(err)) from None
+    except ValueError:
+        config = spec.config
+        rollout = config.num_envs * config.num_steps
+        raise TrainError(f"--total-timesteps {config.total_timesteps} is less than one rollout of {rollout} env "
+                         f"steps (num_envs {config.num_envs} x num_steps {config.num_steps}): give "
+                         f"--total-timesteps {rollout} or more, or fewer --num-envs or --num-steps") from None
     eval_every = args.eval_every or auto_eval_every(spec.num_updates)
     return dataclasses.replace(spec, eval_every=min(eval_every, spec.num_updates))
 
 
 def new_run_dir(args: TrainArgs) -> Path:
+    """A new run's directory (`--run-dir`, else `default_run_dir`): refused if it holds a run, or
+    cannot be created and written (checked now, before anything is built; nothing is left)."""
     run_dir = Path(args.run_dir) if args.run_dir is not None else default_run_dir(args.env_id, args.algo)
     if (run_dir / "config.json").exists():
         raise TrainError(f"{run_dir} already holds a run; continue it with --resume {run_dir} "
                          "or choose another --run-dir")
+    reason = unwritable(run_dir)
+    if reason is not None:
+        where = "--run-dir" if args.run_dir is not None else "the default run directory"
+        raise TrainError(f"{where} {run_dir} is not writable ({reason}); choose another --run-dir")
     return run_dir
 
 
