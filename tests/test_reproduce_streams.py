@@ -93,14 +93,16 @@ def test_the_gpus_are_counted_from_jaxs_probe():
 
 def test_counting_the_gpus_never_starts_jax_in_this_process(tmp_path):
     """In a fresh process with no JAX platform set (as `jaxnat reproduce` starts), the count comes
-    from the probe's child and this process's JAX stays unstarted; here the probe finds the CPU."""
+    from the probe's child and this process's JAX stays unstarted (on a CPU machine: no GPU)."""
     script = ("from jaxnat.reproduce import gpus; found = gpus.find_devices(); "
               "print(found.platform, len(found.gpus), found.problem or '-', gpus.jax_started())")
     env = {k: v for k, v in os.environ.items() if k != "JAX_PLATFORMS"}
     env["PYTHONPATH"] = str(Path(jaxnat.__file__).resolve().parents[1])
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["cpu", "0", "-", "False"]
+    platform, count, problem, started = done.stdout.split()
+    assert problem == "-" and started == "False"
+    assert platform in ("cpu", "gpu") and (platform == "gpu") == (int(count) > 0)
 
 
 @pytest.mark.parametrize("argv, devices, message", [
