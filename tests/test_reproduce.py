@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from jaxnat.reproduce import command, estimates, findings, grid, host_stream, stats
+from jaxnat.reproduce import cell_stream, command, estimates, findings, grid, stats
 from jaxnat.reproduce.cells import append_jsonl
 from jaxnat.training import read_run
 
@@ -297,12 +297,12 @@ def test_host_cells_alongside_train_the_same_cells_and_report(smoke, tmp_path):
     for name in set(names) - set(trained):
         shutil.copytree(smoke / name, out / name)
     report, output = _run(out)
-    assert "host cells" in output and "alongside device cells" in output
+    assert "(device cells" in output and "host cells" in output and "side by side)" in output
     assert f"{ATARI_CELL} (alongside) ..." in output and "[2/2]" in output
     rows = [json.loads(line) for line in (out / "timings.jsonl").read_text().splitlines()]
     assert sorted(r["cell"] for r in rows) == sorted(trained)
     assert all(r["outcome"] == "finished" and r["overlapped"] for r in rows)
-    assert (out / "logs" / host_stream.HOST_STREAM_LOG).is_file()
+    assert (out / "logs" / cell_stream.stream_log("host")).is_file()
     assert "| elapsed" in report.read_text()
     for name in names:
         assert _eval_rows(out, name) == _eval_rows(smoke, name), name
@@ -338,7 +338,7 @@ def test_a_failing_host_cell_is_reported(smoke, tmp_path, device_cells_copied):
 def test_a_host_stream_that_dies_fails_its_cells(tmp_path, monkeypatch, device_cells_copied):
     import sys
 
-    monkeypatch.setattr(host_stream, "child_argv", lambda *_: [sys.executable, "-c", "raise SystemExit(3)"])
+    monkeypatch.setattr(cell_stream, "child_argv", lambda *_: [sys.executable, "-c", "raise SystemExit(3)"])
     report, output = _run(tmp_path)
     assert "exited with status 3 before this cell finished" in output
     assert f"| `{ATARI_CELL}` | not run (failed): the host stream" in report.read_text()
@@ -390,7 +390,8 @@ def test_the_host_stream_stops_when_its_parent_is_gone(tmp_path):
 
     plan = command.make_plan(command.ReproduceArgs(profile="smoke", only="atari", out=tmp_path))
     read_end, write_end = os.pipe()
-    child = subprocess.Popen(host_stream.child_argv(plan, plan.cells, write_end), stdin=subprocess.PIPE,
+    spec = cell_stream.StreamSpec("host", plan.cells, {})
+    child = subprocess.Popen(cell_stream.child_argv(plan, spec, write_end), stdin=subprocess.PIPE,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, pass_fds=(write_end,))
     os.close(write_end)
     child.stdin.close()  # as when the parent dies

@@ -1,6 +1,6 @@
-"""The progress board of `jaxnat reproduce` (`Board`): the cells of both streams as they start
-and end. The host stream's cells reach it as events from that process (`host_stream.Events`
-sends them, `host_stream.HostStream` reads them)."""
+"""The progress board of `jaxnat reproduce` (`Board`): the cells of every stream as they start
+and end. A child stream's cells reach it as events from that process (`cell_stream.Events`
+sends them, `cell_stream.CellStream` reads them)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,11 @@ from jaxnat.reproduce.grid import Cell
 
 
 class Board:
-    """What the user sees of the cells of both streams: the progress bar (cells done of all, and
+    """What the user sees of the cells of every stream: the progress bar (cells done of all, and
     an ETA over the estimate of the longest stream still running), one line per cell start and
-    end without a terminal, failures in red, and each cell's outcome. Thread-safe: the host
-    stream's events arrive on a reader thread."""
+    end without a terminal (a child stream's cells tagged: "alongside" for the host stream's,
+    the GPU stream's name, e.g. "gpu1", for a device stream's), failures in red, and each cell's
+    outcome. Thread-safe: a child stream's events arrive on a reader thread."""
 
     def __init__(self, console, streams: dict[str, list[Cell]], estimates: dict[str, float]):
         import threading
@@ -23,7 +24,6 @@ class Board:
         self.console, self.estimates, self.lock = console, estimates, threading.Lock()
         self.stream_of = {c.name: stream for stream, cells in streams.items() for c in cells}
         self.cells = {c.name: c for cells in streams.values() for c in cells}
-        self.overlapped = len(streams) > 1
         self.left = {stream: sum(estimates[c.name] for c in cells) for stream, cells in streams.items()}
         self.total = max(self.left.values(), default=0.0)
         self.count = sum(len(cells) for cells in streams.values())
@@ -39,8 +39,9 @@ class Board:
         self.task = self.progress.add_task("cells", total=max(self.total, 1e-9), cells=f"0/{self.count}")
 
     def _label(self, name: str) -> str:
-        tags = [tag for tag, on in (("resumed", self.resumed.get(name)),
-                                    ("alongside", self.overlapped and self.cells[name].host)) if on]
+        stream = self.stream_of[name]
+        tags = [tag for tag, on in (("resumed", self.resumed.get(name)), ("alongside", stream == "host"),
+                                    (stream, stream.startswith("gpu"))) if on]
         return f"{name} ({', '.join(tags)})" if tags else name
 
     def _running(self) -> str:

@@ -1,9 +1,9 @@
 """Training cells in this process, one after another (`train_cells`): each is handed to
 `jaxnat.training.train` as its typed arguments (`Cell.train_args`), logged to
 `<out>/logs/<cell>.log` and timed by a line of `<out>/timings.jsonl`. On an accelerator each
-cell's programs compile while the cell before trains (`CompileAhead`). Both streams of cells
-train this way: the device cells in `jaxnat reproduce`'s process, the host cells in the host
-stream's (`host_stream`)."""
+cell's programs compile while the cell before trains (`CompileAhead`). Every stream of cells
+trains this way: the device cells in `jaxnat reproduce`'s process (or, with several GPUs, in one
+child process per GPU), the host cells in the host stream's (`cell_stream`)."""
 
 from __future__ import annotations
 
@@ -92,7 +92,7 @@ def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, 
                 compile_ahead: bool, overlapped: bool) -> None:
     """Train `cells` one after another (compiling each one's programs while the one before
     trains when `compile_ahead`), each logged to `<out>/logs/<cell>.log` and timed in
-    `<out>/timings.jsonl`; `board` (`board.Board`, or the host stream's `Events`) is told of
+    `<out>/timings.jsonl`; `board` (`board.Board`, or a child stream's `Events`) is told of
     each start and outcome. A `TrainError` fails its cell and the next one starts; anything
     else (Ctrl-C included) propagates."""
     from rich.console import Console

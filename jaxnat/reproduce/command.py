@@ -1,10 +1,12 @@
 """The `jaxnat reproduce` command: check the arguments, estimate, run the grid's cells (skipping
 finished ones, resuming interrupted ones), then write the report.
 
-On an accelerator the cells run as two streams at once: the device cells (seeds vmapped on the
+On an accelerator the cells run as streams at once: the device cells (seeds vmapped on the
 accelerator) in this process, one after another (`cells.train_cells`), and the host cells
 (Natural Atari: ALE on the host's cores, a small policy on the accelerator) in a child process
-(`host_stream`) writing to the same `--out`, both shown on one progress board (`board`). On a
+(`cell_stream`) writing to the same `--out`, all shown on one progress board (`board`). With two
+or more GPUs (`--gpus`, found by `gpus.find_devices` without starting JAX on them here) the
+device cells are shared among one child process per GPU and this process trains none. On a
 CPU, or with `--sequential`, every cell runs in turn here."""
 
 from __future__ import annotations
@@ -21,9 +23,10 @@ import tyro
 from jaxnat.cli import exit_status, unwritable
 from jaxnat.reproduce.board import Board
 from jaxnat.reproduce.cells import train_cells
+from jaxnat.reproduce.cell_stream import CellStream, child_streams, stop_streams
 from jaxnat.reproduce.estimates import detect_platform, duration, estimate_seconds, estimate_total, split_streams
+from jaxnat.reproduce.gpus import Devices, find_devices, keep_jax_off_gpus
 from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, RUN_SETTINGS, Cell, Plan, build_grid
-from jaxnat.reproduce.host_stream import HostStream
 
 PROG = "jaxnat reproduce"
 
@@ -50,6 +53,8 @@ class ReproduceArgs:
     """Write the report from the cells already in --out without training."""
     sequential: bool = False
     """Run every cell in turn, also on an accelerator (by default there the Natural Atari cells, which run on the host's cores, train in a second process alongside the others)."""
+    gpus: Annotated[str, tyro.conf.arg(metavar="N|all")] = "all"
+    """GPUs to train on: with 2 or more the device cells are shared among one process per GPU, side by side (by their estimated times); 1: all of them in this process, on one GPU."""
 
 
 def parse_args(argv=None) -> ReproduceArgs:
@@ -80,6 +85,7 @@ def make_plan(args: ReproduceArgs) -> Plan:
     seeds = profile.seeds if args.seeds is None else args.seeds
     if seeds < 1:
         raise ReproduceError("--seeds must be at least 1")
+    _gpus_wanted(args)
     out = Path(args.out) if args.out is not None else Path("runs") / f"reproduce-{profile.name}"
     _check_writable(out)
     return Plan(profile, only, seeds, out, build_grid(profile, only))
@@ -92,58 +98,101 @@ def _check_writable(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)  # the cells' logs go there
 
 
+def _gpus_wanted(args: ReproduceArgs) -> int | None:
+    """`--gpus` as a count (None: all)."""
+    if args.gpus == "all":
+        return None
+    count = int(args.gpus) if args.gpus.strip().isdigit() else 0
+    if count < 1:
+        raise ReproduceError(f"--gpus takes a number of GPUs (1 or more) or 'all', not {args.gpus!r}")
+    if count > 1 and args.sequential:
+        raise ReproduceError(f"--sequential trains every cell in turn on one GPU; it cannot use --gpus {count}")
+    return count
+
+
+def choose_gpus(args: ReproduceArgs, devices: Devices | None = None) -> tuple[str | None, tuple[str, ...]]:
+    """`(platform, gpus)` for `run_cells`: the `CUDA_VISIBLE_DEVICES` ids of the GPUs to train on
+    side by side (none: one stream of device cells here, as with one GPU), and the platform when
+    it had to be found without starting JAX here (None: `run_cells` asks JAX here). `devices`:
+    what `find_devices` finds (None: ask it; it is not asked with `--gpus 1` or
+    `--sequential`). A count the machine lacks is a `ReproduceError`."""
+    wanted = _gpus_wanted(args)
+    if wanted == 1 or args.sequential:
+        return None, ()
+    devices = find_devices() if devices is None else devices
+    found = devices.gpus
+    if wanted is not None and wanted > len(found):
+        have = (f"cannot count its GPUs ({devices.problem})" if devices.problem else
+                f"JAX finds {len(found) or 'no'} GPU{'' if len(found) == 1 else 's'} here"
+                + (f" (platform {devices.platform})" if not found else ""))
+        raise ReproduceError(f"--gpus {wanted}: {have}")
+    gpus = found[:wanted] if wanted else found
+    return devices.platform or None, gpus if len(gpus) >= 2 else ()
+
+
 def _default_overlap(platform: str) -> bool:
     import os
 
     return platform != "cpu" and os.name == "posix"
 
 
-def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap: bool | None = None) -> dict:
+def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap: bool | None = None,
+              platform: str | None = None, gpus: tuple[str, ...] = ()) -> dict:
     """Train every runnable, unfinished cell of `plan`; returns `{cell name: outcome}` where an
     outcome is "finished before", "finished", or "failed: <one line>".
 
     `compile_ahead`: compile each device cell's programs while the one before trains (None: on an
     accelerator, not on a CPU, where compiling would take the cores the training uses).
     `overlap`: train the host cells (`Cell.host`) in a child process while the device cells
-    train here (None: on an accelerator under POSIX; a CPU's cores are the training's). With
-    both kinds to run, the estimate and the ETA are the longer stream's, the child's failures
-    (a cell's, or its own death) are reported as the cells', and a Ctrl-C stops both (each
-    checkpoints its cell) before `KeyboardInterrupt` propagates."""
+    train here (None: on an accelerator under POSIX; a CPU's cores are the training's).
+    `gpus`: two or more `CUDA_VISIBLE_DEVICES` ids (`choose_gpus`), one child process each for
+    a share of the device cells, and the host cells in one more; this process then trains
+    nothing, and its JAX, if it has not started, is kept on the CPU (`platform` is the one found
+    for the children: JAX here would take 75% of every GPU). `platform`: None to ask JAX here.
+    With several streams the estimate and the ETA are the longest stream's, a child's failures
+    (a cell's, or its own death) are reported as its cells', and a Ctrl-C stops every stream
+    (each checkpoints its cell) before `KeyboardInterrupt` propagates."""
     from jaxnat.training import read_run, run_status
 
-    platform = detect_platform()
+    gpus = tuple(gpus) if len(gpus) >= 2 else ()
+    if gpus:
+        keep_jax_off_gpus()
+    platform = platform or detect_platform()
     runnable = [c for c in plan.cells if not c.skip]
     status = {c.name: run_status(plan.out / c.name) for c in runnable}
     for cell in runnable:
         if status[cell.name] != "new":
             _check_same_run(cell, plan, read_run(plan.out / cell.name).config)
     todo = [c for c in runnable if status[c.name] != "finished"]
-    streams = split_streams(todo, _default_overlap(platform) if overlap is None else overlap)
     estimates = {c.name: estimate_seconds(c, plan.seeds, platform) for c in todo}
+    streams = split_streams(todo, _default_overlap(platform) if overlap is None else overlap, len(gpus), estimates)
     total = estimate_total(streams, plan.seeds, platform)
-    alongside = ""
-    if "host" in streams:
-        device, host = (sum(estimates[c.name] for c in streams[k]) for k in ("device", "host"))
-        alongside = (f" (host cells {duration(host)} alongside device cells {duration(device)})")
+    side = ""
+    if len(streams) > 1:
+        side = " (" + ", ".join(f"{name if name.startswith('gpu') else name + ' cells'} "
+                                f"{duration(sum(estimates[c.name] for c in cells))}"
+                                for name, cells in streams.items()) + " side by side)"
+    machine = f"{len(gpus)} GPUs" if gpus else f"this {platform.upper()}"
     console.print(f"{PROG}: profile {plan.profile.name} · {len(plan.cells)} cells ({len(runnable) - len(todo)} "
                   f"finished before, {len(plan.cells) - len(runnable)} not runnable here) · {plan.seeds} seeds · "
-                  f"estimated {duration(total)} on this {platform.upper()}{alongside} · {plan.out}", highlight=False)
+                  f"estimated {duration(total)} on {machine}{side} · {plan.out}", highlight=False)
     board = Board(console, streams, estimates)
     board.outcomes.update({c.name: "finished before" for c in runnable if status[c.name] == "finished"})
     resumed = {c.name: status[c.name] == "partial" for c in todo}
     ahead = platform != "cpu" if compile_ahead is None else compile_ahead
-    host = None
+    children: list[CellStream] = []
     try:
         with board.progress:
-            if "host" in streams:
-                host = HostStream(streams["host"], plan, board, platform)
-            train_cells(streams.get("device", streams.get("all")), plan, resumed, board, platform=platform,
-                        compile_ahead=ahead, overlapped=host is not None)
-            if host is not None:
-                host.wait()
+            for spec in child_streams(streams, gpus, estimates, ahead):
+                children.append(CellStream(spec, plan, board, platform))
+            here = streams.get("device", streams.get("all"))
+            if here is not None:
+                train_cells(here, plan, resumed, board, platform=platform, compile_ahead=ahead,
+                            overlapped=bool(children))
+            for child in children:
+                child.wait()
     except BaseException as err:
-        if host is not None:
-            host.stop()
+        stop_streams(children)
         if isinstance(err, KeyboardInterrupt):
             where = " and ".join(board.running) or "between cells"
             console.print(f"interrupted in {where} (checkpointed); rerun the same command to continue")
@@ -166,9 +215,12 @@ def _check_same_run(cell: Cell, plan: Plan, config: dict) -> None:
                              "--profile and --seeds")
 
 
-def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None) -> Path:
+def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,
+              devices: Devices | None = None) -> Path:
     """Run (or continue) the grid and write the report once every cell has ended; returns the
-    report's path. `overlap`: `run_cells`'s (None: its default, unless `args.sequential`)."""
+    report's path. `overlap`: `run_cells`'s (None: its default, unless `args.sequential`).
+    `devices`: `choose_gpus`'s (None: found here; a test names GPUs to run device streams on
+    its CPU)."""
     from rich.console import Console
 
     from jaxnat.reproduce.report import write_report
@@ -180,7 +232,10 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None)
                       "to run more)", highlight=False, soft_wrap=True)
     if args.sequential:
         overlap = False
-    outcomes = {} if args.report_only else run_cells(plan, console, overlap=overlap)
+    outcomes = {}
+    if not args.report_only:
+        platform, gpus = choose_gpus(args, devices)
+        outcomes = run_cells(plan, console, overlap=overlap, platform=platform, gpus=gpus)
     path = write_report(plan, outcomes)
     console.print(f"report: {path}", highlight=False)
     return path

@@ -1,6 +1,7 @@
 """How long the cells of `jaxnat reproduce` take, roughly: the estimate printed before starting
-and the progress bar's plan, per cell and per stream of cells (the device cells, and the host
-cells alongside them on an accelerator), on this machine's platform."""
+and the progress bar's plan, per cell and per stream of cells (the device cells, on one GPU or
+shared among several, and the host cells alongside them on an accelerator), on this machine's
+platform."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from jaxnat.reproduce.grid import Cell
 
 # Rough env steps/s (all seeds of a cell together) and the seconds a cell spends besides
 # training (compiling, where it is not hidden behind the cell before, evaluating, test play),
-# per experiment, for the estimate printed before starting (with host cells alongside, that of
-# the longer stream: `estimate_total`); the progress bar's ETA then follows the measured pace.
+# per experiment, for the estimate printed before starting (with streams side by side, that of
+# the longest stream: `estimate_total`); the progress bar's ETA then follows the measured pace.
 # The GPU figures follow the quick profile's cells (bench/reproduce_cost.py; Atari: 256 envs in
 # two parts, the seeds one after another).
 RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2},
@@ -31,11 +32,30 @@ def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
     return COMPILE_S[platform][cell.experiment] + steps / RATES[platform][cell.experiment]
 
 
-def split_streams(cells: list[Cell], overlap: bool) -> dict[str, list[Cell]]:
-    """The cells as the streams that run at the same time, each in grid order: `{"device": ...,
-    "host": ...}` when `overlap` and both kinds have cells, else `{"all": cells}` (one after
-    another)."""
+def balance(cells: list[Cell], count: int, seconds: dict[str, float]) -> list[list[Cell]]:
+    """`cells` shared among `count` streams by their estimated `seconds` (cell name -> seconds):
+    longest first, each onto the stream with the least so far (LPT: the longest stream is then
+    within 4/3 of the best split's; ties go to the cell earlier in the grid and the lower
+    stream), each stream's cells then in grid order."""
+    order = {c.name: i for i, c in enumerate(cells)}
+    loads, parts = [0.0] * count, [[] for _ in range(count)]
+    for cell in sorted(cells, key=lambda c: -seconds[c.name]):  # stable: equal estimates keep grid order
+        least = loads.index(min(loads))
+        loads[least] += seconds[cell.name]
+        parts[least].append(cell)
+    return [sorted(part, key=lambda c: order[c.name]) for part in parts]
+
+
+def split_streams(cells: list[Cell], overlap: bool, gpus: int = 1,
+                  seconds: dict[str, float] | None = None) -> dict[str, list[Cell]]:
+    """The cells as the streams that run at the same time, each in grid order. With `gpus` >= 2:
+    the device cells as `gpu0` ... (`balance`d by `seconds`; a stream with no cell is left out)
+    and the host cells as `host`. Else `{"device": ..., "host": ...}` when `overlap` and both
+    kinds have cells, or `{"all": cells}` (one after another)."""
     device, host = [c for c in cells if not c.host], [c for c in cells if c.host]
+    if gpus >= 2:
+        streams = {f"gpu{i}": part for i, part in enumerate(balance(device, gpus, seconds)) if part}
+        return {**streams, "host": host} if host else streams
     return {"device": device, "host": host} if overlap and device and host else {"all": list(cells)}
 
 

@@ -284,7 +284,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         lines += ["## Wall time", "", "| experiment | seconds (training sessions, resumed ones included) |", "|---|---|"]
         lines += [f"| {k} | {v:.0f} |" for k, v in by_experiment.items()] + [f"| total | {total:.0f} |"]
         if any(t.get("overlapped") for t in timings):
-            lines += [f"| elapsed (host cells alongside device cells: overlapping times counted once) | "
+            lines += [f"| elapsed (streams of cells side by side: overlapping times counted once) | "
                       f"{_elapsed(timings):.0f} |"]
         lines += [""]
 
