@@ -139,7 +139,9 @@ def test_bad_arguments_get_one_line_and_write_nothing(argv, message, tmp_path, c
 @pytest.mark.parametrize("platform, profile", [("cpu", "smoke"), ("gpu", "quick")])
 def test_without_profile_a_cpu_runs_smoke_and_says_so(platform, profile, tmp_path, monkeypatch, capsys):
     plans = []
-    monkeypatch.setattr(command, "detect_platform", lambda: platform)
+    from jaxnat.reproduce.gpus import Devices
+
+    monkeypatch.setattr(command, "find_devices", lambda: Devices(platform))
     monkeypatch.setattr(command, "run_cells", lambda plan, *_, **__: plans.append(plan) or {})
     monkeypatch.setattr("jaxnat.reproduce.report.write_report", lambda plan, outcomes: plan.out / "report.md")
     assert command.main(["--out", str(tmp_path)]) == 0

@@ -62,14 +62,16 @@ def parse_args(argv=None) -> ReproduceArgs:
     return tyro.cli(ReproduceArgs, args=argv, prog=PROG, description=inspect.cleandoc(ReproduceArgs.__doc__))
 
 
-def default_profile() -> str:
-    """The profile without `--profile`: smoke on a CPU (the others take hours there), else quick."""
-    return "smoke" if detect_platform() == "cpu" else "quick"
+def default_profile(devices: Devices) -> str:
+    """The profile without `--profile`: quick on a GPU, else smoke (the others take hours on a
+    CPU). `devices`: `find_devices()`, which asks without starting JAX on the GPUs here."""
+    return "quick" if devices.platform == "gpu" else "smoke"
 
 
-def make_plan(args: ReproduceArgs) -> Plan:
-    """Check the arguments (one-line `ReproduceError`s) and build the grid."""
-    name = default_profile() if args.profile is None else args.profile
+def make_plan(args: ReproduceArgs, devices: Devices | None = None) -> Plan:
+    """Check the arguments (one-line `ReproduceError`s) and build the grid; `devices` decides the
+    profile when `--profile` is not given (None: `find_devices()`)."""
+    name = args.profile or default_profile(devices or find_devices())
     if name not in PROFILES:
         close = difflib.get_close_matches(name, PROFILES, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
@@ -226,7 +228,9 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,
     from jaxnat.reproduce.report import write_report
 
     console = console or Console()
-    plan = make_plan(args)
+    if args.profile is None and devices is None:  # found once, for the profile and the GPUs
+        devices = find_devices()
+    plan = make_plan(args, devices)
     if args.profile is None and plan.profile.name == "smoke":
         console.print("no --profile given: running the smoke profile on this CPU (pass --profile quick or paper "
                       "to run more)", highlight=False, soft_wrap=True)
