@@ -18,6 +18,7 @@ COMMANDS = {
     "train": ("jaxnat.train", "train PPO, A2C, ACKTR or DQN over several seeds; metrics, curves, checkpoints"),
     "reproduce": ("jaxnat.reproduce.command", "run the paper's experiments (a grid of train runs) and write a findings report"),
     "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),
+    "envs": ("jaxnat.list_envs", "list the registered env ids by family"),
 }
 
 

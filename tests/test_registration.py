@@ -146,3 +146,18 @@ def test_close_matches_as_spelled_then_ignoring_case_without_repeats():
     assert close_matches("Breakot", names) == ["Breakout"]  # found both ways, listed once
     assert close_matches("SPACEINVADER", names) == ["SpaceInvaders"]  # only ignoring case
     assert close_matches("Zzzz", names) == []
+
+
+def test_jaxnat_envs_lists_every_registered_id_by_family(capsys):
+    from jaxnat import cli
+
+    assert cli.main(["envs"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    listed = {f"{line.split(' ')[0]}/{name}" for line in lines for name in line.split(": ", 1)[1].split()}
+    assert listed == set(jaxnat.registered_envs())
+    assert [line.split(" ")[0] for line in lines] == ["Classify", "Localize", "MuJoCo", "NaturalAtari", "PixelMuJoCo"]
+    assert cli.main(["envs", "MuJoCo"]) == 0
+    assert capsys.readouterr().out == "MuJoCo (4): Ant-v0 HalfCheetah-v0 Hopper-v0 Swimmer-v0\n"
+    assert cli.main(["envs", "Clasify"]) == 2
+    assert capsys.readouterr().err == ("jaxnat envs: error: unknown family 'Clasify' (did you mean 'Classify'?); "
+                                       "families: Classify, Localize, MuJoCo, NaturalAtari, PixelMuJoCo\n")
