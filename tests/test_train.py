@@ -414,5 +414,8 @@ def test_runs_saved_before_env_parts_resume_as_one_batch():
     assert RunSpec.from_json(saved).env_parts == 1
     for argv in ([], ["--env-parts", "1"]):
         check_resume_args(train.parse_args(["--resume", "run", *argv]), saved)
-    with pytest.raises(train.TrainError, match="--env-parts conflicts"):
+    with pytest.raises(train.TrainError, match=r"^--env-parts 2 \(the run: 1\) conflicts with"):
         check_resume_args(train.parse_args(["--resume", "run", "--env-parts", "2"]), saved)
+    # Each conflict names the value given and the run's.
+    with pytest.raises(train.TrainError, match=r"^--seeds 3 \(the run: 2\), --lr 0.001 \(the run: 0.00025\) conflict"):
+        check_resume_args(train.parse_args(["--resume", "run", "--seeds", "3", "--lr", "1e-3"]), saved)

@@ -52,17 +52,22 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
         given = value != default or field.name in args.given
         saved_value = saved.get(field.name, saved["config"].get(field.name, SPEC_FIELDS_ADDED.get(field.name)))
         if given and value != saved_value:
-            conflicts.append(f"--{field.name.replace('_', '-')}")
+            conflicts.append(_conflict(field.name, value, saved_value))
     for field in dataclasses.fields(args.config):
         value = getattr(args.config, field.name)
         if value is not None and value != saved["config"].get(field.name):
-            conflicts.append(f"--{field.name.replace('_', '-')}")
+            conflicts.append(_conflict(field.name, value, saved["config"].get(field.name)))
     if args.run_dir is not None and Path(args.run_dir).absolute() != Path(args.resume).absolute():
-        conflicts.append("--run-dir")
+        conflicts.append(f"--run-dir {args.run_dir} (the run is in {args.resume})")
     if conflicts:
         verb = "conflicts" if len(conflicts) == 1 else "conflict"
         raise TrainError(f"{', '.join(conflicts)} {verb} with the config of the run being resumed "
                          f"({Path(args.resume) / 'config.json'}); leave them out")
+
+
+def _conflict(name: str, given, saved) -> str:
+    """`--name GIVEN (the run: SAVED)`: what a resume was given against what the run holds."""
+    return f"--{name.replace('_', '-')} {given!r} (the run: {saved!r})"
 
 
 def open_resumed(args: TrainArgs):
