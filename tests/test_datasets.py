@@ -493,7 +493,7 @@ def test_missing_dataset_message(data_dir):
     message = str(info.value)
     assert isinstance(info.value, FileNotFoundError)
     for needle in ("t10k-images-idx3-ubyte", "t10k-labels-idx1-ubyte.gz", str(data_dir / "mnist"),
-                   "JAXNAT_DATA_DIR", "d.download('mnist')"):
+                   "JAXNAT_DATA_DIR", "d.download('mnist')", "Classify/Digits-v0", "a stand-in, not MNIST"):
         assert needle in message
     with pytest.raises(DatasetNotFoundError, match="apt-get install dataset-fashion-mnist"):
         d.load("fashion_mnist")

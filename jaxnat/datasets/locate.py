@@ -93,6 +93,11 @@ SYSTEM_DIRS: dict[str, tuple[Path, ...]] = {
     "digits": (Path("/usr/share/doc/opencv-doc/examples/data"),),
 }
 
+# The embedded data that can stand in for a dataset that is not here, named as what it is.
+_EMBEDDED_STAND_INS = {
+    "mnist": "the embedded digits (Classify/Digits-v0: OpenCV's 5,000 handwritten digits, a stand-in, not MNIST)",
+}
+
 # How to get each dataset, for the not-found message.
 _HOW_TO_GET: dict[str, tuple[str, ...]] = {
     "mnist": ("download it: python -c \"import jaxnat.datasets as d; d.download('mnist')\"",),
@@ -180,6 +185,8 @@ def _not_found_message(name: str, split: str, searched: list[str],
     env = (f"JAXNAT_DATA_DIR is {base}, so put them in {base / name}" if base is not None
            else f"or set JAXNAT_DATA_DIR=/some/dir and put them in /some/dir/{name}")
     how = [f"  - {h}" for h in _HOW_TO_GET[name]] + [f"  - {env}"]
+    if name in _EMBEDDED_STAND_INS:
+        how.append(f"  - or train without it on {_EMBEDDED_STAND_INS[name]}")
     if root is not None:
         how.append("  - or pass a different root=, or none to search the default places")
     return "\n".join([
