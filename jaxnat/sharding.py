@@ -88,8 +88,8 @@ def avoid_shardy_crash(mesh: Mesh) -> bool:
     XLA's Shardy partitioner, JAX's default, crashes the process (a segmentation fault in its
     `shardy-xla` pass) compiling MuJoCo MJX's physics inside a `jax.shard_map` over 2+ GPUs,
     which every sharded MuJoCo and PixelMuJoCo program is; the smallest such program is
-    `mjx.kinematics` vmapped under `shard_map` (seen with jaxlib 0.11.2 on 2 H100s;
-    `tests/test_sharding.py` keeps it; bench/results/scaling.md has the isolation). GSPMD
+    `mjx.kinematics` vmapped under `shard_map` (`tests/test_sharding.py` keeps it;
+    bench/results/scaling.md records where and on what it was isolated). GSPMD
     compiles and runs it, and every other sharded program of jaxnat the same. The setting is
     the process's, read when a program is lowered, so it changes here, before any program on
     the mesh is built, rather than around each program."""

@@ -69,3 +69,16 @@ def test_traced_values_are_not_checked():
         return resolve_config("ppo", IMAGES, ACTIONS, {"lr": lr}).config.lr
 
     assert jax.vmap(lr_of)(lrs).shape == (2,)
+
+
+def test_learners_built_directly_refuse_values_out_of_range():
+    """The range check lives with the configs and runs where a learner is built, so a library
+    user who skips `config_for` is refused too."""
+    import jaxnat
+    from jaxnat.agents import DQNConfig, PPOConfig, make_dqn, make_ppo
+
+    env, params = jaxnat.make("Classify/Digits-v0")
+    with pytest.raises(ValueError, match=r"^lr=-1.0 is out of range: lr must be > 0$"):
+        make_ppo(PPOConfig(lr=-1.0, trunk="mnist"), env, params)
+    with pytest.raises(ValueError, match=r"^n_step=0 is out of range: n_step must be >= 1$"):
+        make_dqn(DQNConfig(n_step=0, trunk="mnist"), env, params)

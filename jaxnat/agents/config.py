@@ -9,9 +9,13 @@ builds one for an env, with the env family's defaults (`defaults.py`) where they
 
 from __future__ import annotations
 
+import dataclasses
+import numbers
+from typing import Any
+
 from flax import struct
 
-__all__ = ["static", "OnPolicyConfig"]
+__all__ = ["static", "OnPolicyConfig", "RANGES", "check_ranges"]
 
 
 def static(default):
@@ -37,3 +41,34 @@ class OnPolicyConfig:
     gae_lambda: float = 0.95
     vf_coef: float = 1.0
     ent_coef: float = 0.01
+
+
+_AT_LEAST_1 = (">= 1", lambda v: v >= 1)  # counts and sizes
+_AT_LEAST_0 = (">= 0", lambda v: v >= 0)
+_POSITIVE = ("> 0", lambda v: v > 0)
+_FRACTION = ("in [0, 1]", lambda v: 0 <= v <= 1)
+_DISCOUNT = ("in (0, 1]", lambda v: 0 < v <= 1)
+# The valid values of the config fields (of any algorithm; a field its config lacks is passed
+# over): (the range as printed, the test). Comparisons are written so that NaN fails them.
+RANGES: dict[str, tuple[str, Any]] = {
+    **dict.fromkeys(("total_timesteps", "num_envs", "num_steps", "update_epochs", "num_minibatches",
+                     "gradient_steps", "batch_size", "buffer_size", "n_step", "target_update_period"), _AT_LEAST_1),
+    **dict.fromkeys(("memory", "vf_coef", "ent_coef", "clip_eps", "weight_decay", "rms_eps", "adam_eps", "damping",
+                     "vf_fisher_coef", "exploration_steps", "learning_starts"), _AT_LEAST_0),
+    **dict.fromkeys(("lr", "max_grad_norm", "kl_clip"), _POSITIVE),
+    **dict.fromkeys(("gae_lambda", "rms_alpha", "rms_decay", "stats_decay", "eps_start", "eps_end"), _FRACTION),
+    "gamma": _DISCOUNT,  # (DQN's tau: dqn.check_config, with what its values mean)
+    "momentum": ("in [0, 1)", lambda v: 0 <= v < 1),  # ACKTR's SGD steps scale by 1 - momentum
+}
+
+
+def check_ranges(config) -> None:
+    """Raise a one-line `ValueError` for the first field of `config` whose value is a concrete
+    number out of its range (`RANGES`); arrays and traced values (a sweep) pass unchecked."""
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if field.name not in RANGES or isinstance(value, bool) or not isinstance(value, numbers.Real):
+            continue
+        rule, valid = RANGES[field.name]
+        if not valid(value):
+            raise ValueError(f"{field.name}={value!r} is out of range: {field.name} must be {rule}")

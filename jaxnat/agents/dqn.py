@@ -57,7 +57,7 @@ from flax import struct
 from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions
-from jaxnat.agents.config import static
+from jaxnat.agents.config import check_ranges, static
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.agents.rollout import (EnvStep, Learner, count_updates, episode_metrics, scan_learner, scan_steps, step_info,
                                    vector_env)
@@ -236,11 +236,10 @@ def check_config(config: DQNConfig) -> None:
     if config.buffer_size < config.num_envs:
         raise ValueError(f"buffer_size={config.buffer_size} is smaller than one env step of "
                          f"num_envs={config.num_envs} envs")
-    if config.n_step < 1:
-        raise ValueError(f"n_step={config.n_step} must be at least 1")
     if isinstance(config.tau, (int, float)) and not 0 < config.tau <= 1:  # (a traced tau is not checked)
         raise ValueError(f"tau={config.tau} must be in (0, 1]: 1 copies the online network, less moves the "
                          "target that fraction of the way")
+    check_ranges(config)
 
 
 def _stored(s: EnvStep) -> dict:

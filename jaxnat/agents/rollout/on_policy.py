@@ -18,6 +18,7 @@ import jax.numpy as jnp
 from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions, normalize
+from jaxnat.agents.config import check_ranges
 from jaxnat.agents.networks import Memory, init_params, initial_memory, make_actor_critic
 from jaxnat.agents.rollout.parallel import pmean_gradients, shard_slice
 from jaxnat.agents.rollout.policy import act, final_value, sample_each
@@ -105,6 +106,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             the rest replicated; `config.num_envs` counts every device's envs). See the
             module docstring; None: one device, the default learner.
     """
+    check_ranges(config)
     total_updates = count_updates(config)
     observation_space = env.observation_space(env_params)
     action_space = env.action_space(env_params)

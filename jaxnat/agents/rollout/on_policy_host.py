@@ -17,6 +17,7 @@ import numpy as np
 from jax.sharding import PartitionSpec
 
 from jaxnat.agents import distributions
+from jaxnat.agents.config import check_ranges
 from jaxnat.agents.networks import make_actor_critic
 from jaxnat.agents.rollout.host import HostLearner, check_host_batch, host_steps, host_steps_pipelined, host_updates
 from jaxnat.agents.rollout.on_policy import UpdateRule
@@ -50,6 +51,7 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
     ones to float tolerance (with env parts: given the same parts per process, whose turns
     the step keys follow). Its random draws are not the default learner's (`devices=None`,
     unchanged)."""
+    check_ranges(config)
     options = rule.network_options(config)
     mesh = None if devices is None else device_mesh(devices)
     if mesh is not None:
