@@ -26,7 +26,7 @@ from jaxnat.reproduce.cells import train_cells
 from jaxnat.reproduce.cell_stream import CellStream, child_streams, stop_streams
 from jaxnat.reproduce.estimates import detect_platform, duration, estimate_seconds, estimate_total, split_streams
 from jaxnat.reproduce.gpus import Devices, find_devices, keep_jax_off_gpus
-from jaxnat.reproduce.grid import EXPERIMENTS, PROFILES, RUN_SETTINGS, Cell, Plan, build_grid
+from jaxnat.reproduce.grid import EXPERIMENTS, ONLY_NAMES, PROFILES, RUN_SETTINGS, TRUNKS, Cell, Plan, build_grid
 
 PROG = "jaxnat reproduce"
 
@@ -43,8 +43,10 @@ class ReproduceArgs:
     profile: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(PROFILES) + "}",
                                                     help_behavior_hint="")] = None
     """smoke: every cell type, tiny budgets, minutes on a CPU; quick: every finding, reduced budgets (one sitting on one GPU); paper: the paper's budgets (run piecewise with --only). Unset: smoke on a CPU, quick on an accelerator."""
-    only: Annotated[str, tyro.conf.arg(metavar=",".join(EXPERIMENTS))] = ",".join(EXPERIMENTS)
-    """Comma-separated experiments to run and report."""
+    only: Annotated[str, tyro.conf.arg(metavar=",".join(ONLY_NAMES))] = ",".join(EXPERIMENTS)
+    """Comma-separated experiments to run and report; `calibration` (not run unless named) trains the paper profile's batch beside the authors' at matched env steps."""
+    trunks: Annotated[str, tyro.conf.arg(metavar=",".join(TRUNKS))] = ",".join(TRUNKS)
+    """Comma-separated trunks of the vision cells to run and report (the paper profile's ResNet-18 cells are a second tier: `--trunks cnn` leaves them for another sitting)."""
     seeds: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Seeds per cell (unset: the profile's, 5 for quick and paper)."""
     out: Annotated[Optional[Path], tyro.conf.arg(metavar="DIR", help_behavior_hint="")] = None
@@ -78,19 +80,25 @@ def make_plan(args: ReproduceArgs, devices: Devices | None = None) -> Plan:
         raise ReproduceError(f"unknown --profile {name!r}{hint}; profiles: {', '.join(PROFILES)}")
     profile = PROFILES[name]
     only = tuple(name.strip() for name in args.only.split(",") if name.strip())
-    unknown = [name for name in only if name not in EXPERIMENTS]
+    unknown = [name for name in only if name not in ONLY_NAMES]
     if unknown or not only:
-        close = difflib.get_close_matches(unknown[0], EXPERIMENTS, n=1) if unknown else []
+        close = difflib.get_close_matches(unknown[0], ONLY_NAMES, n=1) if unknown else []
         hint = f" (did you mean {close[0]!r}?)" if close else ""
         what = f"unknown --only name {unknown[0]!r}{hint}" if unknown else "--only names no experiment"
-        raise ReproduceError(f"{what}; experiments: {', '.join(EXPERIMENTS)}")
+        raise ReproduceError(f"{what}; experiments: {', '.join(ONLY_NAMES)}")
+    trunks = tuple(name.strip() for name in args.trunks.split(",") if name.strip())
+    wrong = [name for name in trunks if name not in TRUNKS]
+    if wrong or not trunks:
+        what = f"unknown --trunks name {wrong[0]!r}" if wrong else "--trunks names no trunk"
+        raise ReproduceError(f"{what}; trunks: {', '.join(TRUNKS)}")
     seeds = profile.seeds if args.seeds is None else args.seeds
     if seeds < 1:
         raise ReproduceError("--seeds must be at least 1")
     _gpus_wanted(args)
     out = Path(args.out) if args.out is not None else Path("runs") / f"reproduce-{profile.name}"
     _check_writable(out)
-    return Plan(profile, only, seeds, out, build_grid(profile, only))
+    cells = [c for c in build_grid(profile, only) if c.labels.get("trunk", trunks[0]) in trunks]
+    return Plan(profile, only, seeds, out, cells)
 
 
 def _check_writable(out: Path) -> None:

@@ -5,18 +5,41 @@ platform."""
 
 from __future__ import annotations
 
-from jaxnat.reproduce.grid import Cell
+from jaxnat.agents import ALGORITHMS
+from jaxnat.reproduce.grid import CALIBRATION, Cell
 
 # Rough env steps/s (all seeds of a cell together) and the seconds a cell spends besides
 # training (compiling, where it is not hidden behind the cell before, evaluating, test play),
 # per experiment, for the estimate printed before starting (with streams side by side, that of
-# the longest stream: `estimate_total`); the progress bar's ETA then follows the measured pace.
-# The GPU figures follow the quick profile's cells (bench/reproduce_cost.py; Atari: 256 envs in
-# two parts, the seeds one after another).
-RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2},
-         "gpu": {"classify": 3.2e4, "localize": 1.5e4, "atari": 1e4, "mujoco": 2.5e4}}
+# the longest stream: `estimate_total`) and for sharing the cells among GPUs; the progress bar's
+# ETA then follows the measured pace. On a GPU the rate grows with the envs stepped at once
+# (E = envs per seed x seeds) and saturates: `GPU_RATES[experiment] = (saturated rate, E at half
+# of it)`, fitted to the quick profile's cells (bench/reproduce_cost.py) and the larger batches
+# of bench/results (classification PPO at 2,048 envs x 5 seeds, PixelMuJoCo PPO at 1,024 x 5).
+# Natural Atari is bound by the host's cores: one rate. A calibration cell counts as its group's
+# experiment; PixelMuJoCo's observations without rendering are faster by `OBSERVATION_SPEEDUP`.
+RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2}}
+GPU_RATES = {"classify": (6.5e5, 770), "localize": (3e5, 770), "atari": (1e4, 0), "mujoco": (1.05e5, 2048)}
+OBSERVATION_SPEEDUP = {"noise": 1.5, "state": 5.0, "constant": 5.0}
 COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
              "gpu": {"classify": 8, "localize": 23, "atari": 106, "mujoco": 35}}
+
+
+def _family(cell: Cell) -> str:
+    """The experiment whose rates a cell has (a calibration cell: its group's)."""
+    return cell.labels.get("group", cell.experiment) if cell.experiment == CALIBRATION else cell.experiment
+
+
+def rate(cell: Cell, seeds: int, platform: str) -> float:
+    """The rough env steps/s of `cell` with `seeds` seeds on `platform` ("cpu" or "gpu")."""
+    family = _family(cell)
+    if platform == "cpu":
+        base = RATES["cpu"][family]
+    else:
+        saturated, half = GPU_RATES[family]
+        envs = cell.overrides.get("num_envs", ALGORITHMS[cell.algo].config().num_envs) * seeds
+        base = saturated * envs / (envs + half)
+    return base * OBSERVATION_SPEEDUP.get(cell.labels.get("observation"), 1.0) if family == "mujoco" else base
 
 
 def detect_platform() -> str:
@@ -29,7 +52,7 @@ def detect_platform() -> str:
 def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
     """A rough wall time of `cell` (compile + training + evaluation), for the ETA."""
     steps = cell.budget.total_timesteps * seeds
-    return COMPILE_S[platform][cell.experiment] + steps / RATES[platform][cell.experiment]
+    return COMPILE_S[platform][_family(cell)] + steps / rate(cell, seeds, platform)
 
 
 def balance(cells: list[Cell], count: int, seconds: dict[str, float]) -> list[list[Cell]]:

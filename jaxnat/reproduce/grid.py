@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from jaxnat.agents import ALGORITHMS
+from jaxnat.agents.defaults import CONTINUOUS_STATE
 from jaxnat.atari.games import AUTHORS_GAMES
 from jaxnat.datasets import DatasetNotFoundError, locate
 from jaxnat.datasets.cityscapes import find_files as cityscapes_files
@@ -48,10 +49,14 @@ from jaxnat.datasets.cityscapes import find_files as cityscapes_files
 if TYPE_CHECKING:
     from jaxnat.training import TrainArgs
 
-__all__ = ["EXPERIMENTS", "HOST_EXPERIMENTS", "PAPER_BUDGETS", "PROFILES", "Budget", "Profile", "Cell", "Plan",
-           "build_grid", "dataset_choice"]
+__all__ = ["EXPERIMENTS", "CALIBRATION", "ONLY_NAMES", "CALIBRATION_STEPS", "HOST_EXPERIMENTS", "PAPER_BUDGETS", "PROFILES", "Budget", "Profile", "Cell", "Plan",
+           "build_grid", "dataset_choice", "data_name"]
 
 EXPERIMENTS = ("classify", "localize", "atari", "mujoco")
+# `--only calibration`: the paper profile's batch against the authors' at matched env steps
+# (`_calibration_cells`); not one of the paper's experiments, so not run unless named.
+CALIBRATION = "calibration"
+ONLY_NAMES = (*EXPERIMENTS, CALIBRATION)
 # The experiments whose cells `jaxnat train` runs on its host backend (host-batched envs: ALE
 # emulates on the host's cores, the policy runs on the accelerator); the others' cells run all
 # seeds in one program on the accelerator. `jaxnat reproduce` runs the two kinds side by side.
@@ -66,13 +71,21 @@ OBSERVATIONS = {  # name -> PixelMuJoCo kwargs
     "checker": {"observation": "pixels", "floor": "checker"},
     "video": {"observation": "pixels", "floor": "video"},
     "noise": {"observation": "noise"},
+    # The two references "noise is as good as pixels" is judged against (not in the paper): the
+    # robot's state vector, and a constant observation (a policy that sees nothing: the best
+    # state-independent action distribution). Both train with the pixel cells' settings
+    # (`_same_settings`), not the state-vector family defaults.
+    "state": {"observation": "state"},
+    "constant": {"observation": "constant"},
 }
+PIXEL_OBSERVATIONS = ("checker", "video", "noise")  # the paper's three
 DATASET_NAMES = {"mnist": "MNIST", "cifar10": "CIFAR-10", "cifar100": "CIFAR-100", "cityscapes": "Cityscapes",
                  "clutter": "Clutter"}
 # dataset -> (embedded dataset, its env, its name) standing in when the dataset is not found.
 STAND_INS = {"mnist": ("digits", "Classify/Digits-v0", "Digits (OpenCV's 5,000 MNIST digits)"),
              "cifar10": ("fashion_mnist", "Classify/FashionMNIST-v0", "Fashion-MNIST")}
 ATARI_ALGOS = ("ppo", "a2c", "acktr", "dqn")  # the paper evaluated all four on Atari; each has a host loop
+MUJOCO_ALGOS = ("ppo", "a2c")  # the two the paper's PixelMuJoCo claim names
 # `jaxnat train` settings that are not algorithm config fields, allowed in `Profile.overrides`
 # (and written as departures): the parts host-batched envs are stepped in, updates per evaluation.
 RUN_SETTINGS = {"env_parts": 1, "eval_every": None}  # name -> the value a cell without it has (None: auto)
@@ -85,6 +98,7 @@ RUN_SETTINGS = {"env_parts": 1, "eval_every": None}  # name -> the value a cell 
 # PixelMuJoCo, and for Natural Atari 10M agent steps = 40M frames (the `num_timesteps` of the
 # baselines code the authors ran counts agent steps). The report shows each finding's share.
 PAPER_BUDGETS = {"classify": 10_000_000, "localize": 10_000_000, "atari": 10_000_000, "mujoco": 10_000_000}
+CALIBRATION_STEPS = 2_000_000  # env steps per seed of every calibration cell (matched across batches)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,17 +128,39 @@ class Profile:
 
 _TINY = {"num_envs": 2, "num_steps": 8, "update_epochs": 1, "num_minibatches": 1}
 
+# The paper profile's batch per family (changed from the authors' PPO 8 x 128, A2C 16 x 5 and
+# ACKTR 32 x 20 env steps per update, which leave a GPU latency-bound: about 400 GPU-hours for
+# the grid). Envs per seed x steps per update; a key naming an algorithm holds its own settings.
+# What the larger batch does to the science at matched env steps is measured by the
+# `calibration` experiment (`calibration.py`), which the report cites.
+# - classify, localize: 512 envs per seed, each algorithm's own rollout length (PPO's cut from
+#   128 to 32 steps, so an update still holds 16,384 steps: 610 updates in 10M); PPO keeps its
+#   4 epochs x 4 minibatches.
+# - mujoco: 1,024 envs per seed (PPO 16 steps, A2C 5). PixelMuJoCo's rewards are normalised
+#   (VecNormalize's return scaling, which the authors' code applies to MuJoCo) and PPO takes the
+#   continuous-control settings of CleanRL / baselines (entropy 0, clip 0.2, lr 3e-4): with the
+#   Atari settings and raw rewards a pixel policy is still at the untrained policy's return after
+#   1M steps. The calibration runs both treatments (and the sign clipping of the authors' Atari
+#   wrappers) on HalfCheetah.
+# - atari: the authors' envs per update (PPO 8, A2C 16): ALE on the host's cores sets the cost.
+PAPER_SCALE: dict[str, dict[str, Any]] = {
+    "classify": {"num_envs": 512, "ppo": {"num_steps": 32}, "a2c": {"num_steps": 5}, "acktr": {"num_steps": 20}},
+    "localize": {"num_envs": 512, "ppo": {"num_steps": 32}, "a2c": {"num_steps": 5}, "acktr": {"num_steps": 20}},
+    "mujoco": {"num_envs": 1024, "normalize_rewards": True, "eval_every": 64,
+               "ppo": {"num_steps": 16, "ent_coef": 0.0, "clip_eps": 0.2, "lr": 3e-4}, "a2c": {"num_steps": 5}},
+}
+
 PROFILES: dict[str, Profile] = {
     "smoke": Profile(
         name="smoke",
         description="every cell type end to end with tiny budgets, on a CPU in minutes (CI runs it)",
         seeds=2,
-        budgets={e: Budget(total_timesteps=32, eval_episodes=4) for e in EXPERIMENTS},
+        budgets={e: Budget(total_timesteps=32, eval_episodes=4) for e in ONLY_NAMES},
         subsets={"datasets": ("mnist",), "algos": ("ppo",), "trunks": ("cnn",), "sweep": ((2, 20),),
                  "localize": ("clutter",), "games": ("Breakout",), "backgrounds": ("video",),
                  "atari_algos": ("ppo",), "robots": ("Swimmer",), "observations": ("noise",),
-                 "mujoco_algos": ("a2c",)},
-        overrides={e: dict(_TINY) for e in EXPERIMENTS},
+                 "mujoco_algos": ("a2c",), "calibration": ("classify",)},
+        overrides={e: dict(_TINY) for e in ONLY_NAMES},
         # Short episodes: a smoke run's evaluation plays whole episodes.
         env_kwargs={"localize": {"M": 10, "image_size": 64}, "atari": {"max_episode_steps": 20},
                     "mujoco": {"max_steps_in_episode": 10}},
@@ -137,7 +173,8 @@ PROFILES: dict[str, Profile] = {
         budgets={"classify": Budget(150_000, eval_episodes=200),
                  "localize": Budget(100_000, eval_episodes=100),
                  "atari": Budget(163_840, eval_episodes=2),  # 20 updates of 256 envs x 32 steps
-                 "mujoco": Budget(262_144, eval_episodes=5)},  # 64 updates of 128 envs x 32 steps
+                 "mujoco": Budget(262_144, eval_episodes=5),  # 64 updates of 128 envs x 32 steps
+                 "calibration": Budget(CALIBRATION_STEPS)},
         # The 3-layer CNN only: a ResNet-18 cell takes minutes even at this budget (its claims
         # are judged by the paper profile). Natural Atari: one game, the backgrounds of the
         # finding (none vs natural video); an Atari cell takes about 3 minutes (5 seeds in turn).
@@ -159,13 +196,17 @@ PROFILES: dict[str, Profile] = {
     ),
     "paper": Profile(
         name="paper",
-        description="the paper's budgets (10M env steps per cell); run piecewise with --only, resumable",
+        description="the paper's budgets (10M agent steps per seed) at GPU scale; run piecewise with --only, resumable",
         seeds=5,
         budgets={"classify": Budget(10_000_000, eval_episodes=1000),
                  "localize": Budget(10_000_000, eval_episodes=1000),
-                 # 10M frames at frame skip 4: a quarter of PAPER_BUDGETS["atari"] (40M frames)
-                 "atari": Budget(2_500_000, eval_episodes=10),
-                 "mujoco": Budget(10_000_000, eval_episodes=10)},
+                 "atari": Budget(PAPER_BUDGETS["atari"], eval_episodes=10),  # 40M frames
+                 "mujoco": Budget(10_000_000, eval_episodes=10),
+                 "calibration": Budget(CALIBRATION_STEPS, eval_episodes=200)},
+        subsets={"mujoco_algos": MUJOCO_ALGOS},
+        overrides=PAPER_SCALE,
+        # PixelMuJoCo: MJX with the robot's `physics="fast"` settings, as in `quick`.
+        env_kwargs={"mujoco": {"physics": "fast"}},
     ),
 }
 
@@ -214,9 +255,23 @@ class Cell:
 
 def _settings(algo: str, overrides: dict) -> dict:
     """The profile's overrides that are settings of `algo` (e.g. epochs only for PPO), and the
-    run settings of `jaxnat train` (`RUN_SETTINGS`)."""
+    run settings of `jaxnat train` (`RUN_SETTINGS`): the shared ones, then `overrides[algo]`."""
     fields = {f.name for f in dataclasses.fields(ALGORITHMS[algo].config)} | set(RUN_SETTINGS)
-    return {k: v for k, v in overrides.items() if k in fields}
+    merged = {**overrides, **overrides.get(algo, {})}
+    return {k: v for k, v in merged.items() if k in fields}
+
+
+def _same_settings(algo: str, settings: dict) -> dict:
+    """`settings` of a pixel cell made explicit for a cell with a vector observation, which
+    would otherwise take the state-vector family defaults (`agents.defaults.CONTINUOUS_STATE`:
+    other batch, epochs, learning rate): every field those defaults set, and the reward
+    treatment, at the pixel cell's value. Observation normalisation stays the vector's own
+    (derived from the observation, as the trunk is)."""
+    config = ALGORITHMS[algo].config()
+    fields = [*CONTINUOUS_STATE.get(algo, {}), "normalize_rewards", "clip_rewards"]
+    same = {k: settings.get(k, getattr(config, k)) for k in fields if hasattr(config, k)}
+    same["normalize_rewards"] = bool(same.get("normalize_rewards"))  # None: off, as for images
+    return {**same, **settings}
 
 
 def _found(check) -> bool:
@@ -266,14 +321,21 @@ def _vision_cells(profile: Profile, experiment: str, datasets: tuple[str, ...], 
         env_id, note, skip = dataset_choice(dataset)
         for trunk in profile.subset("trunks", tuple(TRUNKS)):
             for algo in profile.subset("algos", ALGOS):
-                cells.append(Cell(f"{experiment}-{dataset}-{trunk}-{algo}", experiment, f"{experiment}-{trunk}",
-                                  env_id, {}, algo, TRUNKS[trunk], budget, _settings(algo, extra),
-                                  {"dataset": dataset, "trunk": trunk}, note, skip))
+                cells.append(Cell(f"{experiment}-{data_name(dataset, note)}-{trunk}-{algo}", experiment,
+                                  f"{experiment}-{trunk}", env_id, {}, algo, TRUNKS[trunk], budget,
+                                  _settings(algo, extra), {"dataset": dataset, "trunk": trunk}, note, skip))
     env_id, note, skip = dataset_choice(noise_dataset)
-    cells.append(Cell(f"{experiment}-{noise_dataset}-cnn-ppo-noise", experiment, "noise-control", env_id,
-                      {"observation_noise": True}, "ppo", None, budget, _settings("ppo", extra),
+    cells.append(Cell(f"{experiment}-{data_name(noise_dataset, note)}-cnn-ppo-noise", experiment, "noise-control",
+                      env_id, {"observation_noise": True}, "ppo", None, budget, _settings("ppo", extra),
                       {"dataset": noise_dataset, "trunk": "cnn", "observation": "noise"}, note, skip))
     return cells
+
+
+def data_name(dataset: str, note: str) -> str:
+    """The name of the data a cell trains on, for its name: the stand-in's when `note` says one
+    stands in (`dataset_choice`), so that a cell trained on Digits is never named after MNIST.
+    The cell's `labels["dataset"]` keeps the paper's dataset: the role the findings read."""
+    return STAND_INS[dataset][0].replace("_", "") if note and dataset in STAND_INS else dataset
 
 
 def _classify_cells(profile: Profile) -> list[Cell]:
@@ -314,20 +376,80 @@ def _mujoco_cells(profile: Profile) -> list[Cell]:
     cells = []
     for robot in profile.subset("robots", ROBOTS):
         for observation in profile.subset("observations", tuple(OBSERVATIONS)):
-            for algo in profile.subset("mujoco_algos", ALGOS):
+            for algo in profile.subset("mujoco_algos", MUJOCO_ALGOS):
+                settings = _settings(algo, extra)
+                if observation not in PIXEL_OBSERVATIONS:
+                    settings = _same_settings(algo, settings)
                 cells.append(Cell(f"mujoco-{robot.lower()}-{observation}-{algo}", "mujoco", "mujoco",
                                   f"PixelMuJoCo/{robot}-v0", dict(OBSERVATIONS[observation]), algo, None, budget,
-                                  _settings(algo, extra), {"robot": robot, "observation": observation}))
+                                  settings, {"robot": robot, "observation": observation}))
+    return cells
+
+
+# The calibration's settings per group: (algo, variant, settings). "authors": their envs per
+# update (pytorch-a2c-ppo-acktr's Atari settings); "profile": the paper profile's (`PAPER_SCALE`);
+# the others restore optimizer steps per env step, or change the reward treatment. A group's
+# profile cell is judged against its "authors" cell of the same algorithm (`calibration.py`).
+# PixelMuJoCo's group compares reward treatments at the profile's batch: its authors' batch (8
+# envs of 84x84 renders) is latency-bound, hours at 2M steps x 5 seeds, left for a later sitting.
+_CLASSIFY_PPO, _MUJOCO_PPO = _settings("ppo", PAPER_SCALE["classify"]), _settings("ppo", PAPER_SCALE["mujoco"])
+_ATARI_PPO = {"ent_coef": 0.01, "clip_eps": 0.1, "lr": 2.5e-4}  # PPOConfig's defaults: the paper's
+CALIBRATION_VARIANTS: dict[str, list[tuple[str, str, dict[str, Any]]]] = {
+    "classify": [
+        ("ppo", "authors", {"num_envs": 8, "num_steps": 128}),
+        ("ppo", "64 envs", {"num_envs": 64, "num_steps": 128}),
+        ("ppo", "profile", _CLASSIFY_PPO),
+        ("ppo", "profile, 4x minibatches", {**_CLASSIFY_PPO, "num_minibatches": 16}),
+        ("a2c", "authors", {"num_envs": 16, "num_steps": 5}),
+        ("a2c", "64 envs", {"num_envs": 64, "num_steps": 5}),
+        ("a2c", "profile", _settings("a2c", PAPER_SCALE["classify"])),
+        ("acktr", "authors", {"num_envs": 32, "num_steps": 20}),
+        ("acktr", "profile", _settings("acktr", PAPER_SCALE["classify"])),
+    ],
+    "mujoco": [
+        ("ppo", "profile", _MUJOCO_PPO),
+        ("ppo", "Atari settings, sign-clipped rewards", {**_MUJOCO_PPO, **_ATARI_PPO, "normalize_rewards": False,
+                                                          "clip_rewards": True}),
+        ("ppo", "Atari settings, normalised rewards", {**_MUJOCO_PPO, **_ATARI_PPO}),
+        ("ppo", "sign-clipped rewards", {**_MUJOCO_PPO, "normalize_rewards": False, "clip_rewards": True}),
+    ],
+}
+CALIBRATION_ENVS = {"mujoco": ("PixelMuJoCo/HalfCheetah-v0", {"observation": "pixels", "floor": "checker",
+                                                               "physics": "fast"})}
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() else "-" for c in text.lower()).strip("-").replace("--", "-")
+
+
+def _calibration_cells(profile: Profile) -> list[Cell]:
+    """The calibration: each group's cell at the authors' batch, at the paper profile's, and at
+    the variants between, all to `CALIBRATION_STEPS` env steps per seed (the profile's budget
+    and overrides apply on top: the smoke profile's tiny batch)."""
+    budget, extra = profile.budgets[CALIBRATION], profile.overrides.get(CALIBRATION, {})
+    env_id, note, skip = dataset_choice("mnist")
+    cells = []
+    for group in profile.subset("calibration", tuple(CALIBRATION_VARIANTS)):
+        group_env, kwargs = CALIBRATION_ENVS.get(group, (env_id, {}))
+        for algo, variant, settings in CALIBRATION_VARIANTS[group]:
+            settings = {**settings, **_settings(algo, extra)}
+            cells.append(Cell(f"calibration-{group}-{algo}-{_slug(variant)}", CALIBRATION, CALIBRATION, group_env,
+                              dict(kwargs), algo, None,
+                              dataclasses.replace(budget, eval_episodes=min(budget.eval_episodes, 10))
+                              if group == "mujoco" else budget, _settings(algo, settings),
+                              {"group": group, "variant": variant, **({"dataset": "mnist"} if group == "classify" else {})},
+                              note if group == "classify" else "", skip if group == "classify" else ""))
     return cells
 
 
 _BUILDERS = {"classify": _classify_cells, "localize": _localize_cells, "atari": _atari_cells,
-             "mujoco": _mujoco_cells}
+             "mujoco": _mujoco_cells, CALIBRATION: _calibration_cells}
 
 
 def build_grid(profile: Profile, only: tuple[str, ...] = EXPERIMENTS) -> list[Cell]:
-    """The cells of `profile` for the experiments in `only`, in the paper's order."""
-    cells = [cell for experiment in EXPERIMENTS if experiment in only for cell in _BUILDERS[experiment](profile)]
+    """The cells of `profile` for the experiments in `only` (`ONLY_NAMES`), in the paper's
+    order, the calibration last."""
+    cells = [cell for experiment in ONLY_NAMES if experiment in only for cell in _BUILDERS[experiment](profile)]
     return [dataclasses.replace(cell, env_kwargs={**cell.env_kwargs, **profile.env_kwargs[cell.experiment]})
             if cell.experiment in profile.env_kwargs else cell for cell in cells]
 

@@ -1,0 +1,103 @@
+"""The calibration section of a report: does the paper profile's larger batch change the science?
+
+The paper profile trains with hundreds of envs per seed where the authors had 8-32
+(`grid.PAPER_SCALE`), so it takes far fewer optimizer steps per env step. `jaxnat reproduce
+--only calibration` trains the same cell at the authors' batch, at the profile's and at batches
+and settings between (`grid.CALIBRATION_VARIANTS`), every one to `grid.CALIBRATION_STEPS` env
+steps per seed, and this section compares them at those matched steps.
+
+**The quantity** is the verdicts' (`verdicts.py`): each seed's training return over the last 10%
+of its updates with episodes, the mean over seeds with a 95% bootstrap interval. **The authors'
+band** is that interval for the group's "authors" cell of the same algorithm. Each other cell is
+*inside* the band when the two intervals overlap, *above* or *below* when they are apart; a cell
+that did not beat its own untrained policy (`verdicts.learned`) is marked *did not learn* and
+compared with nothing. When the profile's cell falls below the band the fix the issue prescribes
+is to restore optimizer steps per env step first (PPO's epochs and minibatches: the "4x
+minibatches" variant), the learning rate second; the table shows which variant closes the gap.
+
+PixelMuJoCo's group compares reward treatments at the profile's batch (no authors' cell: see
+`grid.CALIBRATION_VARIANTS`), each against its untrained policy only.
+"""
+
+from __future__ import annotations
+
+from jaxnat.agents import ALGORITHMS
+from jaxnat.reproduce.grid import CALIBRATION
+from jaxnat.reproduce.verdicts import learned
+
+__all__ = ["calibration_results", "calibration_panels", "calibration_section", "optimizer_steps", "band_position"]
+
+AUTHORS = "authors"
+
+
+def calibration_results(results: list) -> list:
+    """The calibration cells among `results` (`report.CellResult`s)."""
+    return [r for r in results if r.cell.experiment == CALIBRATION]
+
+
+def _setting(cell, name: str):
+    return cell.overrides.get(name, getattr(ALGORITHMS[cell.algo].config(), name, None))
+
+
+def optimizer_steps(cell) -> tuple[int, int, float]:
+    """`(envs, steps per env per update, optimizer steps per 1,000 env steps)` of a cell as it is
+    configured (PPO: epochs x minibatches per update; A2C and ACKTR: one step per update)."""
+    envs, steps = _setting(cell, "num_envs"), _setting(cell, "num_steps")
+    per_update = _setting(cell, "update_epochs") * _setting(cell, "num_minibatches") if cell.algo == "ppo" else 1
+    return envs, steps, 1000.0 * per_update / (envs * steps)
+
+
+def band_position(result, authors) -> str:
+    """Where `result`'s final training return sits against the `authors` cell's interval:
+    "did not learn", "inside", "above" or "below" (`authors` None: "learned")."""
+    if learned(result) is not None:
+        return "did not learn"
+    if authors is None:
+        return "learned"
+    got, band = result.final_train, authors.final_train
+    if got.low > band.high:
+        return "above"
+    if got.high < band.low:
+        return "below"
+    return "inside"
+
+
+def _groups(results: list) -> dict[tuple[str, str], list]:
+    groups: dict[tuple[str, str], list] = {}
+    for r in calibration_results(results):
+        groups.setdefault((r.cell.labels["group"], r.cell.algo), []).append(r)
+    return groups
+
+
+def calibration_panels(results: list) -> dict[str, list[tuple[str, object]]]:
+    """The calibration figure's panels for `report.plot_figure`: one per group and algorithm, a
+    curve per variant."""
+    return {f"{group}: {algo.upper()}": [(r.cell.labels["variant"], r) for r in rows]
+            for (group, algo), rows in _groups(results).items()}
+
+
+def calibration_section(results: list, figure: str | None = None) -> list[str]:
+    """The report's calibration section (empty without calibration cells); `figure`: the file
+    name of the calibration figure, shown when given."""
+    groups = _groups(results)
+    if not groups:
+        return []
+    lines = ["## Calibration: the profile's batch against the authors'", "",
+             "Each cell trained to the same env steps per seed; train return = each seed's mean over its last 10% "
+             "of updates with episodes (mean [95% bootstrap CI] over seeds). Against the authors' band: the "
+             "authors'-batch cell's interval (inside: the intervals overlap). Rules: `jaxnat/reproduce/calibration.py`.",
+             "", "| group | algo | variant | envs x steps per update | optimizer steps per 1,000 env steps | env steps/seed "
+             "| train return | untrained (test, sampled) | against the authors' band |", "|---|---|---|---|---|---|---|---|---|"]
+    for (group, algo), rows in groups.items():
+        authors = next((r for r in rows if r.cell.labels["variant"] == AUTHORS and r.complete), None)
+        for r in rows:
+            envs, steps, per_k = optimizer_steps(r.cell)
+            trained = int(r.steps.max()) if r.steps.size else 0
+            position = "—" if r is authors else ("incomplete" if not r.complete else band_position(r, authors))
+            untrained = "not recorded" if r.untrained is None else str(r.untrained)
+            lines.append(f"| {group} | {algo.upper()} | {r.cell.labels['variant']} | {envs} x {steps} | {per_k:.3g} | "
+                         f"{trained:,} | {r.final_train} | {untrained} | {position} |")
+    lines += [""]
+    if figure:
+        lines += [f"![Calibration]({figure})", ""]
+    return lines
