@@ -12,7 +12,9 @@ last. Localisation: the 3-layer CNN above ResNet-18, per dataset and algorithm (
 "small", is not judged). Atari "worst with video": no background and the noise background each
 above video, per game and algorithm. PixelMuJoCo "noise as good as pixels" (PPO and A2C, as the
 paper names): `verdicts.as_good`, the pixel policy gated. jaxnat's noise control: the real
-observation above pure noise.
+observation above pure noise. jaxnat's PixelMuJoCo reference: each observation's policy above the
+constant-observation policy of the same robot and algorithm (a policy no better than one that
+sees nothing learned a state-independent gait: "noise as good as pixels" then says little).
 """
 
 from __future__ import annotations
@@ -154,6 +156,16 @@ def _noise_as_good(results) -> Verdict:
                   for a, b in pairs if a.cell.algo in ("ppo", "a2c")])
 
 
+def _sight_helps(results) -> Verdict:
+    comparisons = []
+    for observation in ("checker", "video", "noise"):
+        pairs = _pairs(results, _is("mujoco", observation=observation), _is("mujoco", observation="constant"),
+                       ("robot",))
+        comparisons += [ordered(f"{a.cell.labels['robot']} {_up(a)}", (observation, a), ("constant", b))
+                        for a, b in pairs]
+    return judge("PixelMuJoCo against the constant-observation reference", comparisons)
+
+
 def _noise_control(results) -> Verdict:
     return judge("the vision noise control", [ordered(f"{a.cell.experiment} {a.cell.labels['dataset']}", ("real", a),
                                                       ("noise", b)) for a, b in noise_control_pairs(results)])
@@ -173,6 +185,9 @@ FINDINGS = (
     Finding("Even in the case where there is no information returned in the observation [...] PPO and A2C are able "
             "to learn as good a policy as when actual state information is provided [PixelMuJoCo, pure noise]",
             "mujoco", _noise_as_good),
+    Finding("(not in the paper; jaxnat's reference) what \"as good\" means: each PixelMuJoCo policy (checker, video, "
+            "noise) is above the policy that sees a constant observation (the best state-independent action "
+            "distribution), their 95% intervals apart", "mujoco", _sight_helps),
     Finding("(not in the paper; jaxnat's control) the vision tasks are not learned from pure noise: the real "
             "observation's policy is above the noise policy, their 95% intervals apart", ("classify", "localize"),
             _noise_control),

@@ -1,0 +1,128 @@
+"""The paper profile and the calibration (`jaxnat.reproduce.grid`, `calibration`), without
+training: budgets at 100% of the paper's, the batch per family, the PixelMuJoCo references
+trained with the pixel cells' settings, stand-ins never named as the paper's datasets, the
+calibration's cells and its verdict on hand-made results, and `--trunks`."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from jaxnat import spaces
+from jaxnat.agents import resolve_config
+from jaxnat.reproduce import calibration, command, estimates, grid
+from jaxnat.reproduce.report import CellResult
+
+PAPER = grid.PROFILES["paper"]
+
+
+@pytest.fixture(scope="module")
+def paper_cells():
+    return grid.build_grid(PAPER, grid.ONLY_NAMES)
+
+
+def test_paper_profile_trains_every_finding_cell_at_the_papers_budget(paper_cells):
+    for cell in paper_cells:
+        if cell.experiment != grid.CALIBRATION:
+            assert cell.budget.total_timesteps == grid.PAPER_BUDGETS[cell.experiment], cell.name
+    assert grid.PAPER_BUDGETS["atari"] == 10_000_000  # agent steps: 40M frames
+
+
+def test_paper_profile_batches_are_gpu_sized_except_host_atari(paper_cells):
+    for cell in paper_cells:
+        if cell.host or cell.experiment == grid.CALIBRATION:
+            continue
+        assert cell.overrides["num_envs"] >= 512, cell.name  # the authors: 8-32
+    steps = {(c.experiment, c.algo): c.overrides.get("num_steps") for c in paper_cells if not c.host}
+    assert steps[("classify", "ppo")] == 32 and steps[("classify", "a2c")] == 5 and steps[("classify", "acktr")] == 20
+    assert steps[("mujoco", "ppo")] == 16 and steps[("mujoco", "a2c")] == 5
+    # Natural Atari keeps the authors' envs per update (its cost is the host's cores).
+    assert all("num_envs" not in c.overrides for c in paper_cells if c.host)
+
+
+def test_pixelmujoco_grid_has_the_papers_observations_and_two_references(paper_cells):
+    mujoco = [c for c in paper_cells if c.experiment == "mujoco"]
+    assert len(mujoco) == 4 * 5 * 2  # robots x (checker, video, noise, state, constant) x (PPO, A2C)
+    assert {c.labels["observation"] for c in mujoco} == {"checker", "video", "noise", "state", "constant"}
+    assert {c.algo for c in mujoco} == {"ppo", "a2c"}
+
+
+@pytest.mark.parametrize("algo", ["ppo", "a2c"])
+def test_state_and_constant_references_train_with_the_pixel_cells_settings(paper_cells, algo):
+    """A state-vector env would otherwise take the MuJoCo family defaults (1 env x 2048 steps,
+    10 epochs, ...): the reference cells must resolve to the pixel cell's config, but for the
+    trunk and the observation normalisation the vector observation decides."""
+    pixels, vector = spaces.Box(0, 255, (84, 84, 4), np.uint8), spaces.Box(-np.inf, np.inf, (17,), np.float32)
+    action = spaces.Box(-1.0, 1.0, (6,), np.float32)
+    cells = {c.labels["observation"]: c for c in paper_cells
+             if c.experiment == "mujoco" and c.labels["robot"] == "HalfCheetah" and c.algo == algo}
+    def settings(cell):  # the config fields (not `jaxnat train`'s run settings)
+        return {k: v for k, v in cell.overrides.items() if k not in grid.RUN_SETTINGS}
+
+    reference = resolve_config(algo, pixels, action, settings(cells["checker"])).config
+    for observation in ("state", "constant"):
+        config = resolve_config(algo, vector, action, settings(cells[observation])).config
+        differ = {f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(reference, f.name)}
+        assert differ <= {"normalize_observations", "trunk"}, (observation, differ)
+        assert config.normalize_rewards and config.num_envs == 1024
+
+
+def test_stand_in_cells_are_never_named_after_the_papers_dataset(paper_cells):
+    for cell in paper_cells:
+        if cell.note and "stands in for" in cell.note:
+            paper_name = cell.labels["dataset"]  # the role: mnist, cifar10
+            assert f"-{paper_name}-" not in cell.name and not cell.name.endswith(f"-{paper_name}"), cell.name
+    assert grid.data_name("mnist", "Digits stands in for MNIST") == "digits"
+    assert grid.data_name("cifar10", "Fashion-MNIST stands in for CIFAR-10") == "fashionmnist"
+    assert grid.data_name("mnist", "") == "mnist"
+
+
+def test_calibration_is_named_only_on_request_and_matches_steps(paper_cells):
+    plan = command.make_plan(command.ReproduceArgs(profile="paper", out="/tmp/unused-jaxnat-plan"))
+    assert not any(c.experiment == grid.CALIBRATION for c in plan.cells)
+    cal = [c for c in paper_cells if c.experiment == grid.CALIBRATION]
+    assert {c.budget.total_timesteps for c in cal} == {grid.CALIBRATION_STEPS}
+    assert len({c.name for c in cal}) == len(cal)
+    by = {(c.labels["group"], c.algo, c.labels["variant"]): c for c in cal}
+    assert calibration.optimizer_steps(by["classify", "ppo", "authors"]) == (8, 128, 1000 * 16 / 1024)
+    assert calibration.optimizer_steps(by["classify", "a2c", "authors"]) == (16, 5, 1000 / 80)
+    assert calibration.optimizer_steps(by["classify", "acktr", "authors"]) == (32, 20, 1000 / 640)
+    profile = next(c for c in paper_cells if c.name.startswith("classify-") and c.algo == "ppo")
+    assert by["classify", "ppo", "profile"].overrides == {k: v for k, v in profile.overrides.items()}
+    assert by["mujoco", "ppo", "sign-clipped rewards"].overrides.get("clip_rewards") is True
+
+
+def _calibrated(variant, mean, untrained=0.0):
+    cell = grid.Cell(f"calibration-classify-ppo-{variant}", grid.CALIBRATION, grid.CALIBRATION, "X/Y-v0", {}, "ppo",
+                     None, grid.Budget(grid.CALIBRATION_STEPS), {"num_envs": 8, "num_steps": 128},
+                     {"group": "classify", "variant": variant})
+    steps = np.linspace(2e5, 2e6, 10)
+    train = np.full((10, 3), mean) + np.array([-0.05, 0.0, 0.05])
+    sampled = np.stack([untrained + np.array([-0.05, 0.0, 0.05]), train[-1]])
+    return CellResult(cell, True, 3, steps, train, np.array([0.0, 2e6]), sampled, sampled, None, 1.0)
+
+
+def test_calibration_band_positions():
+    authors = _calibrated("authors", 0.7)
+    assert calibration.band_position(_calibrated("profile", 0.72), authors) == "inside"
+    assert calibration.band_position(_calibrated("profile", 0.9), authors) == "above"
+    assert calibration.band_position(_calibrated("profile", 0.4), authors) == "below"
+    assert calibration.band_position(_calibrated("profile", 0.4, untrained=0.4), authors) == "did not learn"
+    lines = calibration.calibration_section([authors, _calibrated("profile", 0.4)])
+    row = next(line for line in lines if "| profile |" in line)
+    assert row.endswith("| below |") and "| 8 x 128 | 15.6 |" in row
+
+
+def test_trunks_option_selects_the_vision_tier_and_rejects_unknown_names(tmp_path):
+    plan = command.make_plan(command.ReproduceArgs(profile="paper", only="classify", trunks="cnn", out=tmp_path))
+    assert plan.cells and all(c.labels.get("trunk", "cnn") == "cnn" for c in plan.cells)
+    assert any(c.figure == "sweep" for c in plan.cells)  # the sweep has no trunk label: always kept
+    with pytest.raises(command.ReproduceError, match="unknown --trunks name 'resnet'"):
+        command.make_plan(command.ReproduceArgs(profile="paper", trunks="resnet", out=tmp_path))
+
+
+def test_gpu_estimate_grows_with_the_batch(paper_cells):
+    cell = next(c for c in paper_cells if c.name.startswith("classify-") and c.algo == "ppo")
+    small = dataclasses.replace(cell, overrides={**cell.overrides, "num_envs": 8})
+    assert estimates.rate(small, 5, "gpu") < estimates.rate(cell, 5, "gpu") < estimates.GPU_RATES["classify"][0]
+    assert estimates.rate(small, 5, "cpu") == estimates.rate(cell, 5, "cpu")
