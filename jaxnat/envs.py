@@ -38,7 +38,7 @@ for _name, _module in [
     register(f"MuJoCo/{_name}-v0", f"jaxnat.mjx_pixel.{_module}:{_name}", extra="mujoco")
 
 # The same robots seen through the tracking camera: pixels (pure-JAX ray caster), a checker,
-# natural-video or noise floor, or a pure-noise observation (jaxnat[mujoco]).
+# natural-video or noise floor, or a pure-noise, state or constant observation (jaxnat[mujoco]).
 for _name, _robot in [
     ("Ant", "ant"),
     ("HalfCheetah", "half_cheetah"),

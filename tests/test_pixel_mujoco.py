@@ -343,6 +343,59 @@ def test_state_observation(physics):
     np.testing.assert_array_equal(obs, state.physics.data.qpos)
 
 
+def test_constant_observation_space(physics):
+    env = make_env(physics, observation="constant")
+    space = env.observation_space(env.default_params)
+    assert isinstance(space, spaces.Box) and space.shape == (1,) and space.dtype == jnp.float32
+    assert np.all(space.low == 0) and np.all(space.high == 0)
+    from jaxnat.agents.normalize import wants_normalization
+
+    assert wants_normalization(space), "a 1-D Box: the agents pick an MLP"
+
+
+def test_constant_observation_is_constant_and_physics_is_state_s(physics):
+    """observation="constant": zeros [1] at every reset and step, under jit and vmap; rewards,
+    termination, truncation, info and the physics are observation="state"'s under the same
+    keys and actions (stop_x and a 5-step limit: both episode ends happen; the agent step moves 0.4 m)."""
+    envs = {name: make_env(physics, observation=name) for name in ("constant", "state")}
+    params = envs["state"].default_params
+    params = params.replace(physics=params.physics.replace(stop_x=1.2), max_steps_in_episode=5)
+    from jaxnat.wrappers import AutoResetWrapper
+
+    runs = {}
+    for name, env in envs.items():
+        auto = AutoResetWrapper(env)
+        reset = jax.jit(jax.vmap(auto.reset, in_axes=(0, None)))
+        step = jax.jit(jax.vmap(auto.step, in_axes=(0, 0, 0, None)))
+        obs, state = reset(jax.random.split(jax.random.key(0), 8), params)
+        observations, outputs = [obs], []
+        for t in range(8):
+            obs, state, *out = step(jax.random.split(jax.random.key(t + 1), 8), state, jnp.ones((8, 6)), params)
+            observations.append(obs)
+            outputs.append((out, state.physics))
+        runs[name] = observations, outputs
+    observations = np.stack(runs["constant"][0])
+    assert observations.shape == (9, 8, 1) and observations.dtype == np.float32
+    np.testing.assert_array_equal(observations, 0.0)
+
+    def outcome(out):  # everything a step gives but the observations
+        (reward, terminated, truncated, info), physics_state = out
+        return reward, terminated, truncated, {k: v for k, v in info.items() if k != "final_observation"}, physics_state
+
+    for constant, state in zip(runs["constant"][1], runs["state"][1]):
+        for a, b in zip(jax.tree.leaves(outcome(constant)), jax.tree.leaves(outcome(state))):
+            np.testing.assert_array_equal(a, b)
+    steps = runs["constant"][1]
+    assert any(np.any(out[0][1]) for out in steps) and any(np.any(out[0][2]) for out in steps), \
+        "both termination and the time limit should occur"
+    # Unbatched, unjitted: the same constant at reset and step.
+    env = envs["constant"]
+    obs, state = env.reset(jax.random.key(3), params)
+    obs2, *_ = env.step(jax.random.key(4), state, jnp.zeros(6), params)
+    for o in (obs, obs2):
+        assert o.shape == (1,) and o.dtype == jnp.float32 and float(o[0]) == 0.0
+
+
 def test_bad_arguments_are_clear_errors(physics):
     with pytest.raises(ValueError, match="observation must be one of"):
         make_env(physics, observation="rgb")

@@ -35,6 +35,9 @@ class OnPolicyConfig:
     # VecNormalize's two switches (`normalize.py`); None: on for vector observations, off for images.
     normalize_observations: bool | None = static(None)
     normalize_rewards: bool | None = static(None)
+    # Train on sign(reward) (baselines' Atari `ClipRewardEnv`), before any reward scaling;
+    # the episode returns reported stay the env's (`normalize.py`).
+    clip_rewards: bool = static(False)
     # Traced: may be vmapped.
     lr: float = 2.5e-4
     gamma: float = 0.99

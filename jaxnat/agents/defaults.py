@@ -3,9 +3,9 @@
 Each algorithm's config dataclass holds the paper's settings (`docs/environments.md` section 5):
 the authors kept one set for the vision tasks, Atari and PixelMuJoCo ("hyperparameters were kept
 constant for all MuJoCo and Atari tasks"). Continuous control from a state vector (`MuJoCo/*`,
-`PixelMuJoCo/*` with `observation="state"`) instead takes the MuJoCo settings of the authors'
-code base, ikostrikov/pytorch-a2c-ppo-acktr-gail (its README's MuJoCo commands), which CleanRL's
-`ppo_continuous_action.py` shares:
+`PixelMuJoCo/*` with `observation="state"`, or `"constant"`, a vector too) instead takes the
+MuJoCo settings of the authors' code base, ikostrikov/pytorch-a2c-ppo-acktr-gail (its README's
+MuJoCo commands), which CleanRL's `ppo_continuous_action.py` shares:
 
 - **ppo**: 1 env x 2048 steps, 10 epochs x 32 minibatches, Adam lr 3e-4 annealed, clip 0.2,
   entropy 0, value coef 0.5, gamma 0.99, GAE lambda 0.95, max grad norm 0.5. Source: the README's

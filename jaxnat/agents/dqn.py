@@ -56,7 +56,7 @@ import optax
 from flax import struct
 from flax.training.train_state import TrainState
 
-from jaxnat.agents import distributions
+from jaxnat.agents import distributions, normalize
 from jaxnat.agents.config import check_ranges, static
 from jaxnat.agents.networks import init_params, make_actor_critic
 from jaxnat.agents.rollout import (EnvStep, Learner, count_updates, episode_metrics, scan_learner, scan_steps, step_info,
@@ -102,6 +102,8 @@ class DQNConfig:
     loss: str = static("mse")  # of the TD error: "mse" (squared) or "huber" (Nature DQN's, delta 1)
     double_dqn: bool = static(False)
     trunk: str | None = static(None)
+    # Store sign(reward) (baselines' Atari `ClipRewardEnv`); episode returns reported stay the env's.
+    clip_rewards: bool = static(False)
     lr: float = 2.5e-4
     rms_decay: float = 0.95
     rms_eps: float = 1e-5
@@ -242,9 +244,11 @@ def check_config(config: DQNConfig) -> None:
     check_ranges(config)
 
 
-def _stored(s: EnvStep) -> dict:
-    """What `DQNParts.store` takes from an env step: its final observation as `next_obs`."""
-    return {"obs": s.obs, "action": s.action, "reward": s.reward, "next_obs": s.final_obs,
+def _stored(s: EnvStep, clip: bool = False) -> dict:
+    """What `DQNParts.store` takes from an env step: its final observation as `next_obs`, its
+    rewards sign-clipped if `clip` (`normalize.sign_clip`, the on-policy learners' clipping)."""
+    reward = normalize.sign_clip(s.reward, True) if clip else s.reward
+    return {"obs": s.obs, "action": s.action, "reward": reward, "next_obs": s.final_obs,
             "terminated": s.terminated, "done": s.done}
 
 
@@ -258,7 +262,7 @@ def step_callbacks(config: DQNConfig, first_step, act: Callable, store: Callable
         return act(state.train_state.params, obs, key, rate), rate
 
     def observe(state: DQNState, s: EnvStep, rate, t, part=0):
-        return store(state, _stored(s), first_step + t), (step_info(s.info, s.terminated), rate)
+        return store(state, _stored(s, config.clip_rewards), first_step + t), (step_info(s.info, s.terminated), rate)
 
     return policy, observe
 

@@ -9,6 +9,11 @@ runner, and frozen (read, never updated) when a policy is evaluated.
 - **Rewards**: each env keeps a discounted running return `R <- gamma * R + r` (reset to 0
   where an episode ends); the learner trains on `clip(r / sqrt(var(R) + 1e-8), -10, 10)`, with
   `var(R)` the running variance of those returns. Episode returns in the metrics stay raw.
+- **Sign clipping** (`clip_rewards`, off by default; baselines' Atari `ClipRewardEnv`): the
+  learner trains on `sign(r)` (-1, 0 or 1). With reward scaling on as well, the rewards are
+  clipped first and the clipped ones scaled (`R` runs over `sign(r)`), as `VecNormalize` around
+  a `ClipRewardEnv`. Episode returns in the metrics stay raw here too. `scale_rewards` does
+  both, for the jitted and the host learners alike.
 
 The running moments merge batches exactly (Chan et al.'s parallel update) and start from no
 data, so after any stream they equal NumPy's `mean`/`var` of it (baselines starts at a count of
@@ -23,7 +28,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = ["Moments", "Normalizer", "CLIP", "EPSILON", "init_moments", "update_moments", "init_normalizer",
-           "observe", "normalize", "scale_rewards", "per_env", "wants_normalization", "switches"]
+           "observe", "normalize", "sign_clip", "scale_rewards", "per_env", "wants_normalization", "switches"]
 
 CLIP = 10.0  # baselines' clipob and cliprew
 EPSILON = 1e-8
@@ -110,12 +115,18 @@ def observe(normalizer: Normalizer | None, obs, axis_name=None) -> Normalizer | 
     return normalizer._replace(obs=update_moments(normalizer.obs, obs, axis_name))
 
 
-def scale_rewards(normalizer: Normalizer | None, reward, done, gamma,
-                  axis_name=None) -> tuple[Normalizer | None, jax.Array]:
+def sign_clip(reward, clip: bool) -> jax.Array:
+    """float32 `sign(reward)` if `clip` (a static bool), else the float32 rewards unchanged."""
+    reward = jnp.asarray(reward).astype(jnp.float32)
+    return jnp.sign(reward) if clip else reward
+
+
+def scale_rewards(normalizer: Normalizer | None, reward, done, gamma, axis_name=None, *,
+                  clip: bool = False) -> tuple[Normalizer | None, jax.Array]:
     """One vector step's rewards `[num_envs]` as the learner trains on them, and the updated
     normaliser (`done`: where an episode ended, its running return restarts; `axis_name`:
-    `update_moments`')."""
-    reward = reward.astype(jnp.float32)
+    `update_moments`'; `clip`: sign-clip them first, a config's static `clip_rewards`)."""
+    reward = sign_clip(reward, clip)
     if normalizer is None or normalizer.returns is None:
         return normalizer, reward
     running = normalizer.running_return * gamma + reward

@@ -18,6 +18,12 @@ Semantics: `docs/environments.md` section 4.
     (default `jaxnat.natural.DEFAULT_NOISE`: N(0, 1) * 50 clipped at 0, the authors' law) (the
     paper's open-loop test), fresh each step; nothing is rendered.
   - `"state"`: the physics env's float32 observation after the last repeat (no stacking).
+  - `"constant"`: float32 zeros of shape `[1]` (a `Box(0, 0, (1,))`) at every reset and step:
+    a policy that sees nothing, so the best it can learn is the best state-independent action
+    distribution (the reference for "learns nothing from what it sees"). A vector, so agents
+    pick an MLP. Nothing is rendered and no noise is drawn; the physics, rewards, termination,
+    time limit and info are those of the other observations, step for step under the same keys
+    and actions (`floor=` is ignored, as with "noise" and "state").
 - **Floor** (`floor=`, pixels only): the pixels whose nearest hit is the floor plane take
   `"checker"` (the model's checker), `"video"` (the current frame of a natural video laid on
   the floor in world x-y, `video_tile` metres per copy; the video advances one frame per agent
@@ -72,14 +78,14 @@ PHYSICS = {
     "hopper": "jaxnat.mjx_pixel.hopper:Hopper",
     "swimmer": "jaxnat.mjx_pixel.swimmer:Swimmer",
 }
-OBSERVATIONS = ("pixels", "noise", "state")
+OBSERVATIONS = ("pixels", "noise", "state", "constant")
 
 
 @struct.dataclass
 class PixelState(EnvState):
     physics: Any  # the physics env's state; `physics.data` is its mjx.Data
     key: jax.Array  # uint32 data of the key that draws this state's noise (floor, observation)
-    latest: jax.Array  # "pixels": the newest frame [H, W, C]; "state": the physics obs
+    latest: jax.Array  # "pixels": the newest frame [H, W, C]; "state": the physics obs; else [0]
     history: jax.Array  # "pixels": the frame_stack - 1 frames before it, oldest first
     fresh: jax.Array  # bool: the episode's first state (the stack is `latest` repeated)
     cursor: Any = None  # natural.VideoCursor with floor="video", else None
@@ -98,11 +104,11 @@ class PixelParams(EnvParams):
 
 
 class PixelMuJoCo(Environment[PixelState, PixelParams]):
-    """An MJX robot observed as pixels, pure noise or state (see the module docstring).
+    """An MJX robot observed as pixels, pure noise, state or a constant (see the module docstring).
 
     Args:
         robot: "ant", "half_cheetah", "hopper" or "swimmer" (ignored when `physics` is an env).
-        observation: "pixels", "noise" or "state".
+        observation: "pixels", "noise", "state" or "constant" (float32 zeros `[1]`).
         floor: "checker", "video" or "noise".
         noise: the pixel-noise law of observation="noise" and floor="noise": a name in
             `jaxnat.natural.NOISE_LAWS` (`"authors"`, the default, or `"centred"`) or a
@@ -201,6 +207,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
     def observation_space(self, params: PixelParams) -> spaces.Space:
         if self.observation == "state":
             return self.physics.observation_space(params.physics)
+        if self.observation == "constant":
+            return spaces.Box(0.0, 0.0, (1,), jnp.float32)
         r = self.renderer
         return spaces.Box(0, 255, (r.height, r.width, r.channels * self.frame_stack), jnp.uint8)
 
@@ -210,6 +218,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             return jnp.where(state.fresh, jnp.tile(state.latest, self.frame_stack), stack)
         if self.observation == "noise":
             return self.noise.sample(_noise_key(state), self.observation_space(params).shape)
+        if self.observation == "constant":
+            return jnp.zeros((1,), jnp.float32)
         return state.latest
 
     def observe(self, state: PixelState, params: PixelParams):
@@ -276,10 +286,10 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
 
     def _placeholders(self, physics_obs, params):
         """(latest, history) before `observe`: zero frames ("pixels"), the physics observation
-        ("state"), nothing ("noise")."""
+        ("state"), nothing ("noise", "constant")."""
         if self.observation == "state":
             return physics_obs, jnp.zeros((0,), jnp.uint8)
-        if self.observation == "noise":
+        if self.observation in ("noise", "constant"):
             return jnp.zeros((0,), jnp.uint8), jnp.zeros((0,), jnp.uint8)
         r = self.renderer
         frame = jnp.zeros((r.height, r.width, r.channels), jnp.uint8)

@@ -45,6 +45,13 @@ def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
     return fields
 
 
+# What a config field means, where its name and default do not say (shown in --help).
+FIELD_HELP = {
+    "clip_rewards": "train on sign(reward) (baselines' ClipRewardEnv), before any reward scaling; "
+                    "the episode returns reported stay unclipped.",
+}
+
+
 def _metavar(kind) -> str:
     return {int: "INT", float: "FLOAT", bool: "{True,False}", str: "STR"}.get(kind, "VALUE")
 
@@ -54,8 +61,9 @@ def _make_overrides_class():
     for name, (kind, defaults) in _config_fields().items():
         hint = "(default: " + ", ".join(f"{algo} {value}" for algo, value in defaults.items()) + ")"
         only = "" if len(defaults) == len(ALGORITHMS) else f"{'/'.join(defaults)} only"
+        text = " ".join(part for part in (FIELD_HELP.get(name, ""), only) if part)
         fields.append((name, Annotated[Optional[kind], tyro.conf.arg(
-            help=only, help_behavior_hint=hint, metavar=_metavar(kind))], None))
+            help=text, help_behavior_hint=hint, metavar=_metavar(kind))], None))
     cls = dataclasses.make_dataclass("ConfigOverrides", fields, frozen=True)
     cls.__module__ = __name__
     cls.__doc__ = ("Algorithm settings; unset ones take the algorithm's default. Every field of "

@@ -173,7 +173,8 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
                 value_final, pending = pending_value, final_obs
             else:
                 value_final, pending = final_value(network, params, final_obs, following), None
-            normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma, axis_name)
+            normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma, axis_name,
+                                                        clip=config.clip_rewards)
             transition = Transition(obs, s.action, log_prob, value, reward, s.done.astype(jnp.float32),
                                     value_final, step_info(s.info, s.terminated),
                                     None if memory is None else memory._replace(hidden=None))

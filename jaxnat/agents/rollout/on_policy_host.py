@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec
 
-from jaxnat.agents import distributions
+from jaxnat.agents import distributions, normalize
 from jaxnat.agents.config import check_ranges
 from jaxnat.agents.networks import make_actor_critic
 from jaxnat.agents.rollout.host import HostLearner, check_host_batch, host_steps, host_steps_pipelined, host_updates
@@ -109,7 +109,7 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
         rollout = {name: [[r[name] for r in records[p::count]] for p in range(count)] for name in records[0]}
         rollout = {name: [np.stack(steps) if all(isinstance(x, np.ndarray) for x in steps) else steps
                           for steps in part_steps] for name, part_steps in rollout.items()}
-        transitions = _host_transitions(rollout, last_value)
+        transitions = _host_transitions(rollout, last_value, config.clip_rewards)
         key, key_update = jax.random.split(key)
         train_state, metrics = learn(train_state, transitions, key_update)
         return train_state, obs, key, metrics
@@ -146,12 +146,14 @@ def _host_programs(config, network, rule: UpdateRule, observation_space, num_upd
     return init, learn, lambda train_state: local_copy(train_state.params)
 
 
-@jax.jit
-def _host_transitions(rollout: dict, last_value: list) -> Transition:
+@functools.partial(jax.jit, static_argnames="clip")
+def _host_transitions(rollout: dict, last_value: list, clip: bool = False) -> Transition:
     """Stack the per-step lists (host and device arrays, or arrays stacked already; one per part
     of the batch, the parts side by side) into a time-major `Transition` on the device; the value after a step
     is the next step's (the last one's: `last_value`, one array per part), or V(final
-    observation) where the episode ended."""
+    observation) where the episode ended. The rewards are the training rewards of
+    `normalize.scale_rewards` (`clip`: sign-clipped; never scaled here: this learner refuses
+    `normalize_rewards`); the episode statistics stay the env's."""
     stacked = {name: jnp.concatenate([jnp.stack(steps) if isinstance(steps, list) else steps for steps in parts],
                                      axis=1)
                for name, parts in rollout.items()}
@@ -163,7 +165,7 @@ def _host_transitions(rollout: dict, last_value: list) -> Transition:
         action=stacked["action"],
         log_prob=stacked["log_prob"],
         value=value,
-        reward=stacked["reward"].astype(jnp.float32),
+        reward=normalize.scale_rewards(None, stacked["reward"], done, None, clip=clip)[1],
         done=done.astype(jnp.float32),
         next_value=bootstrap(jnp.where(done, stacked["final_value"], following), terminated),
         info=step_info(info, terminated),
