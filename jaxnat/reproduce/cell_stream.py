@@ -23,7 +23,7 @@ from pathlib import Path
 from jaxnat.reproduce.board import Board
 from jaxnat.reproduce.cells import append_jsonl, timing_row, train_cells
 from jaxnat.reproduce.estimates import detect_platform
-from jaxnat.reproduce.grid import PROFILES, Cell, Plan, build_grid
+from jaxnat.reproduce.grid import ONLY_NAMES, PROFILES, Cell, Plan, build_grid
 
 ENTRY = "jaxnat.reproduce.cellstream"  # the module `python -m` runs in a stream's child
 # The host stream's scheduling priority: below the device streams', whose XLA compiles would
@@ -264,7 +264,7 @@ def cell_stream_main(argv=None) -> int:
         if args.nice and hasattr(os, "nice"):
             os.nice(args.nice)
         profile = PROFILES[args.profile]
-        grid = {c.name: c for c in build_grid(profile)}
+        grid = {c.name: c for c in build_grid(profile, ONLY_NAMES)}
         names = args.cells.split(",")
         unknown = [name for name in names if name not in grid]
         if unknown:
