@@ -61,8 +61,6 @@ def _rewards(kind: str) -> Callable[[Cell], bool]:
     return applies
 
 
-_ALE = "NaturalAtari (`jaxnat/atari/env.py`, `jaxnat/training/host_backend.py`)"
-
 DEPARTURES: tuple[Departure, ...] = (
     Departure(f"{stand_in_name('mnist')} stands in for MNIST",
               "70,000 handwritten digits at 28x28 (not found on this machine: `jaxnat.datasets.download('mnist')`)",
@@ -85,12 +83,12 @@ DEPARTURES: tuple[Departure, ...] = (
               "photos, 20 classes (`jaxnat.natural.clutter`), run whether Cityscapes is found or not",
               lambda cell: cell.experiment == "localize" and cell.labels.get("dataset") == "clutter"),
     Departure("start of the classification window",
-              "a random position (its text); the authors' code: top-left (16 - w, 16 - w) on 32x32",
+              "a random position (the authors' code: top-left (16 - w, 16 - w) on 32x32)",
               "a uniformly random top-left in [0, H - w] x [0, W - w] (`start=\"random\"`), as the paper's text",
               lambda cell: cell.experiment == "classify" and cell.env_kwargs.get("start", "random") == "random"),
     Departure("natural videos",
-              "840 Kinetics \"driving car\" clips, one set for training and testing; the authors' PixelMuJoCo "
-              "advanced 4 video frames per agent step",
+              "840 Kinetics \"driving car\" clips, one set for training and testing (the authors' PixelMuJoCo "
+              "advanced 4 video frames per agent step)",
               "the 5 clips Debian's `opencv-doc` ships (vtest, tree, Megamind, box, cup), split by whole file: "
               "test play sees clips never trained on; one video frame per agent step, a random clip and start "
               "frame at each reset",
@@ -101,41 +99,41 @@ DEPARTURES: tuple[Departure, ...] = (
               "two frames, 0 to 29 no-ops at each reset",
               _experiment("atari")),
     Departure("ALE: FIRE at reset and life loss",
-              "not stated; the authors evaluated per life",
+              "not stated (the authors' code evaluated per life)",
               "no FIRE at reset (the policy must learn to serve) and whole games as episodes, with no life-loss "
               "signal in training or in test play",
               _experiment("atari")),
     Departure("ALE: rewards",
-              "not stated; the authors' code clipped rewards to [-1, 1]",
+              "not stated (the authors' code clipped rewards to [-1, 1])",
               "training on rewards clipped to [-1, 1] (`ClipRewardWrapper`), as the authors' code; every return "
-              f"reported (training and test) is the unclipped game score ({_ALE})",
+              "reported (training and test) is the unclipped game score (`jaxnat/training/host_backend.py`)",
               _experiment("atari")),
-    Departure("PixelMuJoCo physics", "MuJoCo (through the authors' Gym)",
+    Departure("PixelMuJoCo physics", "MuJoCo",
               "MuJoCo MJX with the robot's `physics=\"fast\"` settings (fewer solver iterations: its distance from "
               "Gymnasium's dynamics is in `bench/results/mjx_fidelity.md`)",
               _physics("fast")),
-    Departure("PixelMuJoCo physics", "MuJoCo (through the authors' Gym)",
+    Departure("PixelMuJoCo physics", "MuJoCo",
               "MuJoCo MJX with the model's own solver settings (Gymnasium v5's MJCF files)",
               _physics(None)),
     Departure("PixelMuJoCo rendering",
-              "the authors rendered 128x128 with MuJoCo's OpenGL renderer, resized to 84x84 grey, and keyed the "
-              "floor on black checker pixels",
+              "MuJoCo's OpenGL renderer at 128x128, resized to 84x84 grey, the floor keyed on its black checker "
+              "pixels (the authors' code)",
               "a pure-JAX ray caster at 84x84 grey through the tracking camera; the floor found by geometry",
               _experiment("mujoco")),
-    Departure("PixelMuJoCo rewards", "the authors sign-clipped the rewards, also at evaluation",
+    Departure("PixelMuJoCo rewards", "sign-clipped, also at evaluation (the authors' code)",
               "the learner sees the summed physics rewards scaled by a running estimate of the return's standard "
               "deviation and clipped to +-10 (`normalize_rewards`); returns are reported unscaled",
               _rewards("normalised")),
-    Departure("PixelMuJoCo rewards", "the authors sign-clipped the rewards, also at evaluation",
+    Departure("PixelMuJoCo rewards", "sign-clipped, also at evaluation (the authors' code)",
               "the learner sees sign-clipped rewards (`clip_rewards`), as the authors; returns are reported unclipped",
               _rewards("clipped")),
-    Departure("PixelMuJoCo rewards", "the authors sign-clipped the rewards, also at evaluation",
+    Departure("PixelMuJoCo rewards", "sign-clipped, also at evaluation (the authors' code)",
               "the learner sees the summed physics rewards, unclipped and unscaled; returns are reported the same",
               _rewards("raw")),
 )
 
 # The authors' batch per algorithm: (envs per seed, steps per env per update) (docs/environments.md
-# section 5; the configs' defaults). DQN is not in their code.
+# section 5; the configs' defaults). DQN's is not stated.
 AUTHORS_BATCH = {"ppo": (8, 128), "a2c": (16, 5), "acktr": (32, 20)}
 _BATCH = ("num_envs", "num_steps")
 
@@ -170,7 +168,7 @@ def batch_rows(cells: list[Cell]) -> list[dict]:
 
 
 def _batch_text(batch) -> str:
-    return "not in the authors' code" if batch is None else f"{batch[0]} x {batch[1]} = {batch[0] * batch[1]:,}"
+    return "not stated" if batch is None else f"{batch[0]} x {batch[1]} = {batch[0] * batch[1]:,}"
 
 
 def _env_settings(profile: Profile, cells: list[Cell]) -> list[str]:
