@@ -177,7 +177,7 @@ def aggregates_section(rows: list[Aggregate], finished) -> list[str]:
              "return (no maximum is known), one cell per group.", "",
              "| experiment | group | algorithm | score | cells x seeds | IQM [95% CI] | mean [95% CI] |",
              "|---|---|---|---|---|---|---|"]
-    for row in rows:
+    for row in (r for r in rows if r.cells):  # a group whose cells were all left out: listed below
         group = row.group + (f" ({_datasets(row, finished)})" if row.score == "normalised" and row.cells else "")
         lines.append(f"| {row.experiment} | {group} | {row.algo.upper()} | {row.score} | {len(row.cells)} x "
                      f"{row.seeds} | {row.iqm} | {row.mean} |")
