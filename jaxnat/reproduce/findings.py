@@ -79,7 +79,7 @@ def _up(result) -> str:
 def _close_to_one(results) -> Verdict:
     cells = [r for r in _select(results, "classify", "classify-cnn", dataset="mnist")
              if r.cell.algo in ("ppo", "acktr")]
-    return judge("PPO/ACKTR on MNIST, 3-layer CNN",
+    return judge("PPO/ACKTR with the 3-layer CNN on handwritten digits",
                  [at_least(f"{_up(r)} cnn on {dataset_label(r.cell)}", r, CLOSE_TO_ONE) for r in cells])
 
 
@@ -98,8 +98,9 @@ def _cifar_harder(results) -> Verdict:
     pairs = _pairs(results, lambda r: _figure_of_classify(r) and r.cell.labels.get("dataset") == "mnist",
                    lambda r: _figure_of_classify(r) and r.cell.labels.get("dataset") in ("cifar10", "cifar100"),
                    ("trunk",))
-    return judge("MNIST beside CIFAR", [ordered(f"{_up(a)} {a.cell.labels['trunk']}", (dataset_label(a.cell), a),
-                                                (dataset_label(b.cell), b)) for a, b in pairs])
+    return judge("handwritten digits beside the CIFAR photos",
+                 [ordered(f"{_up(a)} {a.cell.labels['trunk']}", (dataset_label(a.cell), a), (dataset_label(b.cell), b))
+                  for a, b in pairs])
 
 
 def _at_checkpoints(label: str, pairs, parts=None) -> list:
