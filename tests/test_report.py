@@ -220,6 +220,11 @@ def test_stand_in_cells_never_carry_the_paper_dataset_name(tmp_path):
     document = _strict_json(tmp_path / "results.json")
     assert {c["dataset"] for c in document["cells"]} == {"Digits (for MNIST)", "Fashion-MNIST (for CIFAR-10)"}
     assert _bare_names(json.dumps([v["comparisons"] for v in document["verdicts"]])) == []
+    # With a claim's cells missing (the smoke profile's one dataset), its not-run text too.
+    text = write_report(_plan(tmp_path, cells[:1]), {}).read_text()
+    for finding in findings.FINDINGS:
+        text = text.replace(finding.claim, "")
+    assert "**not run**" in text and _bare_names(text) == []
 
 
 def test_departures_list_what_applies_to_the_cells(tmp_path):
