@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+from jaxnat.reproduce.labels import dataset_label
 from jaxnat.reproduce.verdicts import (SPEED_CHECKPOINTS, Verdict, as_good, at_least, checkpoint_label,
                                        checkpoint_steps, judge, not_reached, ordered)
 
@@ -80,7 +81,8 @@ def _up(result) -> str:
 def _close_to_one(results) -> Verdict:
     cells = [r for r in _select(results, "classify", "classify-cnn", dataset="mnist")
              if r.cell.algo in ("ppo", "acktr")]
-    return judge("PPO/ACKTR on MNIST, 3-layer CNN", [at_least(f"{_up(r)} cnn", r, CLOSE_TO_ONE) for r in cells])
+    return judge("PPO/ACKTR with the 3-layer CNN on handwritten digits",
+                 [at_least(f"{_up(r)} cnn on {dataset_label(r.cell)}", r, CLOSE_TO_ONE) for r in cells])
 
 
 def _a2c_worst(results) -> Verdict:
@@ -88,7 +90,7 @@ def _a2c_worst(results) -> Verdict:
     for r in results:
         if r.cell.experiment == "classify" and _figure_of_classify(r):
             panels.setdefault((r.cell.labels["dataset"], r.cell.labels["trunk"]), {})[r.cell.algo] = r
-    comparisons = [ordered(f"{dataset} {trunk}", (algo.upper(), r), ("A2C", algos["a2c"]))
+    comparisons = [ordered(f"{dataset_label(algos['a2c'].cell)} {trunk}", (algo.upper(), r), ("A2C", algos["a2c"]))
                    for (dataset, trunk), algos in panels.items() if "a2c" in algos
                    for algo, r in algos.items() if algo != "a2c"]
     return judge("A2C beside PPO or ACKTR", comparisons)
@@ -98,8 +100,9 @@ def _cifar_harder(results) -> Verdict:
     pairs = _pairs(results, lambda r: _figure_of_classify(r) and r.cell.labels.get("dataset") == "mnist",
                    lambda r: _figure_of_classify(r) and r.cell.labels.get("dataset") in ("cifar10", "cifar100"),
                    ("trunk",))
-    return judge("MNIST beside CIFAR", [ordered(f"{_up(a)} {a.cell.labels['trunk']}", ("MNIST", a),
-                                                (b.cell.labels["dataset"], b)) for a, b in pairs])
+    return judge("handwritten digits beside the CIFAR photos",
+                 [ordered(f"{_up(a)} {a.cell.labels['trunk']}", (dataset_label(a.cell), a), (dataset_label(b.cell), b))
+                  for a, b in pairs])
 
 
 def _at_checkpoints(label: str, pairs, parts=None) -> list:
@@ -138,7 +141,7 @@ def _small_window_later(results) -> Verdict:
 def _resnet_worse_localize(results) -> Verdict:
     pairs = _pairs(results, _is("localize", "localize-cnn"), _is("localize", "localize-resnet18"), ("dataset",))
     return judge("localisation with both trunks",
-                 [ordered(f"{a.cell.labels['dataset']} {_up(a)}", ("CNN", a), ("ResNet-18", b)) for a, b in pairs])
+                 [ordered(f"{dataset_label(a.cell)} {_up(a)}", ("CNN", a), ("ResNet-18", b)) for a, b in pairs])
 
 
 def _video_lowers_atari(results) -> Verdict:
@@ -167,7 +170,7 @@ def _sight_helps(results) -> Verdict:
 
 
 def _noise_control(results) -> Verdict:
-    return judge("the vision noise control", [ordered(f"{a.cell.experiment} {a.cell.labels['dataset']}", ("real", a),
+    return judge("the vision noise control", [ordered(f"{a.cell.experiment} {dataset_label(a.cell)}", ("real", a),
                                                       ("noise", b)) for a, b in noise_control_pairs(results)])
 
 

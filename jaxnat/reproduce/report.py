@@ -11,6 +11,11 @@ at update 0: the learning gate of every verdict). Findings: `findings.py`, judge
 `verdicts.py`; each findings row gives the share of the paper's env-step budget
 (`grid.PAPER_BUDGETS`) its cells trained, and a report whose cells trained less opens with a
 banner saying its verdicts are not evidence about the paper.
+
+Beside them: the departures from the paper that concern the report's cells (`departures.py`),
+aggregate scores over cells and seeds computed with rliable (`aggregates.py`), and every number
+per seed in `<out>/results.json` (`results_json.py`). A cell on a stand-in dataset is printed
+as "Digits (for MNIST)" wherever its dataset is named (`labels.py`).
 """
 
 from __future__ import annotations
@@ -24,14 +29,21 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxnat.reproduce.aggregates import aggregate, aggregates_section
 from jaxnat.reproduce.calibration import calibration_panels, calibration_results, calibration_section
+from jaxnat.reproduce.departures import departures_data, departures_section
 from jaxnat.reproduce.findings import FINDINGS, Verdict, noise_control_pairs
-from jaxnat.reproduce.grid import DATASET_NAMES, PAPER_BUDGETS, ROBOTS, Cell
+from jaxnat.reproduce.grid import PAPER_BUDGETS, ROBOTS, Cell
+from jaxnat.reproduce.labels import dataset_label
+from jaxnat.reproduce.results_json import results_document, write_results
 from jaxnat.reproduce.stats import Interval, binned_curve, bootstrap_band, bootstrap_ci
 
 __all__ = ["CellResult", "load_result", "write_report", "FIGURES"]
 
 FINAL_FRACTION = 0.1  # the final training return averages the last 10% of a seed's updates with episodes
+GREEDY_NOTE = ("Test greedy takes the most likely action at every step: a feed-forward classifier whose window "
+               "stops moving (against an edge) then sees one observation over and over and repeats one wrong label "
+               "to the episode's end, so its greedy return can sit far below its sampled one.")
 
 # figure file stem -> (title, cells' figure tag, panel label key, curve label key)
 FIGURES = {
@@ -59,27 +71,38 @@ class CellResult:
     sampled: np.ndarray  # [evaluations, seeds]
     chance: float | None  # the uniform random policy's test return
     wall_time_s: float
+    seed_values: tuple = ()  # the seeds, in the order of the columns (empty: not recorded)
 
     @property
     def final_train(self) -> Interval:
         return self.train_at(None)
 
-    def train_at(self, steps: float | None) -> Interval:
-        """The final training return of the run up to `steps` env steps per seed (None: all of it):
-        each seed's mean over the last 10% of those updates in which an episode ended."""
+    def train_per_seed(self, steps: float | None = None) -> np.ndarray:
+        """Each seed's final training return of the run up to `steps` env steps per seed (None: all
+        of it): its mean over the last 10% of those updates in which an episode ended (NaN: none)."""
         finals = []
         for column in self.train[self.steps <= steps].T if steps is not None else self.train.T:
             ended = column[np.isfinite(column)]
             count = max(1, int(round(len(ended) * FINAL_FRACTION)))
             finals.append(ended[-count:].mean() if len(ended) else np.nan)
-        return bootstrap_ci(finals)
+        return np.array(finals, np.float64)
+
+    def train_at(self, steps: float | None) -> Interval:
+        """The mean over seeds of `train_per_seed(steps)` and its 95% bootstrap interval."""
+        return bootstrap_ci(self.train_per_seed(steps))
+
+    @property
+    def untrained_per_seed(self) -> np.ndarray | None:
+        """Each seed's untrained sampled test return (the evaluation at update 0), or None when the
+        run has none (host runs evaluate once, at the end)."""
+        first = np.flatnonzero(self.eval_steps == 0)
+        return self.sampled[first[0]] if first.size else None
 
     @property
     def untrained(self) -> Interval | None:
-        """The untrained policy's sampled test return (the evaluation at update 0), or None when the
-        run has none (host runs evaluate once, at the end)."""
-        first = np.flatnonzero(self.eval_steps == 0)
-        return bootstrap_ci(self.sampled[first[0]]) if first.size else None
+        """The untrained policy's sampled test return over seeds, or None (`untrained_per_seed`)."""
+        values = self.untrained_per_seed
+        return None if values is None else bootstrap_ci(values)
 
     @property
     def budget_share(self) -> float:
@@ -120,13 +143,12 @@ def load_result(cell: Cell, run_dir: Path) -> CellResult:
     summary = record.summary or {}
     chance = (summary.get("chance") or {}).get("return")
     return CellResult(cell, bool(summary.get("complete")), len(seed_values), steps, train, eval_steps, greedy, sampled,
-                      chance, float(summary.get("wall_time_s") or 0.0))
+                      chance, float(summary.get("wall_time_s") or 0.0), tuple(seed_values))
 
 
 def _dataset_title(cell: Cell) -> str:
-    """The paper's dataset name, and the env that stood in for it when the data was missing."""
-    name = DATASET_NAMES[cell.labels["dataset"]]
-    return f"{name} ({cell.env_id.split('/')[1].removesuffix('-v0')} stands in)" if cell.note else name
+    """The dataset as panels and tables print it: "Digits (for MNIST)" for a stand-in."""
+    return dataset_label(cell)
 
 
 def _panels(figure: str, results: list[CellResult]) -> dict[str, list[tuple[str, CellResult]]]:
@@ -269,17 +291,22 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         results.append(result)
     finished = [r for r in results if r.complete]
 
-    lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
+    written = datetime.datetime.now().isoformat(timespec="seconds")
+    verdicts = verdict_rows(finished, plan.only)
     # The calibration trains to matched steps below the budget by design: not a finding's cell.
-    lines += budget_banner([r for r in finished if r not in calibration_results(finished)])
+    findings_cells = [r for r in finished if r not in calibration_results(finished)]
+    aggregates = aggregate(findings_cells)
+    lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
+    lines += budget_banner(findings_cells)
     saved = [r.cell.name for r in results]
     versions = _run_versions(out / saved[0]) if saved else _versions()
-    lines += [f"- Written {datetime.datetime.now().isoformat(timespec='seconds')} by `jaxnat reproduce --profile "
+    lines += [f"- Written {written} by `jaxnat reproduce --profile "
               f"{plan.profile.name} --only {','.join(plan.only)} --seeds {plan.seeds}`.",
               f"- Profile: {plan.profile.description}.",
               f"- Versions and device of the runs: {', '.join(f'{k} {v}' for k, v in versions.items())}.",
               f"- Cells: {len(plan.cells)} in the grid, {len(finished)} finished, {len(missing)} not finished or not run.",
-              ""]
+              "- Per seed and per checkpoint, every number of this report (and the verdicts, aggregates and "
+              "departures): `results.json`.", ""]
     if timings:
         by_experiment: dict[str, float] = {}
         for t in timings:
@@ -292,17 +319,9 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
                       f"{_elapsed(timings):.0f} |"]
         lines += [""]
 
-    notes = sorted({(c.name, c.note) for c in plan.cells if c.note})
-    departures = {k: {**v, **plan.profile.env_kwargs.get(k, {})} for k, v in plan.profile.overrides.items() if v}
-    departures.update({k: v for k, v in plan.profile.env_kwargs.items() if k not in departures})
-    if notes or departures:
-        lines += ["## Departures from the paper", ""]
-        lines += [f"- `{name}`: {note}" for name, note in notes]
-        lines += [f"- {experiment}: settings {json.dumps(v)} instead of the paper's (profile `{plan.profile.name}`)"
-                  for experiment, v in departures.items()]
-        lines += [""]
-
-    lines += findings_section(finished, plan.only)
+    lines += departures_section(plan.profile, plan.cells)
+    lines += _findings_lines(verdicts)
+    lines += aggregates_section(aggregates, finished)
 
     lines += ["## Figures", ""]
     for stem, (title, *_rest) in FIGURES.items():
@@ -327,12 +346,16 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         untrained = "not recorded" if r.untrained is None else str(r.untrained)
         lines.append(f"| `{r.cell.name}`{mark} | {r.cell.env_id} {_kwargs(r.cell.env_kwargs)} | {r.seeds} | {steps:,} | "
                      f"{r.final_train} | {r.final_greedy} | {r.final_sampled} | {chance} | {untrained} |")
+    if results:
+        lines += ["", GREEDY_NOTE]
     lines += [""]
     if missing:
         lines += ["## Cells not finished or not run", "", "| cell | why |", "|---|---|"]
         lines += [f"| `{name}` | {why} |" for name, why in missing.items()] + [""]
     path = out / "report.md"
     path.write_text("\n".join(lines))
+    write_results(out / "results.json", results_document(plan, results, missing, verdicts, aggregates,
+                                                         departures_data(plan.profile, plan.cells), written))
     return path
 
 
@@ -360,18 +383,25 @@ def budget_banner(finished: list[CellResult]) -> list[str]:
             "otherwise at a smaller one: the verdicts say what this code does at these budgets.", ""]
 
 
+def verdict_rows(finished: list[CellResult], only: tuple[str, ...]) -> list[tuple]:
+    """`(finding, verdict)` for each of `findings.FINDINGS` (`verdicts.py`'s rules); "not run" for a
+    claim whose experiments `only` leaves out."""
+    return [(finding, Verdict("not run", f"--only leaves out {' and '.join(finding.experiments)}")
+             if not set(finding.experiments) & set(only) else finding.judge(finished)) for finding in FINDINGS]
+
+
 def findings_section(finished: list[CellResult], only: tuple[str, ...]) -> list[str]:
     """The findings table: each claim's verdict (`verdicts.py`'s rules), the share of the paper's
     budget its cells trained, and its comparisons."""
+    return _findings_lines(verdict_rows(finished, only))
+
+
+def _findings_lines(rows: list[tuple]) -> list[str]:
     lines = ["## Findings", "", "Verdicts: reproduced (95% intervals apart, in the paper's order), contradicted "
              "(apart, the reverse order), inconclusive (intervals overlap), not shown (the cell the comparison "
              "needs did not beat its untrained policy), not run; rules in `jaxnat/reproduce/verdicts.py`.", "",
              "| the paper's claim | verdict | share of the paper's budget | comparisons |", "|---|---|---|---|"]
-    for finding in FINDINGS:
-        if not set(finding.experiments) & set(only):
-            verdict = Verdict("not run", f"--only leaves out {' and '.join(finding.experiments)}")
-        else:
-            verdict = finding.judge(finished)
+    for finding, verdict in rows:
         lines.append(f"| {finding.claim} | **{verdict.verdict}** | {_share(verdict)} | {verdict.numbers} |")
     return lines + [""]
 
