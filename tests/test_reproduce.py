@@ -2,6 +2,7 @@
 a killed cell, the bootstrap interval on hand-made data, and one-line errors for bad arguments
 (the findings' verdicts on hand-made results: test_verdicts.py)."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -161,6 +162,17 @@ def test_unwritable_out_is_refused(tmp_path, capsys):
 def test_a_folder_of_other_settings_is_refused(smoke, tmp_path, capsys):
     assert command.main(["--profile", "smoke", "--out", str(smoke), "--seeds", "3", "--only", "classify"]) == 2
     assert "holds a run with other settings" in capsys.readouterr().err
+
+
+def test_a_folder_trained_with_another_batch_is_refused(smoke):
+    """A profile whose batch changed must not count a cell trained with the old one as finished."""
+    plan = command.make_plan(command.ReproduceArgs(profile="smoke", out=smoke, only="classify"))
+    cell = plan.cells[0]
+    config = read_run(smoke / cell.name).config
+    command._check_same_run(cell, plan, config)  # the same settings pass
+    changed = dataclasses.replace(cell, overrides={**cell.overrides, "num_envs": 4})
+    with pytest.raises(command.ReproduceError, match=r"other settings: num_envs 2 \(this grid: 4\)"):
+        command._check_same_run(changed, plan, config)
 
 
 def _train_argv(cell, seeds, run_dir, resume):

@@ -49,6 +49,23 @@ def timing_row(cell: Cell, plan: Plan, seconds: float, resumed: bool, outcome: s
             "overlapped": overlapped}
 
 
+def runtime_errors() -> tuple[type[Exception], ...]:
+    """The exception types of XLA's runtime failures (`jax.errors.JaxRuntimeError`)."""
+    import jax
+
+    found = getattr(jax.errors, "JaxRuntimeError", None)
+    return (found,) if isinstance(found, type) else ()
+
+
+def one_line(err: Exception) -> str:
+    """`err` as one line: a `TrainError`'s message, or an XLA runtime error's first line with the
+    fix for the usual one (out of memory)."""
+    text = next((line.strip() for line in str(err).splitlines() if line.strip()), type(err).__name__)
+    if "RESOURCE_EXHAUSTED" in str(err):
+        text = f"out of device memory ({text[:160]}); give the cell fewer envs per seed (num_envs) or fewer seeds"
+    return text
+
+
 class CompileAhead:
     """Compiles the next cell's programs on a worker thread while the current cell trains: XLA
     compiles on the host's cores while the run keeps the accelerator busy, so a grid of short
@@ -93,11 +110,15 @@ def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, 
     """Train `cells` one after another (compiling each one's programs while the one before
     trains when `compile_ahead`), each logged to `<out>/logs/<cell>.log` and timed in
     `<out>/timings.jsonl`; `board` (`board.Board`, or a child stream's `Events`) is told of
-    each start and outcome. A `TrainError` fails its cell and the next one starts; anything
-    else (Ctrl-C included) propagates."""
+    each start and outcome. A `TrainError` fails its cell and the next one starts, and so does
+    an error of XLA's runtime (out of GPU memory, in a compile's autotuning or a step): one cell
+    too big for the device must not take the stream's other cells down with it. Anything else
+    (Ctrl-C included) propagates."""
     from rich.console import Console
 
     from jaxnat.training import TrainError, train
+
+    failures = (TrainError, *runtime_errors())
 
     compiler_options = {"xla_backend_optimization_level": 0} if plan.profile.fast_compile else None
     logs = plan.out / "logs"
@@ -116,8 +137,8 @@ def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, 
                 try:
                     train(runs[index], console=log_console, compiler_options=compiler_options)
                     outcome = "finished"
-                except TrainError as err:
-                    outcome = f"failed: {err}"
+                except failures as err:
+                    outcome = f"failed: {one_line(err)}"
             seconds = time.perf_counter() - start
             append_jsonl(plan.out / "timings.jsonl", timing_row(cell, plan, seconds, resumed[cell.name], outcome,
                                                                 platform, started, overlapped))

@@ -223,6 +223,16 @@ def _check_same_run(cell: Cell, plan: Plan, config: dict) -> None:
         raise ReproduceError(f"{plan.out / cell.name} holds a run with other settings (env, kwargs, algo, seeds, "
                              f"steps, env parts {saved}; this grid wants {wanted}); use another --out, or the same "
                              "--profile and --seeds")
+    # The profile's settings of the cell (a changed batch must not pass as the run it replaced).
+    saved_config = spec.get("config", {})
+    changed = {k: (saved_config.get(k), v) for k, v in cell.overrides.items()
+               if k not in RUN_SETTINGS and saved_config.get(k, v) != v}
+    if "eval_every" in cell.overrides and spec.get("eval_every") != cell.overrides["eval_every"]:
+        changed["eval_every"] = (spec.get("eval_every"), cell.overrides["eval_every"])
+    if changed:
+        said = ", ".join(f"{k} {old!r} (this grid: {new!r})" for k, (old, new) in changed.items())
+        raise ReproduceError(f"{plan.out / cell.name} holds a run with other settings: {said}; use another --out, "
+                             "or move the folder aside to train the cell again")
 
 
 def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,

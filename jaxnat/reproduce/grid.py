@@ -133,9 +133,10 @@ _TINY = {"num_envs": 2, "num_steps": 8, "update_epochs": 1, "num_minibatches": 1
 # the grid). Envs per seed x steps per update; a key naming an algorithm holds its own settings.
 # What the larger batch does to the science at matched env steps is measured by the
 # `calibration` experiment (`calibration.py`), which the report cites.
-# - classify, localize: 512 envs per seed, each algorithm's own rollout length (PPO's cut from
-#   128 to 32 steps, so an update still holds 16,384 steps: 610 updates in 10M); PPO keeps its
-#   4 epochs x 4 minibatches.
+# - classify: 512 envs per seed, each algorithm's own rollout length (PPO's cut from 128 to 32
+#   steps, so an update holds 16,384 steps: 610 updates in 10M); PPO keeps its 4 epochs x 4
+#   minibatches. localize: 128 envs per seed (its 256x256 scenes: at 512, PPO's and ACKTR's
+#   programs asked an 80 GB GPU for 74 and 50 GB).
 # - mujoco: 1,024 envs per seed (PPO 16 steps, A2C 5). PixelMuJoCo's rewards are normalised
 #   (VecNormalize's return scaling, which the authors' code applies to MuJoCo) and PPO takes the
 #   continuous-control settings of CleanRL / baselines (entropy 0, clip 0.2, lr 3e-4): with the
@@ -145,7 +146,7 @@ _TINY = {"num_envs": 2, "num_steps": 8, "update_epochs": 1, "num_minibatches": 1
 # - atari: the authors' envs per update (PPO 8, A2C 16): ALE on the host's cores sets the cost.
 PAPER_SCALE: dict[str, dict[str, Any]] = {
     "classify": {"num_envs": 512, "ppo": {"num_steps": 32}, "a2c": {"num_steps": 5}, "acktr": {"num_steps": 20}},
-    "localize": {"num_envs": 512, "ppo": {"num_steps": 32}, "a2c": {"num_steps": 5}, "acktr": {"num_steps": 20}},
+    "localize": {"num_envs": 128, "ppo": {"num_steps": 32}, "a2c": {"num_steps": 5}, "acktr": {"num_steps": 20}},
     "mujoco": {"num_envs": 1024, "normalize_rewards": True, "eval_every": 64,
                "ppo": {"num_steps": 16, "ent_coef": 0.0, "clip_eps": 0.2, "lr": 3e-4}, "a2c": {"num_steps": 5}},
 }

@@ -107,9 +107,13 @@ class CellResult:
     @property
     def budget_share(self) -> float:
         """The env steps per seed trained, as a share of the paper's (`grid.PAPER_BUDGETS`; a
-        calibration cell: of its group's experiment)."""
-        experiment = self.cell.labels.get("group", self.cell.experiment)
-        return (float(self.steps.max()) if self.steps.size else 0.0) / PAPER_BUDGETS[experiment]
+        calibration cell: of its group's experiment). A finished run of the paper's budget counts
+        as 100%: it stops at its last whole update (10M steps in updates of 16,384 end at
+        9,994,240), as the authors' code and every RL library count updates."""
+        paper = PAPER_BUDGETS[self.cell.labels.get("group", self.cell.experiment)]
+        if self.complete and self.cell.budget.total_timesteps >= paper:
+            return 1.0
+        return (float(self.steps.max()) if self.steps.size else 0.0) / paper
 
     @property
     def final_greedy(self) -> Interval:
