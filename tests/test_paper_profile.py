@@ -163,3 +163,13 @@ def test_a_cell_out_of_device_memory_fails_alone_and_the_stream_goes_on(tmp_path
     assert trained == [second.name]
     assert board.outcomes[first.name].startswith("failed: out of device memory (RESOURCE_EXHAUSTED")
     assert "fewer envs per seed" in board.outcomes[first.name] and board.outcomes[second.name] == "finished"
+
+
+def test_calibration_status_opens_the_report_with_each_profile_cell_against_the_band():
+    authors, profile = _calibrated("authors", 0.7), _calibrated("profile", 0.4)
+    lines = calibration.calibration_status([authors, profile])
+    assert lines[0].startswith("> **Calibration of the batch**")
+    assert "> - classify PPO: the profile's cell 0.4 [0.35, 0.45] is below the authors' 0.7 [0.65, 0.75]." in lines
+    alone = calibration.calibration_status([authors])
+    assert any("the profile's cell has not run (other batches: authors 0.7" in line for line in alone)
+    assert calibration.calibration_status([]) == []

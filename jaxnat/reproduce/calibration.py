@@ -25,7 +25,8 @@ from jaxnat.agents import ALGORITHMS
 from jaxnat.reproduce.grid import CALIBRATION
 from jaxnat.reproduce.verdicts import learned
 
-__all__ = ["calibration_results", "calibration_panels", "calibration_section", "optimizer_steps", "band_position"]
+__all__ = ["calibration_results", "calibration_panels", "calibration_section", "calibration_status",
+           "optimizer_steps", "band_position"]
 
 AUTHORS = "authors"
 
@@ -67,6 +68,32 @@ def _groups(results: list) -> dict[tuple[str, str], list]:
     for r in calibration_results(results):
         groups.setdefault((r.cell.labels["group"], r.cell.algo), []).append(r)
     return groups
+
+
+def calibration_status(results: list) -> list[str]:
+    """The report's opening lines on the calibration, when it ran: per group and algorithm, where
+    the profile's cell sits against the authors' band, or what is missing to say. A verdict
+    about an algorithm whose profile cell is not inside the band depends on the batch."""
+    lines = []
+    for (group, algo), rows in _groups(results).items():
+        by = {r.cell.labels["variant"]: r for r in rows if r.complete}
+        profile, authors = by.get("profile"), by.get(AUTHORS)
+        if profile is None:
+            said = "the profile's cell has not run"
+        elif authors is None:
+            said = (f"the profile's cell {profile.final_train}; the authors' cell has not run"
+                    if group != "mujoco" else f"the profile's cell {profile.final_train} ({band_position(profile, None)})")
+        else:
+            said = (f"the profile's cell {profile.final_train} is {band_position(profile, authors)} the authors' "
+                    f"{authors.final_train}")
+        said_already = {"profile", AUTHORS} if profile is not None and authors is not None else {"profile"}
+        others = "; ".join(f"{variant} {r.final_train}" for variant, r in by.items() if variant not in said_already)
+        lines.append(f"- {group} {algo.upper()}: {said}" + (f" (other batches: {others})" if others else "") + ".")
+    if not lines:
+        return []
+    return ["> **Calibration of the batch** (the same cell at matched env steps, `--only calibration`; a verdict "
+            "about an algorithm whose profile cell is not inside the authors' band depends on the batch):", ">",
+            *[f"> {line}" for line in lines], ""]
 
 
 def calibration_panels(results: list) -> dict[str, list[tuple[str, object]]]:

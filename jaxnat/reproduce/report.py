@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxnat.reproduce.aggregates import aggregate, aggregates_section
-from jaxnat.reproduce.calibration import calibration_panels, calibration_results, calibration_section
+from jaxnat.reproduce.calibration import (calibration_panels, calibration_results, calibration_section,
+                                         calibration_status)
 from jaxnat.reproduce.departures import departures_data, departures_section
 from jaxnat.reproduce.findings import FINDINGS, Verdict, noise_control_pairs
 from jaxnat.reproduce.grid import PAPER_BUDGETS, ROBOTS, Cell
@@ -302,6 +303,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     aggregates = aggregate(findings_cells)
     lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
     lines += budget_banner(findings_cells)
+    lines += calibration_status(results)
     saved = [r.cell.name for r in results]
     versions = _run_versions(out / saved[0]) if saved else _versions()
     lines += [f"- Written {written} by `jaxnat reproduce --profile "
