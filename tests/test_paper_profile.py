@@ -173,3 +173,18 @@ def test_calibration_status_opens_the_report_with_each_profile_cell_against_the_
     alone = calibration.calibration_status([authors])
     assert any("the profile's cell has not run (other batches: authors 0.7" in line for line in alone)
     assert calibration.calibration_status([]) == []
+
+
+def test_smoke_calibration_trains_and_reports_its_band(tmp_path):
+    """The calibration end to end on a CPU (the smoke profile's tiny batch: PPO at the authors'
+    and the profile's variants): its section, its status lines, its figure and its JSON rows."""
+    import json
+
+    assert command.main(["--profile", "smoke", "--only", "calibration", "--out", str(tmp_path)]) == 0
+    text = (tmp_path / "report.md").read_text()
+    assert "## Calibration: the profile's batch against the authors'" in text
+    assert "> - classify PPO: the profile's cell" in text and (tmp_path / "calibration.png").is_file()
+    rows = [line for line in text.splitlines() if line.startswith("| classify | PPO |")]
+    assert [row.split(" | ")[2] for row in rows] == ["authors", "profile"]
+    cells = json.loads((tmp_path / "results.json").read_text())["cells"]
+    assert {c["name"] for c in cells} == {"calibration-classify-ppo-authors", "calibration-classify-ppo-profile"}

@@ -160,7 +160,8 @@ PROFILES: dict[str, Profile] = {
         subsets={"datasets": ("mnist",), "algos": ("ppo",), "trunks": ("cnn",), "sweep": ((2, 20),),
                  "localize": ("clutter",), "games": ("Breakout",), "backgrounds": ("video",),
                  "atari_algos": ("ppo",), "robots": ("Swimmer",), "observations": ("noise",),
-                 "mujoco_algos": ("a2c",), "calibration": ("classify",)},
+                 "mujoco_algos": ("a2c",), "calibration": ("classify",), "calibration_algos": ("ppo",),
+                 "calibration_variants": ("authors", "profile")},
         overrides={e: dict(_TINY) for e in ONLY_NAMES},
         # Short episodes: a smoke run's evaluation plays whole episodes.
         env_kwargs={"localize": {"M": 10, "image_size": 64}, "atari": {"max_episode_steps": 20},
@@ -437,6 +438,9 @@ def _calibration_cells(profile: Profile) -> list[Cell]:
     for group in profile.subset("calibration", tuple(CALIBRATION_VARIANTS)):
         group_env, kwargs = CALIBRATION_ENVS.get(group, (env_id, {}))
         for algo, variant, settings in CALIBRATION_VARIANTS[group]:
+            if algo not in profile.subset("calibration_algos", ALGOS) or \
+                    variant not in profile.subset("calibration_variants", (variant,)):
+                continue
             settings = {**settings, **_settings(algo, extra)}
             cells.append(Cell(f"calibration-{group}-{algo}-{_slug(variant)}", CALIBRATION, CALIBRATION, group_env,
                               dict(kwargs), algo, None,
