@@ -15,11 +15,13 @@ from jaxnat.reproduce.grid import CALIBRATION, Cell
 # ETA then follows the measured pace. On a GPU the rate grows with the envs stepped at once
 # (E = envs per seed x seeds) and saturates: `GPU_RATES[experiment] = (saturated rate, E at half
 # of it)`, fitted to the quick profile's cells (bench/reproduce_cost.py) and the larger batches
-# of bench/results (classification PPO at 2,048 envs x 5 seeds, PixelMuJoCo PPO at 1,024 x 5).
+# of bench/results (classification PPO at 2,048 envs x 5 seeds, PixelMuJoCo PPO at 1,024 x 5)
+# and of the paper profile's first sitting (docs/reproduction/paper/SITTINGS.md: Clutter's A2C
+# at 512 envs x 5 seeds).
 # Natural Atari is bound by the host's cores: one rate. A calibration cell counts as its group's
 # experiment; PixelMuJoCo's observations without rendering are faster by `OBSERVATION_SPEEDUP`.
 RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2}}
-GPU_RATES = {"classify": (6.5e5, 770), "localize": (3e5, 770), "atari": (1e4, 0), "mujoco": (1.05e5, 2048)}
+GPU_RATES = {"classify": (6.5e5, 770), "localize": (7e4, 600), "atari": (1e4, 0), "mujoco": (1.05e5, 2048)}
 OBSERVATION_SPEEDUP = {"noise": 1.5, "state": 5.0, "constant": 5.0}
 COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
              "gpu": {"classify": 8, "localize": 23, "atari": 106, "mujoco": 35}}
