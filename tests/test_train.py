@@ -419,3 +419,16 @@ def test_runs_saved_before_env_parts_resume_as_one_batch():
     # Each conflict names the value given and the run's.
     with pytest.raises(train.TrainError, match=r"^--seeds 3 \(the run: 2\), --lr 0.001 \(the run: 0.00025\) conflict"):
         check_resume_args(train.parse_args(["--resume", "run", "--seeds", "3", "--lr", "1e-3"]), saved)
+
+
+def test_help_lists_the_values_of_text_and_switch_settings(capsys):
+    """`--dtype`, `--optimizer`, `--loss` and the normalisation switches name what they take."""
+    from jaxnat.agents.dqn import LOSSES, OPTIMIZERS
+    from jaxnat.agents.networks import DTYPES
+
+    with pytest.raises(SystemExit):
+        train.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for flag, values in (("--dtype", DTYPES), ("--optimizer", OPTIMIZERS), ("--loss", LOSSES)):
+        assert f"{flag} {{{','.join(values)}}}" in text
+    assert "--normalize-observations {True,False}" in text and "--normalize-rewards {True,False}" in text

@@ -12,7 +12,8 @@ from typing import Annotated, Any, Optional
 import tyro
 
 from jaxnat.agents import ALGORITHMS
-from jaxnat.agents.networks import TRUNKS
+from jaxnat.agents.dqn import LOSSES, OPTIMIZERS
+from jaxnat.agents.networks import DTYPES, TRUNKS
 
 PROG = "jaxnat train"
 # Fields of the algorithm configs that are top-level arguments rather than overrides.
@@ -45,14 +46,24 @@ def _config_fields() -> dict[str, tuple[Any, dict[str, Any]]]:
     return fields
 
 
+# The values a text or switch field takes, from where the agents define them (shown in --help).
+CHOICES = {"dtype": DTYPES, "optimizer": tuple(OPTIMIZERS), "loss": tuple(LOSSES)}
+SWITCHES = ("normalize_observations", "normalize_rewards")  # unset: decided by the observation space
+
+
 # What a config field means, where its name and default do not say (shown in --help).
 FIELD_HELP = {
     "clip_rewards": "train on sign(reward) (baselines' ClipRewardEnv), before any reward scaling; "
                     "the episode returns reported stay unclipped.",
+    **dict.fromkeys(SWITCHES, "unset: on for vector observations, off for images (VecNormalize's)."),
 }
 
 
-def _metavar(kind) -> str:
+def _metavar(name: str, kind) -> str:
+    if name in CHOICES:
+        return "{" + ",".join(CHOICES[name]) + "}"
+    if name in SWITCHES:
+        return "{True,False}"
     return {int: "INT", float: "FLOAT", bool: "{True,False}", str: "STR"}.get(kind, "VALUE")
 
 
@@ -63,7 +74,7 @@ def _make_overrides_class():
         only = "" if len(defaults) == len(ALGORITHMS) else f"{'/'.join(defaults)} only"
         text = " ".join(part for part in (FIELD_HELP.get(name, ""), only) if part)
         fields.append((name, Annotated[Optional[kind], tyro.conf.arg(
-            help=text, help_behavior_hint=hint, metavar=_metavar(kind))], None))
+            help=text, help_behavior_hint=hint, metavar=_metavar(name, kind))], None))
     cls = dataclasses.make_dataclass("ConfigOverrides", fields, frozen=True)
     cls.__module__ = __name__
     cls.__doc__ = ("Algorithm settings; unset ones take the algorithm's default. Every field of "
