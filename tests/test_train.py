@@ -432,3 +432,20 @@ def test_help_lists_the_values_of_text_and_switch_settings(capsys):
     for flag, values in (("--dtype", DTYPES), ("--optimizer", OPTIMIZERS), ("--loss", LOSSES)):
         assert f"{flag} {{{','.join(values)}}}" in text
     assert "--normalize-observations {True,False}" in text and "--normalize-rewards {True,False}" in text
+
+
+def test_settings_table_never_cuts_the_run_directory(tmp_path):
+    """On a narrow terminal the table's cells fold or cut; the run directory is a path to copy."""
+    import io
+
+    from rich.console import Console
+
+    from jaxnat.training import spec as spec_module
+    from jaxnat.training.command import _print_config
+
+    spec = spec_module.RunSpec("Classify/Digits-v0", {}, "ppo", ALGORITHMS["ppo"].config(num_envs=8, num_steps=16),
+                               seeds=2, seed=0, eval_every=2, eval_episodes=16)
+    run_dir = tmp_path / "runs" / "PixelMuJoCo_Hopper-v0-ppo-20261127-121959-a-long-name"
+    out = io.StringIO()
+    _print_config(Console(file=out, width=50, force_terminal=False), spec, run_dir)
+    assert f"run dir: {run_dir}" in out.getvalue().splitlines()

@@ -115,8 +115,9 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
         source = sources.get(field.name)
         table.add_row(f"{field.name}{tag}", repr(getattr(spec.config, field.name))
                       + ("" if source in (None, "default") else f"  [dim]({source})[/dim]"))
-    table.add_row("run dir", str(run_dir))
     console.print(table)
+    # After the table, never wrapped: a narrow terminal must not cut the path a user copies.
+    console.print(f"run dir: {run_dir}", soft_wrap=True, highlight=False)
 
 
 def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None,
