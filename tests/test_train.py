@@ -147,6 +147,15 @@ def test_unknown_algo(tmp_path, capsys):
     assert "'ppo'" in _error(capsys)
 
 
+def test_unknown_trunk_is_refused_before_the_env_is_built(tmp_path, capsys, monkeypatch):
+    from jaxnat.training import command as train_command
+
+    monkeypatch.setattr(train_command, "make_envs", lambda spec: pytest.fail("the env was built"))
+    assert train.main(["--trunk", "resnet", "--run-dir", str(tmp_path / "r")]) == 2
+    err = _error(capsys)
+    assert "unknown trunk 'resnet' (did you mean 'resnet18'?)" in err and err.count("\n") == 1
+
+
 @needs_digits
 @pytest.mark.parametrize("argv, message", [
     (["--env-kwargs", "bogus=1"], "bogus"),

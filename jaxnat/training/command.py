@@ -21,7 +21,7 @@ from jaxnat.training.placement import Placement, device_count, resumed_devices
 from jaxnat.training.device_backend import compiled_program, make_envs, split_argument
 from jaxnat.training.rundir import (args_json, check_counts, new_run_dir, open_resumed, versions,
                                     with_eval_every)
-from jaxnat.training.spec import RunSpec, check_algo, resolve_config
+from jaxnat.training.spec import RunSpec, check_algo, check_trunk, resolve_config
 from jaxnat.training.chunk_loop import run_training
 
 
@@ -44,6 +44,7 @@ def _setup(args: TrainArgs, console):
         spec, run_dir, saved = open_resumed(args)
         return _resumed_placement(spec, args, console), run_dir, saved, None
     check_algo(args.algo)
+    check_trunk(args.trunk)
     check_counts(args)
     run_dir = new_run_dir(args)  # an unwritable one is refused now, not after compiling
     if args.shard is not None and args.devices is None:

@@ -7,6 +7,7 @@ import math
 from typing import Any
 
 from jaxnat.agents import ALGORITHMS, resolve_config as resolve_agent_config
+from jaxnat.agents.networks import TRUNKS
 from jaxnat.agents.resolve import env_family
 from jaxnat.training.args import CORE_CONFIG_FIELDS, TrainArgs, TrainError
 
@@ -99,13 +100,24 @@ class RunSpec:
         )
 
 
-def check_algo(algo: str) -> None:
-    if algo not in ALGORITHMS:
+def _check_name(what: str, name: str, valid) -> None:
+    if name not in valid:
         import difflib
 
-        close = difflib.get_close_matches(algo.lower(), ALGORITHMS, n=1, cutoff=0.5)
+        close = difflib.get_close_matches(name.lower(), valid, n=1, cutoff=0.5)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise TrainError(f"unknown algorithm {algo!r}{hint}; choose one of: {', '.join(ALGORITHMS)}")
+        raise TrainError(f"unknown {what} {name!r}{hint}; choose one of: {', '.join(valid)}")
+
+
+def check_algo(algo: str) -> None:
+    _check_name("algorithm", algo, tuple(ALGORITHMS))
+
+
+def check_trunk(trunk: str | None) -> None:
+    """A `--trunk` name checked before the env is built and the settings printed (None: the
+    paper's trunk for the observation, decided later)."""
+    if trunk is not None:
+        _check_name("trunk", trunk, TRUNKS)
 
 
 def resolve_config(args: TrainArgs, observation_space, action_space=None):
