@@ -458,3 +458,22 @@ def test_settings_table_never_cuts_the_run_directory(tmp_path):
     out = io.StringIO()
     _print_config(Console(file=out, width=50, force_terminal=False), spec, run_dir)
     assert f"run dir: {run_dir}" in out.getvalue().splitlines()
+
+
+def test_resume_into_an_unwritable_folder_is_refused_before_building(tmp_path, capsys, monkeypatch):
+    """Checkpoints and records go into the resumed run's folder: one that cannot be written is
+    refused at once (root ignores permission bits, so the check's answer is stood in for)."""
+    from jaxnat.training import command as train_command
+    from jaxnat.training import rundir
+    from jaxnat.training import spec as spec_module
+
+    spec = spec_module.RunSpec("Classify/Digits-v0", {}, "ppo", ALGORITHMS["ppo"].config(num_envs=2, num_steps=8),
+                               seeds=1, seed=0, eval_every=1, eval_episodes=4)
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"spec": spec.to_json()}))
+    monkeypatch.setattr(rundir, "unwritable", lambda folder: "Read-only file system")
+    monkeypatch.setattr(train_command, "make_envs", lambda spec: pytest.fail("the env was built"))
+    assert train.main(["--resume", str(run)]) == 2
+    err = _error(capsys)
+    assert f"cannot resume {run}: it is not writable (Read-only file system)" in err and err.count("\n") == 1

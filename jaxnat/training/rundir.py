@@ -90,6 +90,10 @@ def open_resumed(args: TrainArgs):
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise TrainError(f"cannot resume {run_dir}: its config.json's run spec is damaged ({type(err).__name__}: "
                          f"{err}); restore it from a copy, or start a new run") from None
+    reason = unwritable(run_dir)  # checkpoints and records are written there: refused now, not after compiling
+    if reason is not None:
+        raise TrainError(f"cannot resume {run_dir}: it is not writable ({reason}); make it writable, or copy the "
+                         "run to a writable folder and resume the copy")
     return spec, run_dir, saved
 
 
