@@ -175,12 +175,21 @@ def test_calibration_status_opens_the_report_with_each_profile_cell_against_the_
     assert calibration.calibration_status([]) == []
 
 
-def test_smoke_calibration_trains_and_reports_its_band(tmp_path):
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """The smoke profile's calibration, trained once (`tests/test_reproduce_shards.py` compares
+    its sharded runs with it)."""
+    out = tmp_path_factory.mktemp("calibration")
+    assert command.main(["--profile", "smoke", "--only", "calibration", "--out", str(out)]) == 0
+    return out
+
+
+def test_smoke_calibration_trains_and_reports_its_band(calibrated):
     """The calibration end to end on a CPU (the smoke profile's tiny batch: PPO at the authors'
     and the profile's variants): its section, its status lines, its figure and its JSON rows."""
     import json
 
-    assert command.main(["--profile", "smoke", "--only", "calibration", "--out", str(tmp_path)]) == 0
+    tmp_path = calibrated
     text = (tmp_path / "report.md").read_text()
     assert "## Calibration: the profile's batch against the authors'" in text
     assert "> - classify PPO: the profile's cell" in text and (tmp_path / "calibration.png").is_file()
@@ -188,3 +197,22 @@ def test_smoke_calibration_trains_and_reports_its_band(tmp_path):
     assert [row.split(" | ")[2] for row in rows] == ["authors", "profile"]
     cells = json.loads((tmp_path / "results.json").read_text())["cells"]
     assert {c["name"] for c in cells} == {"calibration-classify-ppo-authors", "calibration-classify-ppo-profile"}
+
+
+def test_two_shards_into_one_folder_give_the_report_of_one_run(calibrated, tmp_path):
+    """`--shard 0/2` and `--shard 1/2` into one folder, then `--report-only`: the same per-seed
+    results and verdicts as the one run of `calibrated`; the first shard's report holds its share."""
+    import json
+
+    def numbers(out):
+        cells = json.loads((out / "results.json").read_text())["cells"]
+        return {c["name"]: {k: v for k, v in c.items() if k != "wall_time_s"} for c in cells}
+
+    argv = ["--profile", "smoke", "--only", "calibration", "--out", str(tmp_path)]
+    assert command.main([*argv, "--shard", "0/2"]) == 0
+    assert 0 < len(numbers(tmp_path)) < len(numbers(calibrated))
+    assert command.main([*argv, "--shard", "1/2"]) == 0
+    assert command.main([*argv, "--report-only"]) == 0
+    assert numbers(tmp_path) == numbers(calibrated)
+    verdicts = lambda out: json.loads((out / "results.json").read_text())["verdicts"]  # noqa: E731
+    assert verdicts(tmp_path) == verdicts(calibrated)

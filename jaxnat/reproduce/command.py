@@ -24,7 +24,8 @@ from jaxnat.cli import exit_status, unwritable
 from jaxnat.reproduce.board import Board
 from jaxnat.reproduce.cells import train_cells
 from jaxnat.reproduce.cell_stream import CellStream, child_streams, stop_streams
-from jaxnat.reproduce.estimates import detect_platform, duration, estimate_seconds, estimate_total, split_streams
+from jaxnat.reproduce.estimates import (SHARD_PLATFORM, detect_platform, duration, estimate_seconds, estimate_total,
+                                        shard_cells, split_streams)
 from jaxnat.reproduce.gpus import Devices, find_devices, keep_jax_off_gpus
 from jaxnat.reproduce.grid import EXPERIMENTS, ONLY_NAMES, PROFILES, RUN_SETTINGS, TRUNKS, Cell, Plan, build_grid
 
@@ -55,6 +56,10 @@ class ReproduceArgs:
     """Write the report from the cells already in --out without training."""
     sequential: bool = False
     """Run every cell in turn, also on an accelerator (by default there the Natural Atari cells, which run on the host's cores, train in a second process alongside the others)."""
+    shard: Annotated[Optional[str], tyro.conf.arg(metavar="I/N", help_behavior_hint="")] = None
+    """Train only the I-th (0-based) of N disjoint shares of the cells, balanced by estimated cost and the same on every machine: N jobs (a SLURM array, --array=0-<N-1>) may write into one shared --out; each writes the report of whatever has finished there, and --report-only merges them at the end."""
+    dry_run: bool = False
+    """Print the cells each shard (or this run) would train and their estimated GPU-hours and host-hours, then stop."""
     gpus: Annotated[str, tyro.conf.arg(metavar="N|all")] = "all"
     """GPUs to train on: with 2 or more the device cells are shared among one process per GPU, side by side (by their estimated times); 1: all of them in this process, on one GPU."""
 
@@ -99,6 +104,46 @@ def make_plan(args: ReproduceArgs, devices: Devices | None = None) -> Plan:
     _check_writable(out)
     cells = [c for c in build_grid(profile, only) if c.labels.get("trunk", trunks[0]) in trunks]
     return Plan(profile, only, seeds, out, cells)
+
+
+def parse_shard(text: str | None) -> tuple[int, int] | None:
+    """`--shard I/N` as `(I, N)` (None: no sharding); a one-line `ReproduceError` otherwise."""
+    if text is None:
+        return None
+    index, _, count = text.partition("/")
+    if not (index.strip().isdigit() and count.strip().isdigit()) or int(count) < 1 or int(index) >= int(count):
+        raise ReproduceError(f"--shard takes I/N with 0 <= I < N (the I-th of N shares, 0-based), not {text!r}")
+    return int(index), int(count)
+
+
+def shard_plan(plan: Plan, shard: tuple[int, int] | None) -> Plan:
+    """The plan whose cells this run trains: the shard's share of the runnable cells (all of
+    them without `--shard`); the report still covers the whole `plan`."""
+    if shard is None:
+        return plan
+    runnable = [c for c in plan.cells if not c.skip]
+    return dataclasses.replace(plan, cells=shard_cells(runnable, *shard, plan.seeds))
+
+
+def dry_run(plan: Plan, shard: tuple[int, int] | None, console) -> None:
+    """Print each shard's cells (or this run's) with their estimated hours: GPU-hours of the
+    device cells, host-hours of the host cells (Natural Atari: a 16-core host's)."""
+    from rich.table import Table
+
+    runnable = [c for c in plan.cells if not c.skip]
+    count = shard[1] if shard else 1
+    shards = [shard[0]] if shard else range(count)
+    table = Table(title=f"{PROG} --dry-run: profile {plan.profile.name}, {plan.seeds} seeds, {len(runnable)} cells "
+                        f"in {count} share{'s' * (count != 1)}")
+    for column in ("shard", "cells", "GPU-hours", "host-hours", "cell names"):
+        table.add_column(column, overflow="fold")
+    for index in shards:
+        cells = shard_cells(runnable, index, count, plan.seeds)
+        hours = {kind: sum(estimate_seconds(c, plan.seeds, SHARD_PLATFORM) for c in cells if c.host == host) / 3600
+                 for kind, host in (("gpu", False), ("host", True))}
+        table.add_row(f"{index}/{count}", str(len(cells)), f"{hours['gpu']:.2f}", f"{hours['host']:.2f}",
+                      ", ".join(c.name for c in cells))
+    console.print(table)
 
 
 def _check_writable(out: Path) -> None:
@@ -254,10 +299,14 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,
                       "to run more)", highlight=False, soft_wrap=True)
     if args.sequential:
         overlap = False
+    shard = parse_shard(args.shard)
+    if args.dry_run:
+        dry_run(plan, shard, console)
+        return plan.out / "report.md"
     outcomes = {}
     if not args.report_only:
         platform, gpus = choose_gpus(args, devices)
-        outcomes = run_cells(plan, console, overlap=overlap, platform=platform, gpus=gpus)
+        outcomes = run_cells(shard_plan(plan, shard), console, overlap=overlap, platform=platform, gpus=gpus)
     path = write_report(plan, outcomes)
     console.print(f"report: {path}", highlight=False)
     return path

@@ -71,6 +71,19 @@ def balance(cells: list[Cell], count: int, seconds: dict[str, float]) -> list[li
     return [sorted(part, key=lambda c: order[c.name]) for part in parts]
 
 
+# Cluster shares are balanced by the GPU estimates whatever machine a shard runs on, so that
+# every shard of one grid computes the same split (`shard_cells`).
+SHARD_PLATFORM = "gpu"
+
+
+def shard_cells(cells: list[Cell], index: int, count: int, seeds: int) -> list[Cell]:
+    """The `index`-th (0-based) of `count` disjoint shares of `cells` (every runnable cell of a
+    grid, finished or not, so the split never moves as cells finish), balanced by their
+    estimated GPU seconds (`balance`): the same on every machine, in grid order."""
+    seconds = {c.name: estimate_seconds(c, seeds, SHARD_PLATFORM) for c in cells}
+    return balance(cells, count, seconds)[index]
+
+
 def split_streams(cells: list[Cell], overlap: bool, gpus: int = 1,
                   seconds: dict[str, float] | None = None) -> dict[str, list[Cell]]:
     """The cells as the streams that run at the same time, each in grid order. With `gpus` >= 2:

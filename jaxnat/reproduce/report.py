@@ -36,7 +36,7 @@ from jaxnat.reproduce.departures import departures_data, departures_section
 from jaxnat.reproduce.findings import FINDINGS, Verdict, noise_control_pairs
 from jaxnat.reproduce.grid import PAPER_BUDGETS, ROBOTS, Cell
 from jaxnat.reproduce.labels import dataset_label
-from jaxnat.reproduce.results_json import results_document, write_results
+from jaxnat.reproduce.results_json import results_document, write_results, write_text_atomic
 from jaxnat.reproduce.stats import Interval, binned_curve, bootstrap_band, bootstrap_ci
 
 __all__ = ["CellResult", "load_result", "write_report", "FIGURES"]
@@ -359,7 +359,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         lines += ["## Cells not finished or not run", "", "| cell | why |", "|---|---|"]
         lines += [f"| `{name}` | {why} |" for name, why in missing.items()] + [""]
     path = out / "report.md"
-    path.write_text("\n".join(lines))
+    write_text_atomic(path, "\n".join(lines))
     write_results(out / "results.json", results_document(plan, results, missing, verdicts, aggregates,
                                                          departures_data(plan.profile, plan.cells), written))
     return path

@@ -25,7 +25,7 @@ import numpy as np
 from jaxnat.reproduce.labels import dataset_label
 from jaxnat.reproduce.verdicts import SPEED_CHECKPOINTS
 
-__all__ = ["SCHEMA", "cell_entry", "results_document", "write_results"]
+__all__ = ["SCHEMA", "cell_entry", "results_document", "write_results", "write_text_atomic"]
 
 SCHEMA = 1  # bumped when a key changes meaning
 
@@ -104,6 +104,23 @@ def results_document(plan, results, missing: dict[str, str], verdicts, aggregate
     })
 
 
-def write_results(path: Path, document: dict) -> Path:
-    path.write_text(json.dumps(document, indent=1, allow_nan=False) + "\n")
+def write_text_atomic(path: Path, text: str) -> Path:
+    """Write `text` to `path` whole or not at all: through a temporary file beside it, renamed
+    over it. Shards of one grid (`jaxnat reproduce --shard`) write the report of one folder and
+    may finish at the same moment; a reader never sees half a file."""
+    import os
+    import tempfile
+
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w") as out:
+            out.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
     return path
+
+
+def write_results(path: Path, document: dict) -> Path:
+    return write_text_atomic(path, json.dumps(document, indent=1, allow_nan=False) + "\n")
