@@ -203,6 +203,8 @@ def test_out_of_range_values_are_clear_errors(physics, video):
     env.check_params(with_distraction(params, video_alpha=np.array([0.0, 0.5, 1.0])))
     with pytest.raises(ValueError, match="sweep takes Distraction fields"):
         params.sweep(sky_alpha=jnp.ones(2))
+    with pytest.raises(ValueError, match="frame_rate must be >= 0"):
+        params.sweep(frame_rate=jnp.array([1, -2]))
     with pytest.raises(ValueError, match="one leading length"):
         params.sweep(video_alpha=jnp.ones(2), frame_rate=jnp.ones(3, jnp.int32))
     import jaxnat

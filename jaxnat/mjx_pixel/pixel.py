@@ -76,6 +76,7 @@ Example::
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from typing import Any
 
@@ -145,14 +146,16 @@ class PixelParams(EnvParams):
             swept, axes = params.sweep(video_alpha=jnp.linspace(0, 1, 5))
             jax.vmap(env.step, in_axes=(0, 0, 0, axes))(keys, states, actions, swept)
         """
-        names = {f.name for f in Distraction.__dataclass_fields__.values()}
-        unknown = sorted(set(values) - names)
+        names = [f.name for f in dataclasses.fields(Distraction)]
+        unknown = sorted(set(values) - set(names))
         if unknown or not values:
-            raise ValueError(f"sweep takes Distraction fields {sorted(names)}, got {sorted(values)}")
+            raise ValueError(f"sweep takes Distraction fields {names}, got {sorted(values)}")
         arrays = {k: jnp.asarray(v) for k, v in values.items()}
         lengths = {k: (a.shape[0] if a.ndim else None) for k, a in arrays.items()}
         if None in lengths.values() or len(set(lengths.values())) != 1:
             raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
+        # Ranges now, while the values are concrete (the floor is the env's: `check_params`).
+        _check_distraction("video", **{k: a for k, a in arrays.items() if is_concrete(a)})
         axes = jax.tree.map(lambda _: None, self)
         axes = axes.replace(distraction=Distraction(
             **{k: (0 if k in values else None) for k in names}))
