@@ -8,7 +8,8 @@ textures, and only those pixels change between modes (the renderer lights them a
   MuJoCo maps it (the material's `texrepeat` copies across the plane);
 - `"video"`: the current frame of a natural video, laid on the floor in world x-y (one copy
   every `tile` metres, repeating), so it stays put under the moving camera and the robot
-  walks over it;
+  walks over it; with `video_alpha` (`PixelParams.distraction`), blended over the checker
+  (`blend_video`: 0 is the checker, 1 the video, each exactly);
 - `"noise"`: fresh i.i.d. Gaussian noise per floor pixel, redrawn every frame, from the
   pixel-noise law `noise` (`jaxnat.natural.NOISE_LAWS`; by default N(0, 1) * 50 clipped at 0,
   the paper repository's law).
@@ -36,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["FLOOR_MODES", "Footprint", "texture_at", "texture_mip", "checker_box", "mip_levels",
-           "mip_sizes", "pack_mips", "floor_rgb"]
+           "mip_sizes", "pack_mips", "floor_rgb", "blend_video"]
 
 FLOOR_MODES = ("checker", "video", "noise")
 
@@ -292,7 +293,7 @@ def _checker_cells(values):
 
 
 def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=None, tile=None,
-              key=None, channels: int = 3, noise=None, mips=None) -> jax.Array:
+              key=None, channels: int = 3, noise=None, mips=None, video_alpha=None) -> jax.Array:
     """float32 `[..., 3]` in [0, 1]: the floor's colour at world points `xy [..., 2]`.
 
     Args:
@@ -316,6 +317,9 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
             at `frame_index`), built once per bank: with a footprint, "video" reads them and
             builds nothing per step. Without them it builds the current frame's chain on the
             device every call (a third of the frame's texels more to write, every step).
+        video_alpha: for "video", the video's weight over the checker, a float in [0, 1] (may
+            be traced; values outside are clipped): `alpha * video + (1 - alpha) * checker`
+            (`blend_video`). None: the video alone (as 1, without computing the checker).
     """
     if mode == "checker":
         if table.floor_texture is None:
@@ -337,18 +341,10 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
     if mode == "video":
         if frame is None or tile is None:
             raise ValueError('floor="video" needs the current video frame and its tile size')
-        if footprint is not None:
-            if mips is not None:
-                colour = texture_mip(mips, xy, tile, footprint, shape=frame.shape[-3:-1],
-                                     index=frame_index)
-                return _unit_rgb(colour)
-            current = frame if frame_index is None else frame[frame_index]
-            levels = mip_levels(current.astype(jnp.float32) / 255.0)
-            colour = texture_mip(levels, xy, tile, footprint)
-            return jnp.broadcast_to(colour, colour.shape[:-1] + (3,))
-        tile = jnp.broadcast_to(jnp.asarray(tile, jnp.float32), (2,))
-        colour = texture_at(frame, xy, tile, frame_index)
-        return _unit_rgb(colour)
+        video = _video_rgb(xy, footprint, frame, frame_index, tile, mips)
+        if video_alpha is None:
+            return video
+        return blend_video(video, floor_rgb("checker", table, xy, footprint), video_alpha)
     if mode == "noise":
         if key is None:
             raise ValueError('floor="noise" needs a PRNG key')
@@ -357,6 +353,38 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
         law = noise_law(DEFAULT_NOISE if noise is None else noise)
         return _unit_rgb(law.sample(key, xy.shape[:-1] + (channels,)))
     raise ValueError(f"floor must be one of {FLOOR_MODES}, got {mode!r}")
+
+
+def _video_rgb(xy, footprint, frame, frame_index, tile, mips) -> jax.Array:
+    """float32 `[..., 3]`: the video floor's colour at `xy` (see `floor_rgb`)."""
+    if footprint is not None:
+        if mips is not None:
+            colour = texture_mip(mips, xy, tile, footprint, shape=frame.shape[-3:-1],
+                                 index=frame_index)
+            return _unit_rgb(colour)
+        current = frame if frame_index is None else frame[frame_index]
+        levels = mip_levels(current.astype(jnp.float32) / 255.0)
+        colour = texture_mip(levels, xy, tile, footprint)
+        return jnp.broadcast_to(colour, colour.shape[:-1] + (3,))
+    tile = jnp.broadcast_to(jnp.asarray(tile, jnp.float32), (2,))
+    colour = texture_at(frame, xy, tile, frame_index)
+    return _unit_rgb(colour)
+
+
+def blend_video(video, checker, alpha) -> jax.Array:
+    """`alpha * video + (1 - alpha) * checker` (float32 colours, `alpha` clipped to [0, 1], may
+    be traced), exactly `checker` at `alpha = 0` and exactly `video` at 1.
+
+    The endpoints are selected, not left to the blend: IEEE arithmetic gives them exactly only
+    if the compiler keeps the expression's form (a reassociated `checker + alpha * (video -
+    checker)` is off by a rounding at 1), and a NaN or an infinity in the weightless texture
+    (the checker's filter at pixels that miss the floor) would leak through a zero weight. So
+    `floor="video"` at `video_alpha=0` renders `floor="checker"`'s frames and at 1 today's
+    video floor, bit for bit."""
+    alpha = jnp.clip(jnp.asarray(alpha, jnp.float32), 0.0, 1.0)
+    video, checker = jnp.broadcast_arrays(video, checker)
+    blend = alpha * video + (1.0 - alpha) * checker
+    return jnp.where(alpha >= 1.0, video, jnp.where(alpha <= 0.0, checker, blend))
 
 
 def _colour_line(texture):

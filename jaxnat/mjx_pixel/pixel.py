@@ -33,6 +33,22 @@ Semantics: `docs/environments.md` section 4.
   fades to the texture's average as in MuJoCo's renderer; `floor_filter="nearest"` reads the
   nearest texel everywhere (moire near the horizon). The video's mip levels are built once,
   when the bank is loaded (`PixelParams.video_mips`: 4/3 of the bank's memory again).
+- **Distraction** (`PixelParams.distraction`, a `Distraction`; the constructor's keywords of
+  the same names set its defaults, which reproduce the plain env bit for bit): how strong the
+  video floor is, as traced params, so one jitted program sweeps a whole difficulty curve
+  (`PixelParams.sweep` builds the batched params and their `in_axes` for `jax.vmap`):
+  - `video_alpha` (float in [0, 1], default 1; floor="video" only): the floor is
+    `video_alpha * video + (1 - video_alpha) * checker`, per colour channel before lighting;
+    0 gives exactly floor="checker"'s frames (same key: the physics and the cursor draw from
+    the same splits), 1 exactly the video floor (`floor.blend_video` selects the endpoints).
+    The checker is computed alongside the video at every step (closed form, no texel read).
+  - `frame_rate` (int >= 0, default 1; floor="video" only): video frames the cursor advances
+    per agent step (the authors' MuJoCo code advanced 4); 0 freezes the episode's first frame.
+    A video that ends inside a jump hands over to a new random video at its first frame, as at
+    rate 1.
+  Out-of-range values are one-line `ValueError`s when the env is built and in `check_params`
+  (`jaxnat.make` calls it); traced values cannot be checked, and are clipped instead
+  (`video_alpha` to [0, 1], `frame_rate` to >= 0).
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
   default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
@@ -51,25 +67,32 @@ Example::
     action = env.action_space(params).sample(jax.random.key(1))
     obs, state, reward, terminated, truncated, info = env.step(
         jax.random.key(2), state, action, params)
+
+    # Five strengths of the video floor in one program (one env per strength):
+    swept, axes = params.sweep(video_alpha=jnp.linspace(0.0, 1.0, 5))
+    keys = jax.random.split(jax.random.key(0), 5)
+    obs, state = jax.vmap(env.reset, in_axes=(0, axes))(keys, swept)
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from jaxnat import spaces
-from jaxnat.core import Environment, EnvParams, EnvState
+from jaxnat.core import Environment, EnvParams, EnvState, is_concrete
 from jaxnat.mjx_pixel.camera import TrackingCamera
 from jaxnat.mjx_pixel.floor import FLOOR_MODES, floor_rgb
 from jaxnat.mjx_pixel.render import GeomTable, Renderer
 from jaxnat.natural.noise import DEFAULT_NOISE, NoiseLaw, noise_law
 
-__all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "PHYSICS", "OBSERVATIONS"]
+__all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "Distraction", "PHYSICS", "OBSERVATIONS"]
 
 # Robot name -> its MJX physics env ("module:class").
 PHYSICS = {
@@ -91,6 +114,17 @@ class PixelState(EnvState):
     cursor: Any = None  # natural.VideoCursor with floor="video", else None
 
 
+@struct.dataclass
+class Distraction:
+    """The distraction's strength (module docstring, **Distraction**): traced numbers, so a
+    sweep over them is one jitted, vmapped program. A group of its own inside `PixelParams` so
+    that `in_axes` can name it apart from the physics and the video bank, which a sweep shares
+    (`PixelParams.sweep`). The defaults are the plain env."""
+
+    video_alpha: float = 1.0  # floor="video": the video's weight over the checker, in [0, 1]
+    frame_rate: int = 1  # floor="video": video frames per agent step, >= 0 (0: frozen)
+
+
 @struct.dataclass(kw_only=True)
 class PixelParams(EnvParams):
     physics: Any  # the physics env's params
@@ -101,6 +135,31 @@ class PixelParams(EnvParams):
     # once when the bank is loaded.
     video_mips: Any = None
     max_steps_in_episode: int = 250
+    distraction: Distraction = struct.field(default_factory=Distraction)
+
+    def sweep(self, **values) -> tuple[PixelParams, Any]:
+        """`(params, in_axes)`: these params with the named `Distraction` fields replaced by
+        arrays of one leading length (a strength axis), and the matching `in_axes` prefix for
+        `jax.vmap` (0 on those fields, None everywhere else: the physics params and the video
+        bank stay shared, not copied per strength)::
+
+            swept, axes = params.sweep(video_alpha=jnp.linspace(0, 1, 5))
+            jax.vmap(env.step, in_axes=(0, 0, 0, axes))(keys, states, actions, swept)
+        """
+        names = [f.name for f in dataclasses.fields(Distraction)]
+        unknown = sorted(set(values) - set(names))
+        if unknown or not values:
+            raise ValueError(f"sweep takes Distraction fields {names}, got {sorted(values)}")
+        arrays = {k: jnp.asarray(v) for k, v in values.items()}
+        lengths = {k: (a.shape[0] if a.ndim else None) for k, a in arrays.items()}
+        if None in lengths.values() or len(set(lengths.values())) != 1:
+            raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
+        # Ranges now, while the values are concrete (the floor is the env's: `check_params`).
+        _check_distraction("video", **{k: a for k, a in arrays.items() if is_concrete(a)})
+        axes = jax.tree.map(lambda _: None, self)
+        axes = axes.replace(distraction=Distraction(
+            **{k: (0 if k in values else None) for k in names}))
+        return self.replace(distraction=self.distraction.replace(**arrays)), axes
 
 
 class PixelMuJoCo(Environment[PixelState, PixelParams]):
@@ -124,6 +183,10 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             mipmaps) or "nearest" (the nearest texel); see `render.Renderer`.
         videos: natural video sources for floor="video" (None: opencv-doc's videos; else files,
             a directory or a glob; see `jaxnat.natural.load_videos`).
+        video_alpha: floor="video": the default `Distraction.video_alpha`, the video's weight
+            over the checker in [0, 1] (1: the video floor; 0: the checker's frames).
+        frame_rate: floor="video": the default `Distraction.frame_rate`, video frames per agent
+            step (1; 0 freezes the episode's first frame).
         video_split: "train", "test" (disjoint videos) or "all".
         video_shape: (H, W) the videos are decoded to before being laid on the floor.
         video_max_frames: cap on the frames held on the device (None: all).
@@ -154,6 +217,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         render_kernel: str = "auto",
         noise: str | NoiseLaw = DEFAULT_NOISE,
         floor_filter: str = "mip",
+        video_alpha: float = 1.0,
+        frame_rate: int = 1,
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -161,6 +226,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             raise ValueError(f"floor must be one of {FLOOR_MODES}, got {floor!r}")
         if int(frame_skip) < 1 or int(frame_stack) < 1:
             raise ValueError(f"frame_skip and frame_stack must be >= 1, got {frame_skip}, {frame_stack}")
+        _check_distraction(floor, video_alpha=video_alpha, frame_rate=frame_rate)
         if physics is None or isinstance(physics, str):
             if robot not in PHYSICS:
                 raise ValueError(f"robot must be one of {sorted(PHYSICS)}, got {robot!r}")
@@ -190,6 +256,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
 
             self._video_mips = pack_mips(self._video.frames)
         self.video_split = video_split
+        self.distraction = Distraction(video_alpha=float(video_alpha), frame_rate=int(frame_rate))
 
     @property
     def name(self) -> str:
@@ -199,7 +266,14 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
     def default_params(self) -> PixelParams:
         return PixelParams(physics=self.physics.default_params, video=self._video,
                            video_mips=self._video_mips,
-                           max_steps_in_episode=max(1, 1000 // self.frame_skip))
+                           max_steps_in_episode=max(1, 1000 // self.frame_skip),
+                           distraction=self.distraction)
+
+    def check_params(self, params: PixelParams) -> None:
+        super().check_params(params)
+        d = params.distraction
+        _check_distraction(self.floor, **{k: getattr(d, k) for k in ("video_alpha", "frame_rate")
+                                          if is_concrete(getattr(d, k))})
 
     def action_space(self, params: PixelParams) -> spaces.Space:
         return self.physics.action_space(params.physics)
@@ -246,7 +320,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             return floor_rgb(self.floor, self.table, xy, footprint, frame=frames,
                              frame_index=frame_index,
                              tile=params.video_tile, key=key, channels=self.renderer.channels,
-                             noise=self.noise, mips=params.video_mips)
+                             noise=self.noise, mips=params.video_mips,
+                             video_alpha=params.distraction.video_alpha)
 
         return self.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor)
 
@@ -274,7 +349,12 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         if cursor is not None:
             from jaxnat.natural import cursor_step
 
-            cursor = cursor_step(key_video, cursor, params.video)
+            # `frame_rate` frames on: the cursor steps once from `rate - 1` frames ahead, so
+            # rate 1 is `cursor_step` itself (same draws) and a video that ends inside the jump
+            # hands over as at rate 1.
+            rate = jnp.maximum(jnp.asarray(params.distraction.frame_rate, jnp.int32), 0)
+            cursor = cursor_step(key_video, cursor.replace(offset=cursor.offset + (rate - 1)),
+                                 params.video)
         latest, history = self._placeholders(physics_obs, params)
         if self.observation == "pixels":  # the stack so far, less its oldest frame
             history = self.get_obs(state, params)[..., self.renderer.channels:]
@@ -315,6 +395,19 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         (state, obs, total, done, info), _ = jax.lax.scan(
             body, init, jax.random.split(key, self.frame_skip))
         return obs, state, total, done, info
+
+
+def _check_distraction(floor: str, video_alpha=1.0, frame_rate=1) -> None:
+    """One-line `ValueError`s for `Distraction` values out of range (host numbers or arrays)."""
+    alpha, rate = np.asarray(video_alpha, np.float64), np.asarray(frame_rate)
+    if not np.all((alpha >= 0.0) & (alpha <= 1.0)):
+        raise ValueError(f"video_alpha must lie in [0, 1], got {video_alpha}")
+    if not (np.issubdtype(rate.dtype, np.integer) or np.all(rate == np.round(rate))):
+        raise ValueError(f"frame_rate must be a whole number of video frames, got {frame_rate}")
+    if not np.all(rate >= 0):
+        raise ValueError(f"frame_rate must be >= 0 (0 freezes the frame), got {frame_rate}")
+    if floor != "video" and (np.any(alpha != 1.0) or np.any(rate != 1)):
+        raise ValueError(f'video_alpha and frame_rate need floor="video", got floor={floor!r}')
 
 
 def _noise_key(state: PixelState) -> jax.Array:
