@@ -20,11 +20,15 @@ from jaxnat.atari.compositor import FrameStack, composite_and_resize, composite_
 from jaxnat.atari.games import rom_id, rom_path
 from jaxnat.natural.noise import DEFAULT_NOISE
 
-__all__ = ["NaturalAtariVecEnv", "SCREEN_SHAPE"]
+__all__ = ["NaturalAtariVecEnv", "PREPROCESSINGS", "SCREEN_SHAPE"]
 
 SCREEN_SHAPE = (210, 160)  # ALE's screen, rows x columns
 _AUTORESET_MODES = {"same_step": "SameStep", "next_step": "NextStep"}
 _HOST_PASSES = ("auto", "pool")
+# `preprocessing=` presets: name -> (default sticky_actions, FIRE at reset, episodic life, sign-clipped
+# rewards). "standard": Machado et al.'s evaluation protocol as ale-py's v5 envs; "deepmind": the
+# authors' (baselines' `wrap_deepmind` on NoFrameskip-v4 games, through pytorch-a2c-ppo-acktr).
+PREPROCESSINGS = {"standard": (0.25, False, False, False), "deepmind": (0.0, True, True, True)}
 _ENVS_PER_HOST_CHUNK = 4  # default host_threads: at least this many envs per chunk
 # Default host_threads, at most. Beside ALE's threads on a fully used host, numba's parallel
 # pass (jaxnat.atari.hostpass) still gains from 8 threads, while more would take cores from the
@@ -44,8 +48,28 @@ class NaturalAtariVecEnv:
     per channel, then ALE's grayscale; the background mask is the same either way, see
     jaxnat.atari.compositor), sticky actions with probability `sticky_actions` (ALE's
     `repeat_action_probability`, applied at every emulated frame), a random number of no-ops in
-    `[0, noop_max)` at each reset, no FIRE at reset, whole games as episodes (no life loss
-    signal), truncation after `max_episode_steps` agent steps.
+    `[0, noop_max)` at each reset, truncation after `max_episode_steps` agent steps, and what
+    `preprocessing` sets:
+
+    - "standard" (default; Machado et al.'s protocol, as ale-py's v5 envs): sticky actions 0.25
+      unless `sticky_actions` says otherwise, no FIRE at reset, whole games as episodes (no life
+      loss signal), rewards unclipped.
+    - "deepmind" (the authors': baselines' `wrap_deepmind` on NoFrameskip-v4 games, through
+      pytorch-a2c-ppo-acktr): no sticky actions (v4; `sticky_actions=0.25` states v5 instead);
+      FIRE at every game reset in games whose action set has it (ale-py's: one FIRE frame, then
+      the no-ops less one; baselines presses FIRE for an agent step after its no-ops); a lost
+      life (fewer lives after the step than before it, some left: baselines' `EpisodicLifeEnv`)
+      ends the training episode, `terminated` with `info["life_lost"]` True, while ALE's game
+      goes on: the frame stack restarts from zeros, the background and the game's score do not.
+      After a lost life the agent presses FIRE itself: baselines' `FireResetEnv` presses it in
+      hidden reset steps, which ale-py's vector env (every env steps in every batch step) cannot
+      take for one env alone. In "next_step" autoreset the reset step after a lost life is a
+      NOOP (baselines' hidden `step(0)`), reward 0. Rewards are `sign(r)`, the game's score
+      change in `info["unclipped_reward"]` (baselines' `ClipRewardEnv`). The episode statistics
+      below stay whole games, unclipped: evaluation counts `returned_episode`, i.e. games.
+      Unlike Gymnasium's `AtariPreprocessing(terminal_on_life_loss=True)` the frame skip is not
+      cut short at a lost life, and the game is not reset (baselines' `MaxAndSkipEnv` and
+      `EpisodicLifeEnv` do as here); the frames agree up to that step.
 
     Then on the host, whole-batch calls (jaxnat.atari.compositor; compositing and resizing are
     one fused pass of jaxnat.atari.area's kernel, bit-identical to OpenCV's): pixels whose
@@ -69,10 +93,12 @@ class NaturalAtariVecEnv:
     the next step ignores that env's action, resets it and returns reward 0.
 
     `step` returns numpy arrays: obs `uint8[B, h, w, stack]`, reward `float32[B]` (the game's
-    score change, never clipped; see `ClipRewardWrapper`), terminated and truncated `bool[B]`,
-    and `info` with `lives`, `returned_episode` (an episode ended), `returned_episode_returns` and
-    `returned_episode_lengths` (return and length in agent steps of each env's last finished
-    whole game, held until the next one ends).
+    score change, unclipped in "standard" preprocessing, see `ClipRewardWrapper`; its sign in
+    "deepmind"), terminated and truncated `bool[B]`, and `info` with `lives`,
+    `returned_episode` (a whole game ended: game over or time limit, never a lost life),
+    `returned_episode_returns` and `returned_episode_lengths` (return and length in agent steps
+    of each env's last finished whole game, unclipped, held until the next one ends), and in
+    "deepmind" preprocessing `life_lost` and `unclipped_reward`.
 
     Deterministic given `seed` (env `i`'s emulator is seeded with `seed + i`), the actions, and
     `sticky_actions=0` or not: ALE's sticky actions use the emulator's own seeded generator.
@@ -100,7 +126,8 @@ class NaturalAtariVecEnv:
         background: str = "none",
         split: str = "train",
         video_sources=None,
-        sticky_actions: float = 0.25,
+        preprocessing: str = "standard",
+        sticky_actions: float | None = None,
         noop_max: int = 30,
         frame_skip: int = 4,
         maxpool: bool = True,
@@ -119,9 +146,12 @@ class NaturalAtariVecEnv:
     ):
         for name, value, choices in (("background", background, BACKGROUNDS), ("split", split, ("train", "test", "all")),
                                      ("autoreset_mode", autoreset_mode, tuple(_AUTORESET_MODES)),
-                                     ("pool", pool, ("gray", "rgb")), ("host_pass", host_pass, _HOST_PASSES)):
+                                     ("pool", pool, ("gray", "rgb")), ("host_pass", host_pass, _HOST_PASSES),
+                                     ("preprocessing", preprocessing, tuple(PREPROCESSINGS))):
             if value not in choices:
                 raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+        default_sticky, fire_reset, self.episodic_life, self.clip_rewards = PREPROCESSINGS[preprocessing]
+        sticky_actions = default_sticky if sticky_actions is None else sticky_actions
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         if not 0.0 <= float(sticky_actions) <= 1.0:
@@ -139,6 +169,8 @@ class NaturalAtariVecEnv:
         self.num_envs = int(num_envs)
         self.background = background
         self.split = split
+        self.preprocessing = preprocessing
+        self.sticky_actions = float(sticky_actions)
         self.video_sources = video_sources
         self.autoreset_mode = autoreset_mode
         self.pool = pool
@@ -158,7 +190,7 @@ class NaturalAtariVecEnv:
             frameskip=int(frame_skip),
             maxpool=bool(maxpool),
             noop_max=int(noop_max),
-            use_fire_reset=False,
+            use_fire_reset=fire_reset,
             episodic_life=False,
             reward_clipping=False,
             repeat_action_probability=float(sticky_actions),
@@ -192,6 +224,8 @@ class NaturalAtariVecEnv:
         self._last_returns = np.zeros(self.num_envs, np.float32)
         self._last_lengths = np.zeros(self.num_envs, np.int32)
         self._ended = np.zeros(self.num_envs, bool)  # next_step mode: reset at the next step
+        self._game_ended = np.zeros(self.num_envs, bool)  # next_step mode: ... and ALE resets it
+        self._lives = np.zeros(self.num_envs, np.int32)  # at the last step's end (episodic life)
         self._needs_reset = True
         self._pending = None  # step_async's timestamps until step_wait
 
@@ -212,6 +246,8 @@ class NaturalAtariVecEnv:
         self._returns[:] = 0
         self._lengths[:] = 0
         self._ended[:] = False
+        self._game_ended[:] = False
+        self._lives[:] = info["lives"]
         self._needs_reset = False
         return obs, {"lives": np.asarray(info["lives"])}
 
@@ -240,8 +276,12 @@ class NaturalAtariVecEnv:
             )
         if self._pending is not None:
             raise RuntimeError("step_async() twice without step_wait()")
+        actions = actions.astype(np.int64)
+        if self.episodic_life and self.autoreset_mode == "next_step":
+            # the reset step after a lost life: NOOP, as baselines' EpisodicLifeEnv.reset
+            actions[self._ended & ~self._game_ended] = 0
         start = time.perf_counter()
-        self._ale.send(actions.astype(np.int64))
+        self._ale.send(actions)
         sent = time.perf_counter()
         self._background.advance()  # next video frames, noise draws: while ALE emulates
         self._pending = (start, sent, time.perf_counter())
@@ -260,23 +300,49 @@ class NaturalAtariVecEnv:
         if (ale_info["env_id"] != self._env_ids).any():
             raise RuntimeError(f"ale-py returned envs out of order: {ale_info['env_id']}")
         reward = reward.astype(np.float32)
-        done = terminated | truncated
+        game_done = terminated | truncated  # ALE's game ended (it resets the game)
+        lives = np.asarray(ale_info["lives"])
+        info = {"lives": lives}
         same_step = self.autoreset_mode == "same_step"
+        if self.episodic_life:  # a lost life ends the training episode, the game goes on
+            life_lost = (lives < self._lives) & (lives > 0) & ~game_done  # as EpisodicLifeEnv
+            self._lives[:] = lives
+            terminated = terminated | life_lost
+            info["life_lost"] = life_lost
+        done = terminated | truncated
         # same_step: ended envs start their next episode in this step's observation;
         # next_step: envs that ended last step were reset by this one.
         new_episode = done if same_step else self._ended
-        final_backgrounds = self._background.reset(new_episode) if new_episode.any() else None
+        new_game = game_done if same_step else self._game_ended  # backgrounds follow whole games
+        final_backgrounds = self._background.reset(new_game) if new_game.any() else None
         ended = np.flatnonzero(done) if same_step else None
-        final_screens = ale_info["final_obs"][ended, 0] if same_step and ended.size else None
-        info = {"lives": np.asarray(ale_info["lives"])}
-        restarted = self._ended
+        final_screens = None
+        if same_step and ended.size:
+            over = game_done[ended]
+            if over.all():
+                final_screens = ale_info["final_obs"][ended, 0]
+            else:  # a life lost: the game's own screen, no reset in between
+                final_screens = raw[ended, 0]
+                if over.any():
+                    final_screens[over] = ale_info["final_obs"][ended[over], 0]
+                if final_backgrounds is not None:  # backgrounds(ended), those of new games before
+                    before, final_backgrounds = final_backgrounds, self._background.frames()[ended]
+                    final_backgrounds[over] = before
+        game_reward = reward
+        if not same_step and self.episodic_life:  # the NOOP reset step of a lost life scores 0
+            reward = np.where(self._ended & ~self._game_ended, np.float32(0), reward)
+        if self.clip_rewards:
+            info["unclipped_reward"] = reward
+            reward = np.sign(reward)
+        restarted = self._game_ended
         obs, final = self._observe(  # the bookkeeping overlaps the Python pool's chunks, if used
             raw[:, 0], new_episode, final_backgrounds, ended, final_screens,
-            alongside=lambda: self._record_episodes(reward, done, restarted, info))
+            alongside=lambda: self._record_episodes(game_reward, game_done, restarted, info))
         if same_step:
             info["final_observation"] = final
         else:
             self._ended = done
+            self._game_ended = game_done
         timings = self.step_timings
         timings["steps"] += 1
         timings["ale_s"] += sent - start + received - waiting

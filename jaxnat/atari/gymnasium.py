@@ -24,7 +24,8 @@ class AtariGymnasiumVectorEnv(VectorEnv):
     The step that ends an episode returns its final observation with the ending flags; the
     next step ignores that env's action, resets it (new game, new background video) and returns
     its first observation with reward 0 and both flags False. ale-py does this itself, in its
-    next-step mode. Rewards are float64 (unclipped), flags bool, observations
+    next-step mode. Rewards are float64 (unclipped, but `sign(r)` with
+    `preprocessing="deepmind"`, whose lost lives end episodes too), flags bool, observations
     `uint8[num_envs, 84, 84, 4]`. `info` holds the env's per-env arrays in Gymnasium's vector
     layout (`info[k]` with mask `info["_k"]`: True for every env, except that the episode
     statistics are masked to the envs whose episode ended at this step).

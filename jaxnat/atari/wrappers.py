@@ -51,8 +51,10 @@ class HostVecWrapper:
 class ClipRewardWrapper(HostVecWrapper):
     """Training-time reward clipping to `[-bound, bound]` (DQN's sign clipping for bound 1).
 
-    The unclipped reward stays in `info["unclipped_reward"]`; the episode statistics in `info`
-    (`returned_episode_returns`) are the env's, i.e. whole games with unclipped rewards.
+    The unclipped reward stays in `info["unclipped_reward"]` (the env's own where it has one:
+    `preprocessing="deepmind"` clips already, and clipping twice changes nothing else); the
+    episode statistics in `info` (`returned_episode_returns`) are the env's, i.e. whole games
+    with unclipped rewards.
     """
 
     def __init__(self, env, bound: float = 1.0):
@@ -61,7 +63,7 @@ class ClipRewardWrapper(HostVecWrapper):
 
     def _outcome(self, outcome):
         obs, reward, terminated, truncated, info = outcome
-        info = {**info, "unclipped_reward": reward}
+        info = {**info, "unclipped_reward": info.get("unclipped_reward", reward)}
         return obs, np.clip(reward, -self.bound, self.bound), terminated, truncated, info
 
 
