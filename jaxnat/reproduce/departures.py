@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
-from jaxnat.reproduce.grid import DATASET_NAMES, RUN_SETTINGS, Cell, Profile
+from jaxnat.reproduce.grid import CALIBRATION, DATASET_NAMES, RUN_SETTINGS, Cell, Profile
 from jaxnat.reproduce.labels import stand_in_for, stand_in_name
 
 __all__ = ["Departure", "DEPARTURES", "AUTHORS_BATCH", "applying", "batch_rows", "departures_section",
@@ -156,6 +156,8 @@ def batch_rows(cells: list[Cell]) -> list[dict]:
     only the rows that differ from the authors'."""
     rows: dict[tuple[str, str], dict] = {}
     for cell in cells:
+        if cell.experiment == CALIBRATION:  # several batches by design: the calibration section's table
+            continue
         envs, steps = (cell.overrides.get(k, _config_default(cell.algo, k)) for k in _BATCH)
         others = {k: v for k, v in cell.overrides.items() if k not in _BATCH and k not in RUN_SETTINGS}
         authors = AUTHORS_BATCH.get(cell.algo)
