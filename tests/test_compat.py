@@ -53,7 +53,7 @@ def revealed(obs):
 def test_spaces(vec):
     assert vec.num_envs == N
     assert vec.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.NEXT_STEP
-    assert vec.metadata["render_modes"] == []
+    assert vec.metadata["render_modes"] == ["rgb_array"] and vec.render() is None
     assert isinstance(vec.single_action_space, gymnasium.spaces.MultiDiscrete)
     np.testing.assert_array_equal(vec.single_action_space.nvec, [4, 3])
     # Gymnasium batches MultiDiscrete into an integer Box (as SyncVectorEnv does).
