@@ -145,7 +145,11 @@ class Box(Space):
 
     def to_gymnasium(self):
         gym = _require_gymnasium()
-        return gym.spaces.Box(self.low, self.high, self.shape, np.dtype(self.dtype))
+        dtype = np.dtype(self.dtype)
+        # The bounds in the space's own dtype (they are held as float64): Gymnasium warns of a
+        # "precision lowered" cast otherwise, though no representable bound changes.
+        return gym.spaces.Box(np.asarray(self.low).astype(dtype), np.asarray(self.high).astype(dtype),
+                              self.shape, dtype)
 
     def __repr__(self) -> str:
         lo, hi = np.min(self.low), np.max(self.high)

@@ -75,3 +75,16 @@ def test_bad_space_definitions():
         spaces.MultiDiscrete([[2, 2]])
     with pytest.raises(ValueError):
         spaces.Box(1.0, 0.0, (2,))
+
+
+def test_unbounded_float_box_converts_to_gymnasium_without_a_precision_warning():
+    """A state vector's Box(-inf, inf) keeps its bounds exactly, with no "precision lowered"
+    warning from Gymnasium (the MuJoCo adapters printed one per env)."""
+    import warnings
+
+    s = spaces.Box(-np.inf, np.inf, (17,), jnp.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        g = s.to_gymnasium()
+    assert g.dtype == np.float32 and g.low.dtype == np.float32 and np.all(np.isneginf(g.low))
+    assert np.all(np.isposinf(g.high)) and g.shape == (17,)
