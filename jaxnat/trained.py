@@ -59,12 +59,12 @@ class TrainedPolicy:
     update: int  # the checkpoint's update count
     network: Any
     params: Any  # the network's parameters (this seed's)
-    normalizer: Any  # `normalize.Normalizer` (this seed's), or None where observations are raw
+    normalization: Any  # `normalize.Normalizer` (this seed's), or None where observations are raw
     apply: Callable = dataclasses.field(repr=False)
     _act: Callable = dataclasses.field(repr=False)
 
     def act(self, obs, key, *, greedy: bool = False):
-        return self._act(self.params, self.normalizer, obs, key, greedy=greedy)
+        return self._act(self.params, self.normalization, obs, key, greedy=greedy)
 
     def __repr__(self) -> str:  # the parameters and the env's data are too long to show
         return (f"TrainedPolicy({self.algo} on {self.env_id}, seed {self.seed_value} (index {self.seed_index}), "
@@ -146,7 +146,7 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
     apply = _policy_step(learner.network, env.action_space(env_params))
     return TrainedPolicy(run_dir=run_dir, env_id=spec.env_id, env_kwargs=spec.env_kwargs, algo=spec.algo, config=spec.config, split=split,
                          env=env, env_params=env_params, seed_index=seed, seed_value=spec.seed_values[seed],
-                         update=int(meta["update"]), network=learner.network, params=params, normalizer=normalizer,
+                         update=int(meta["update"]), network=learner.network, params=params, normalization=normalizer,
                          apply=apply, _act=jax.jit(apply, static_argnames="greedy"))
 
 
@@ -180,4 +180,4 @@ def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
         return {"return": total, "length": length, "terminated": terminated, "unfinished": running}
 
     play = jax.jit(jax.vmap(episode, in_axes=(None, None, 0)))
-    return jax.device_get(play(policy.params, policy.normalizer, jax.random.split(key, num_episodes)))
+    return jax.device_get(play(policy.params, policy.normalization, jax.random.split(key, num_episodes)))

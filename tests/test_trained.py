@@ -97,7 +97,7 @@ def test_loaded_policy_acts_as_the_trainer_evaluates(tiny_run, seed):
     policy = load_policy(run_dir, seed=seed, compiler_options=FAST)
     assert (policy.seed_index, policy.seed_value, policy.update, policy.split) == (seed, seed, 2, "test")
     assert policy.env_id == "Classify/Digits-v0" and policy.algo == "ppo" and policy.config.num_steps == 8
-    assert policy.normalizer is None  # images: raw observations
+    assert policy.normalization is None  # images: raw observations
     expected = jax.tree.map(lambda x: x[seed], learner.policy_of(runner)[0])
     jax.tree.map(np.testing.assert_array_equal, policy.params, expected)
     # The test split, built as the trainer builds its evaluation env.
@@ -195,8 +195,8 @@ def test_the_observation_normaliser_is_applied(tmp_path, monkeypatch):
             "--normalize-observations", "True"]
     run_dir, runner, learner = _train(argv, tmp_path / "probe")
     policy = load_policy(run_dir, seed=1, compiler_options=FAST)
-    assert policy.normalizer is not None and float(policy.normalizer.obs.count) > 0
+    assert policy.normalization is not None and float(policy.normalization.obs.count) > 0
     expected = jax.tree.map(lambda x: x[1], learner.policy_of(runner)[1])
-    jax.tree.map(np.testing.assert_array_equal, policy.normalizer, expected)
+    jax.tree.map(np.testing.assert_array_equal, policy.normalization, expected)
     _check_trainer_contract(policy, learner, runner, 1)
     assert jnp.shape(policy.act(jnp.ones((1,)), jax.random.key(0))) == ()  # Discrete: one integer
