@@ -16,6 +16,7 @@ from typing import Callable
 # name -> (module with `main(argv) -> int | None`, one-line description)
 COMMANDS = {
     "train": ("jaxnat.train", "train PPO, A2C, ACKTR or DQN over several seeds; metrics, curves, checkpoints"),
+    "eval": ("jaxnat.eval_run", "play a trained run's policy: mean return with a 95% interval, accuracy"),
     "reproduce": ("jaxnat.reproduce.command", "run the paper's experiments (a grid of train runs) and write a findings report"),
     "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),
     "envs": ("jaxnat.list_envs", "list the registered env ids by family"),

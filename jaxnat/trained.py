@@ -1,0 +1,183 @@
+"""A trained policy, loaded from a `jaxnat train` run directory (`jaxnat eval` plays one: `eval_run`).
+
+    policy = load_policy("runs/Classify_Digits-v0-ppo-20250101-120000")   # seed index 0, test split
+    obs, state = policy.env.reset(key, policy.env_params)
+    action = policy.act(obs, key, greedy=True)
+
+A run holds everything needed to act (`config.json`'s spec and the checkpoint), but the
+checkpoint is the learner's vmapped runner, read only through the learner: this module
+rebuilds the run's envs (`device_backend.make_envs`, the trainer's own), its learner and runner
+(`load_checkpoint`), and takes one seed's slice of `Learner.policy_of`. Acting is the
+trainer's evaluation step (`rollout.act`, `rollout.choose`, `normalize.normalize`,
+`rollout.env_action`) on a batch of one, so a loaded policy acts as the trainer scored it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["LoadError", "TrainedPolicy", "load_policy", "play_episodes", "SPLITS"]
+
+SPLITS = ("test", "train")
+
+
+class LoadError(Exception):
+    """A run that cannot be loaded (no run there, no checkpoint, an unsupported run): one line."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrainedPolicy:
+    """One seed of a run, ready to act: `act(obs, key, *, greedy=False) -> action`, jitted.
+
+    `obs` is one env's observation (as `env.reset` and `env.step` return it; `jax.vmap(act)`
+    for a batch) and the action is in the env's form, ready for `env.step`. `greedy`: the most
+    likely action (a Gaussian's mean), else one sampled with `key`. Observations pass through
+    the run's normaliser, frozen as the checkpoint holds it, where the run has one.
+
+    `env`, `env_params`: the run's env on `split` ("test": the test split, built as the
+    trainer's evaluation builds it, `autoreset=False`; "train": the env it trained on; an env
+    without a split gives its one env either way). `apply(params, normalizer, obs, key,
+    greedy=False)` is `act` unjitted, taking the parameters as arguments (for your own `jit`).
+    """
+
+    run_dir: Path
+    env_id: str
+    env_kwargs: dict  # the run's `jaxnat.make` kwargs (the split is `split`)
+    algo: str
+    config: Any  # the run's resolved algorithm config
+    split: str
+    env: Any
+    env_params: Any
+    seed_index: int  # among the run's seeds, 0 .. seeds - 1
+    seed_value: int  # the seed itself: `seed` in metrics.jsonl and eval.jsonl
+    update: int  # the checkpoint's update count
+    network: Any
+    params: Any  # the network's parameters (this seed's)
+    normalization: Any  # `normalize.Normalizer` (this seed's), or None where observations are raw
+    apply: Callable = dataclasses.field(repr=False)
+    _act: Callable = dataclasses.field(repr=False)
+
+    def act(self, obs, key, *, greedy: bool = False):
+        return self._act(self.params, self.normalization, obs, key, greedy=greedy)
+
+    def __repr__(self) -> str:  # the parameters and the env's data are too long to show
+        return (f"TrainedPolicy({self.algo} on {self.env_id}, seed {self.seed_value} (index {self.seed_index}), "
+                f"update {self.update}, {self.split} split, run_dir={str(self.run_dir)!r})")
+
+
+def _policy_step(network, action_space) -> Callable:
+    """`apply(params, normalizer, obs, key, greedy=False) -> action`: the trainer's evaluation
+    step (`rollout.evaluate.make_evaluate`) for one observation, as a batch of one."""
+    from jaxnat.agents import normalize
+    from jaxnat.agents.rollout import act, choose, env_action
+
+    def apply(params, normalizer, obs, key, greedy: bool = False):
+        batch = jax.tree.map(lambda x: jnp.asarray(x)[None], obs)
+        logits, _, _ = act(network, params, normalize.normalize(normalizer, batch), None)
+        return env_action(choose(logits, key, greedy)[0], action_space)
+
+    return apply
+
+
+def _read_spec(run_dir: Path):
+    """The run's `RunSpec`; a folder that holds no run is a one-line `LoadError`."""
+    from jaxnat.training import RunSpec, TrainError
+
+    if not run_dir.is_dir():
+        raise LoadError(f"{run_dir} is not a run directory: no such folder")
+    config_path = run_dir / "config.json"
+    if not config_path.is_file():
+        raise LoadError(f"{run_dir} is not a run directory: no config.json there (jaxnat train writes one)")
+    try:
+        return RunSpec.from_json(json.loads(config_path.read_text())["spec"])
+    except TrainError as err:
+        raise LoadError(str(err)) from None
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise LoadError(f"{config_path} holds no readable run spec ({type(err).__name__}: {err})") from None
+
+
+def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None = None,
+                compiler_options: dict | None = None) -> TrainedPolicy:
+    """Seed `seed` (an index among the run's seeds, 0 .. seeds - 1) of the run in `run_dir`, from
+    its latest checkpoint (or `step`'s), with the run's env on `split` ("test" or "train").
+
+    Runs on JAX envs only: a Natural Atari run (host-emulated) is refused. Raises `LoadError`
+    (one line) for a folder that holds no run, a run without a checkpoint, a seed index out of
+    range, and a recurrent policy (`memory > 0`), whose `act` would need its memory.
+    `compiler_options`: XLA options for the init program the checkpoint is restored into.
+    """
+    from jaxnat.training import TrainError, load_checkpoint
+    from jaxnat.training.device_backend import compiled_program, make_envs
+    from jaxnat.training.host_backend import is_host_env
+
+    run_dir = Path(run_dir)
+    spec = _read_spec(run_dir)
+    if is_host_env(spec.env_id):
+        raise LoadError(f"{run_dir} trained on {spec.env_id}, emulated on the host: load_policy and jaxnat eval "
+                        "support runs on JAX envs only, not yet Natural Atari")
+    if not 0 <= seed < spec.seeds:
+        raise LoadError(f"seed index {seed} is out of range: {run_dir} trained {spec.seeds} seed"
+                        f"{'s' * (spec.seeds != 1)}, indices 0 to {spec.seeds - 1}")
+    if split not in SPLITS:
+        raise LoadError(f"split {split!r} is not one of {', '.join(SPLITS)}")
+    if getattr(spec.config, "memory", 0):
+        raise LoadError(f"{run_dir} trained a recurrent policy (memory={spec.config.memory}): load_policy "
+                        "supports feed-forward policies only, for now")
+    if not (run_dir / "checkpoints").is_dir():
+        raise LoadError(f"{run_dir} has no checkpoint yet (no checkpoints/ folder): the run wrote none")
+    # As load_checkpoint places it: a sharded run loads onto one device here.
+    devices = None if spec.shard is None else 1
+    placed = spec if devices is None else dataclasses.replace(spec, devices=devices)
+    try:
+        envs = make_envs(placed)
+        # The run's programs: load_checkpoint restores into their init, so its learner is this one.
+        learner = compiled_program(placed, compiler_options, envs).learner
+        runner, meta = load_checkpoint(run_dir, step, compiler_options=compiler_options, devices=devices)
+    except TrainError as err:
+        raise LoadError(str(err)) from None
+    env, env_params = envs[2:] if split == "test" else envs[:2]
+    params, normalizer = jax.tree.map(lambda x: x[seed], learner.policy_of(runner))
+    apply = _policy_step(learner.network, env.action_space(env_params))
+    return TrainedPolicy(run_dir=run_dir, env_id=spec.env_id, env_kwargs=spec.env_kwargs, algo=spec.algo, config=spec.config, split=split,
+                         env=env, env_params=env_params, seed_index=seed, seed_value=spec.seed_values[seed],
+                         update=int(meta["update"]), network=learner.network, params=params, normalization=normalizer,
+                         apply=apply, _act=jax.jit(apply, static_argnames="greedy"))
+
+
+def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
+                  max_steps: int | None = None) -> dict:
+    """Each of `num_episodes` envs plays its first episode with `policy` (at most `max_steps`
+    steps, default the env's time limit), in one jitted program vmapped over the episodes:
+    per-episode arrays `return`, `length`, `terminated` (for Classify: classified right;
+    Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy."""
+    env, env_params = policy.env, policy.env_params
+    if max_steps is None:
+        max_steps = int(env_params.max_steps_in_episode)
+
+    def episode(params, normalizer, key):
+        key_reset, key_steps = jax.random.split(key)
+        obs, state = env.reset(key_reset, env_params)
+
+        def body(carry, key):
+            obs, state, running, total, length, terminated_any = carry
+            key_act, key_env = jax.random.split(key)
+            action = policy.apply(params, normalizer, obs, key_act, greedy)
+            obs, state, reward, terminated, truncated, _ = env.step(key_env, state, action, env_params)
+            total = total + jnp.where(running, reward, 0.0)
+            length = length + running
+            terminated_any = terminated_any | (running & terminated)
+            return (obs, state, running & ~(terminated | truncated), total, length, terminated_any), None
+
+        carry = (obs, state, jnp.asarray(True), jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.asarray(False))
+        (_, _, running, total, length, terminated), _ = jax.lax.scan(body, carry,
+                                                                      jax.random.split(key_steps, max_steps))
+        return {"return": total, "length": length, "terminated": terminated, "unfinished": running}
+
+    play = jax.jit(jax.vmap(episode, in_axes=(None, None, 0)))
+    return jax.device_get(play(policy.params, policy.normalization, jax.random.split(key, num_episodes)))
