@@ -216,3 +216,16 @@ def test_two_shards_into_one_folder_give_the_report_of_one_run(calibrated, tmp_p
     assert numbers(tmp_path) == numbers(calibrated)
     verdicts = lambda out: json.loads((out / "results.json").read_text())["verdicts"]  # noqa: E731
     assert verdicts(tmp_path) == verdicts(calibrated)
+
+
+def test_a_finished_run_of_the_papers_budget_is_100_percent_though_it_ends_on_a_whole_update():
+    cell = grid.Cell("classify-x", "classify", "classify-cnn", "X/Y-v0", {}, "ppo", None,
+                     grid.Budget(grid.PAPER_BUDGETS["classify"]), {}, {})
+    steps = np.array([16_384.0, 9_994_240.0])  # 610 updates of 16,384: the last whole one
+    train = np.zeros((2, 3))
+
+    def result(complete):
+        return CellResult(cell, complete, 3, steps, train, np.array([0.0]), train[:1], train[:1], None, 1.0)
+
+    assert result(True).budget_share == 1.0
+    assert result(False).budget_share == pytest.approx(0.999424)

@@ -112,9 +112,8 @@ class CellResult:
         as 100%: it stops at its last whole update (10M steps in updates of 16,384 end at
         9,994,240), as the authors' code and every RL library count updates."""
         paper = PAPER_BUDGETS[self.cell.labels.get("group", self.cell.experiment)]
-        if self.complete and self.cell.budget.total_timesteps >= paper:
-            return 1.0
-        return (float(self.steps.max()) if self.steps.size else 0.0) / paper
+        share = (float(self.steps.max()) if self.steps.size else 0.0) / paper
+        return max(share, 1.0) if self.complete and self.cell.budget.total_timesteps >= paper else share
 
     @property
     def final_greedy(self) -> Interval:
