@@ -38,17 +38,7 @@ TINY = ["--env-id", "Classify/Digits-v0", "--algo", "ppo", "--seeds", "2", "--nu
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
-def _digits_available() -> bool:
-    from jaxnat.datasets import DatasetNotFoundError, load
-
-    try:
-        load("digits", "test")
-    except DatasetNotFoundError:
-        return False
-    return True
-
-
-needs_digits = pytest.mark.skipif(not _digits_available(), reason="Classify/Digits-v0 data not installed")
+from test_train import _digits_available, needs_digits  # noqa: E402 (one data check for both files)
 
 
 def _train(argv, run_dir):

@@ -22,7 +22,7 @@ PixelMuJoCo's group compares reward treatments at the profile's batch (no author
 from __future__ import annotations
 
 from jaxnat.agents import ALGORITHMS
-from jaxnat.reproduce.grid import CALIBRATION
+from jaxnat.reproduce.grid import CALIBRATION, CALIBRATION_STEPS
 from jaxnat.reproduce.verdicts import learned
 
 __all__ = ["calibration_results", "calibration_panels", "calibration_section", "calibration_status",
@@ -110,7 +110,9 @@ def calibration_section(results: list, figure: str | None = None) -> list[str]:
     if not groups:
         return []
     lines = ["## Calibration: the profile's batch against the authors'", "",
-             "Each cell trained to the same env steps per seed; train return = each seed's mean over its last 10% "
+             f"Each cell trained to the same env steps per seed ({CALIBRATION_STEPS:,}: {CALIBRATION_STEPS / 1e7:.0%} of the "
+             "paper's budget, so these rows judge the batch, never a claim of the paper; a cell that did not beat its "
+             "untrained policy says so in the last column); train return = each seed's mean over its last 10% "
              "of updates with episodes (mean [95% bootstrap CI] over seeds). Against the authors' band: the "
              "authors'-batch cell's interval (inside: the intervals overlap). Rules: `jaxnat/reproduce/calibration.py`.",
              "", "| group | algo | variant | envs x steps per update | optimizer steps per 1,000 env steps | env steps/seed "
