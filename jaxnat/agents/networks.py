@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnat import spaces
-from jaxnat.agents.conv import conv2d, im2col_patches
+from jaxnat.agents.conv import IMPLEMENTATIONS, conv2d, im2col_patches
 from jaxnat.agents.distributions import Gaussian
 
 __all__ = ["TRUNKS", "DTYPES", "ActorCritic", "LogStd", "Memory", "initial_memory", "one_step_sequence",
@@ -82,11 +82,12 @@ class PaperCNN(nn.Module):
     layers: Sequence[tuple[int, int, int]]
     dense: int = 512
     dtype: str = "float32"
+    conv: str = "auto"  # `ValidConv.implementation`
 
     @nn.compact
     def __call__(self, x):
         for features, kernel, stride in self.layers:
-            x = nn.relu(ValidConv(features, kernel, stride, dtype=self.dtype)(x))
+            x = nn.relu(ValidConv(features, kernel, stride, self.conv, dtype=self.dtype)(x))
         x = x.reshape(*x.shape[:-3], -1)
         return nn.relu(_dense(self.dense, dtype=self.dtype)(x))
 
@@ -213,6 +214,7 @@ class ActorCritic(nn.Module):
     memory: int = 0  # GRU state size; 0: feed-forward (the paper's agents)
     q_network: bool = False  # DQN's: the "logits" are Q values, the value head is unused
     action_size: int = 0  # > 0: a Box of this many dimensions, a Gaussian policy
+    conv: str = "auto"  # how the paper's trunks compute their convolutions (`jaxnat.agents.conv`)
 
     @nn.compact
     def __call__(self, obs, memory: Memory | None = None):
@@ -261,7 +263,7 @@ class ActorCritic(nn.Module):
         elif self.trunk == "resnet18":
             features = ResNet18(dtype=self.dtype)(x)
         else:
-            features = PaperCNN(_PAPER_CNNS[self.trunk], dtype=self.dtype)(x)
+            features = PaperCNN(_PAPER_CNNS[self.trunk], dtype=self.dtype, conv=self.conv)(x)
         features = features.astype(jnp.float32)
         if self.num_goals:
             goal = nn.Embed(self.num_goals, 32, name=named("_goal"))(obs["goal"])
@@ -314,15 +316,19 @@ def default_trunk(observation_space: spaces.Space) -> str:
 
 
 def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None,
-                      dtype: str = "float32", memory: int = 0, q_network: bool = False) -> ActorCritic:
+                      dtype: str = "float32", memory: int = 0, q_network: bool = False,
+                      conv: str = "auto") -> ActorCritic:
     """An `ActorCritic` for these spaces; checks that the trunk fits the observation.
     `q_network`: DQN's network (the `mlp` trunk is then `Q_MLP`, one MLP for all heads), which
-    needs discrete actions."""
+    needs discrete actions. `conv`: how the paper's trunks compute convolutions (one of
+    `jaxnat.agents.conv.IMPLEMENTATIONS`; the same function each way)."""
     trunk = trunk or default_trunk(observation_space)
     if trunk not in TRUNKS:
         raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
     if dtype not in DTYPES:
         raise ValueError(f"Unknown network dtype {dtype!r}; choose one of {DTYPES}")
+    if conv not in IMPLEMENTATIONS:
+        raise ValueError(f"Unknown conv implementation {conv!r}; choose one of {IMPLEMENTATIONS}")
     pixels = _pixels(observation_space)
     num_goals = int(observation_space.spaces["goal"].n) if pixels is not observation_space else 0
     if trunk in _PAPER_CNNS:
@@ -345,7 +351,7 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
         raise ValueError(f"DQN takes Discrete or MultiDiscrete actions, not {action_space}; "
                          f"train continuous actions with ppo, a2c or acktr")
     return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype,
-                       memory=memory, q_network=q_network, action_size=action_size(action_space))
+                       memory=memory, q_network=q_network, action_size=action_size(action_space), conv=conv)
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):

@@ -1,0 +1,201 @@
+"""PPO from pixels end to end, the env alone beside it, and where an update's time goes.
+
+    python bench/pixel_ppo.py [--robots HalfCheetah Hopper] [--observations checker video noise]
+        [--total-envs 1024 4096 16384] [--seeds 5] [--dtypes float32 bfloat16] [--convs native s2d]
+
+For each robot, observation, total env count (split over `--seeds` vmapped seeds, as
+`jaxnat train --seeds` and `jaxnat reproduce` run them), trunk dtype and convolution form
+(`jaxnat.agents.conv`), one row:
+
+- **compile s**: lowering and compiling the training program (rows compile side by side on
+  `--compile-ahead` threads, so with more than one a row's figure is an upper bound) (`--updates` PPO updates of every
+  seed in one `lax.scan`, as a chunk of `jaxnat train`);
+- **train steps/s**: env steps per second of that program, timed on its second call, at the
+  paper profile's PixelMuJoCo PPO settings (`jaxnat.reproduce.grid.PAPER_SCALE`: 16 steps per
+  env per update, 4 epochs x 4 minibatches, normalised rewards);
+- **env alone steps/s**: the same envs (all seeds' in one batch) stepping uniform random actions
+  in `jit(scan(vmap(step)))`, in the same run; **train / env** is the issue's ratio;
+- **phases** (`--phases`, each jitted alone, vmapped over seeds, seconds per update): the rollout
+  (env steps plus acting), acting alone (the policy's forward pass on the rollout's batches:
+  each step values the previous step's final observations in the same call, so 2N per step),
+  and the update (GAE and the epochs). Their sum is near the end-to-end update time; rollout
+  minus acting is the env inside the learner;
+- **learner TFLOP/s**: the update's convolution and dense FLOPs (3x the trunk's forward FLOPs
+  per sample per epoch: forward, and backward for inputs and weights; XLA's cost analysis of
+  one forward pass, which has no loops) over the update's time.
+
+Each robot is `PixelMuJoCo/<robot>-v0` with `physics="fast"` (`--physics`); observations
+`checker` and `video` are the 84x84x4 pixel frames on those floors, `noise` is pure-noise
+pixels of the same shape.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import json
+import sys
+import time
+
+sys.path.insert(0, __import__("os").path.dirname(__file__))
+import common  # noqa: E402
+from continuous_control import random_box_rollout  # noqa: E402
+
+ROBOTS = ("HalfCheetah", "Hopper", "Swimmer", "Ant")
+OBSERVATIONS = {"checker": {"observation": "pixels", "floor": "checker"},
+                "video": {"observation": "pixels", "floor": "video"},
+                "noise": {"observation": "noise"}}
+
+
+def ppo_config(envs_per_seed: int, updates: int, dtype: str):
+    """The paper profile's PixelMuJoCo PPO settings at this batch."""
+    from jaxnat.agents import PPOConfig
+    from jaxnat.reproduce.grid import PAPER_SCALE
+
+    scale = PAPER_SCALE["mujoco"]
+    settings = {**scale["ppo"], "normalize_rewards": scale["normalize_rewards"]}
+    return PPOConfig(total_timesteps=envs_per_seed * settings["num_steps"] * updates, num_envs=envs_per_seed,
+                     dtype=dtype, **settings)
+
+
+def learner_for(config, env, params, conv: str):
+    """PPO's learner with the trunk's convolutions computed as `conv`."""
+    from jaxnat.agents import ppo
+    from jaxnat.agents.rollout import dtype_and_memory, on_policy_learner
+
+    rule = ppo.RULE._replace(network_options=lambda config: {**dtype_and_memory(config), "conv": conv})
+    return on_policy_learner(config, env, params, rule)
+
+
+def seconds(fn, *args, repeats: int = 3) -> float:
+    """Median seconds of `fn(*args)` after a first call."""
+    import jax
+
+    jax.block_until_ready(fn(*args))
+    return common.median_seconds(lambda: jax.block_until_ready(fn(*args)), repeats=repeats)
+
+
+def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, conv: str) -> dict:
+    """One row's programs, compiled from shapes alone (no device work, so rows compile on
+    worker threads while another row runs): the row's settings and `programs`."""
+    import jax
+    import jax.numpy as jnp
+
+    import jaxnat
+    from jaxnat.agents import ppo
+
+    env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, **OBSERVATIONS[observation])
+    per_seed = total_envs // args.seeds
+    config = ppo_config(per_seed, args.updates, dtype)
+    row = {"robot": robot, "observation": observation, "seeds": args.seeds, "envs_per_seed": per_seed,
+           "total_envs": per_seed * args.seeds, "num_steps": config.num_steps, "dtype": dtype, "conv": conv}
+    learner = learner_for(config, env, params, conv)
+    keys = jax.eval_shape(lambda: jax.random.split(jax.random.key(1), args.seeds))
+    init = jax.jit(jax.vmap(learner.init))
+    runner = jax.eval_shape(init, keys)
+    programs = {"env": random_box_rollout(env, params, row["total_envs"], config.num_steps)
+                .lower(jax.eval_shape(lambda: jax.random.key(0))).compile(), "init": init.lower(keys).compile()}
+    chunk = jax.jit(jax.vmap(lambda r: learner.run(r, config, num_updates=args.updates)), donate_argnums=0)
+    start = time.perf_counter()
+    programs["chunk"] = chunk.lower(runner).compile()
+    row["compile_s"] = time.perf_counter() - start
+    network = learner.network
+    one_seed = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype),
+                                      runner.train_state.params)
+    obs = jax.ShapeDtypeStruct((1, *runner.obs.shape[2:]), runner.obs.dtype)
+    analysis = jax.jit(network.apply).lower(one_seed, obs).compile().cost_analysis()
+    analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
+    row["forward_mflop"] = float(analysis.get("flops", float("nan"))) / 1e6
+    if args.phases:
+        rollout = jax.jit(jax.vmap(lambda r: learner.rollout(r, config)))
+        programs["rollout"] = rollout.lower(runner).compile()
+        _, transitions = jax.eval_shape(rollout, runner)
+        programs["acting"] = jax.jit(jax.vmap(lambda p, o: jax.lax.map(
+            lambda x: network.apply(p, jnp.concatenate([x, x]))[1].sum(), o))).lower(
+                runner.train_state.params, transitions.obs).compile()
+        programs["learn"] = jax.jit(jax.vmap(lambda ts, tr, k: ppo.RULE.learn(config, network, ts, tr, k))).lower(
+            runner.train_state, transitions, keys).compile()
+    row["programs"] = programs
+    return row
+
+
+def measure(args, row: dict) -> dict:
+    """Run a prepared row's programs and fill in its rates."""
+    import jax
+
+    from jaxnat.agents import ppo
+
+    programs = row.pop("programs")
+    steps_per_update = row["total_envs"] * row["num_steps"]
+    row["env_sps"] = steps_per_update / seconds(programs["env"], jax.random.key(0))
+    keys = jax.random.split(jax.random.key(1), args.seeds)
+    runner = programs["init"](keys)
+    runner, _ = jax.block_until_ready(programs["chunk"](runner))
+    start = time.perf_counter()
+    runner, _ = jax.block_until_ready(programs["chunk"](runner))
+    row["update_s"] = (time.perf_counter() - start) / args.updates
+    row["train_sps"] = steps_per_update / row["update_s"]
+    row["train_over_env"] = row["train_sps"] / row["env_sps"]
+    learner_flop = 3 * row["forward_mflop"] * 1e6 * ppo.PPOConfig.update_epochs * steps_per_update
+    if args.phases:
+        row["rollout_s"] = seconds(programs["rollout"], runner)
+        _, transitions = programs["rollout"](runner)
+        row["acting_s"] = seconds(programs["acting"], runner.train_state.params, transitions.obs)
+        row["learn_s"] = seconds(programs["learn"], runner.train_state, transitions, keys)
+        row["learner_tflops"] = learner_flop / row["learn_s"] / 1e12
+        del transitions
+    row["end_to_end_tflops"] = (learner_flop + 2 * row["forward_mflop"] * 1e6 * steps_per_update) / row["update_s"] / 1e12
+    return row
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--robots", nargs="+", default=["HalfCheetah", "Hopper"], choices=ROBOTS)
+    parser.add_argument("--observations", nargs="+", default=["checker"], choices=list(OBSERVATIONS))
+    parser.add_argument("--total-envs", nargs="+", type=int, default=[1024, 4096, 16384])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--dtypes", nargs="+", default=["float32", "bfloat16"], choices=["float32", "bfloat16"])
+    parser.add_argument("--convs", nargs="+", default=["native", "s2d"], choices=["auto", "im2col", "native", "s2d"])
+    parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
+    parser.add_argument("--physics", default="fast", choices=["fast", "default"])
+    parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,
+                        help="also time the rollout, acting and update alone")
+    parser.add_argument("--compile-ahead", type=int, default=4,
+                        help="rows compiled at once on worker threads (compiling is host work)")
+    parser.add_argument("--no-record", action="store_true")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    specs = [(robot, observation, total_envs, dtype, conv) for robot in args.robots for observation in args.observations
+             for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs]
+    rows = []
+    with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
+        for future in [pool.submit(prepare, args, *spec) for spec in specs]:
+            row = measure(args, future.result())
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    table = common.markdown_table(rows, [
+        ("robot", "robot", ""), ("observation", "observation", ""), ("total_envs", "envs (all seeds)", ",d"),
+        ("dtype", "trunk dtype", ""), ("conv", "conv", ""), ("compile_s", "compile s", ".0f"),
+        ("env_sps", "env alone steps/s", ".3e"), ("train_sps", "train steps/s", ".3e"),
+        ("train_over_env", "train / env", ".2f"), ("update_s", "update s", ".3f"), ("rollout_s", "rollout s", ".3f"),
+        ("acting_s", "acting s", ".3f"), ("learn_s", "learn s", ".3f"),
+        ("learner_tflops", "learner TFLOP/s", ".1f"), ("end_to_end_tflops", "end-to-end TFLOP/s", ".1f")])
+    best = {}
+    for row in rows:
+        key = f"{row['robot']} {row['observation']}"
+        if key not in best or row["train_sps"] > best[key]["train_sps"]:
+            best[key] = row
+    summary = {
+        "settings": f"PixelMuJoCo physics={args.physics!r}, 84x84x4 frames; PPO at the paper profile's PixelMuJoCo "
+                    f"settings ({args.seeds} seeds vmapped, 16 steps per env, 4 epochs x 4 minibatches, "
+                    f"normalised rewards); {args.updates} updates per timed call",
+        "best train steps/s": {k: f"{r['train_sps']:.3e} ({r['total_envs']} envs, {r['dtype']}, {r['conv']}, "
+                                  f"train/env {r['train_over_env']:.2f})" for k, r in best.items()},
+        "target": "issue 40: >= 5e5 env steps/s end to end, training >= 50% of the env alone, compile <= 60 s",
+        "bench_seconds": round(time.perf_counter() - start),
+    }
+    common.record("pixel_ppo", common.machine(), table, summary, rows, save=not args.no_record)
+
+
+if __name__ == "__main__":
+    main()
