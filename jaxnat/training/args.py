@@ -121,6 +121,8 @@ class TrainArgs:
     """Where to write the run (unset: runs/<env>-<algo>-<timestamp>)."""
     resume: Annotated[Optional[Path], tyro.conf.arg(metavar="RUN_DIR", help_behavior_hint="")] = None
     """Continue the run in this directory from its latest checkpoint; other arguments must be left out or match its config.json."""
+    log: Annotated[tuple[str, ...], tyro.conf.arg(metavar="{tensorboard,wandb} ...")] = ()
+    """Also log the training metrics and evaluations to these tools (metrics.jsonl and eval.jsonl are written either way): tensorboard (event files in RUN_DIR/tensorboard/, pip install 'jaxnat[tensorboard]'), wandb (your W&B settings apply: WANDB_MODE, WANDB_PROJECT, ...; pip install 'jaxnat[wandb]'). May differ on --resume."""
     config: Annotated[ConfigOverrides, tyro.conf.OmitArgPrefixes] = dataclasses.field(
         default_factory=ConfigOverrides)
     given: Annotated[tuple[str, ...], tyro.conf.Suppress] = ()

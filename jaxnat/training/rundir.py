@@ -43,8 +43,9 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
     defaults = TrainArgs()
     conflicts = []
     for field in dataclasses.fields(TrainArgs):
-        # --devices may change on resume: where a run continues does not change its result.
-        if field.name in ("resume", "run_dir", "config", "given", "devices"):
+        # --devices and --log may change on resume: where a run continues and where its rows
+        # are mirrored do not change its result.
+        if field.name in ("resume", "run_dir", "config", "given", "devices", "log"):
             continue
         value, default = getattr(args, field.name), getattr(defaults, field.name)
         if field.name == "env_kwargs":
