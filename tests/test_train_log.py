@@ -6,6 +6,7 @@ no heavy install), then is extended; the TensorBoard events are read back with t
 own protobuf and TFRecord's framing, so the test needs no TensorFlow or tensorboard package.
 """
 
+import json
 import struct
 import sys
 import types
@@ -95,6 +96,42 @@ def test_sinks_mirror_the_records_and_a_finished_run_extends(tmp_path, capsys, f
     assert ("define_metric", "*", {"step_metric": "env_steps"}) in fake_wandb
     assert fake_wandb[-1] == ("finish",)
     _check_sinks(run, fake_wandb, 4)
+
+    # Shortening the run, or lengthening it by less than an update, is refused before compiling;
+    # the message shows both values, and nothing in the run directory changes.
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_command, "compiled_program", _not_reached)
+        for steps, why in (("256", "cannot shorten"), ("600", "adds no update")):
+            capsys.readouterr()
+            assert train.main(["--resume", str(run), "--total-timesteps", steps]) == 2
+            err = _error(capsys)
+            assert err.count("\n") == 1 and why in err and f"--total-timesteps {steps} (the run: 512" in err
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+
+    # Extended from 4 to 6 updates: the records continue where they were (the first rows
+    # unchanged, nothing redone), evaluation keeps its cadence, the sinks follow.
+    (calls_before, metrics_before) = len(fake_wandb), (run / "metrics.jsonl").read_text()
+    assert train.main(["--resume", str(run), "--total-timesteps", "768", "--log", "tensorboard", "wandb"],
+                      compiler_options=FAST) == 0
+    assert "extending the run from 4 to 6 updates" in capsys.readouterr().out
+    assert (run / "metrics.jsonl").read_text().startswith(metrics_before)
+    metrics, evals = _lines(run / "metrics.jsonl"), _lines(run / "eval.jsonl")
+    assert [(m["update"], m["seed"]) for m in metrics] == [(u, s) for u in range(1, 7) for s in (0, 1)]
+    assert [(e["update"], e["chunk"]) for e in evals[::2]] == [(0, 0), (2, 1), (4, 2), (6, 3)]
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["complete"] and summary["env_steps_per_seed"] == 768
+    config = json.loads((run / "config.json").read_text())
+    assert config["spec"]["config"]["total_timesteps"] == 768 and config["spec"]["num_updates"] == 6
+    assert config["extensions"][0]["total_timesteps"] == [512, 768]
+    assert fake_wandb[calls_before][1]["id"] == init[1]["id"]  # the same W&B run, continued
+    _check_sinks(run, fake_wandb, 6)  # both sessions' rows, W&B's and TensorBoard's
+    # The rate after the extension is the new schedule's, not the old one's end (0, where the
+    # policy would not move between PPO's minibatches and every approx_kl would be 0): it learns.
+    assert all(m["approx_kl"] > 0 for m in metrics if m["update"] > 4)
+    # Resumed again without --total-timesteps: the run's length is now 6 updates, all done.
+    assert train.main(["--resume", str(run)], compiler_options=FAST) == 0
+    assert "finished before" in capsys.readouterr().out
 
 
 def test_a_missing_sink_package_is_refused_before_compiling(tmp_path, capsys, monkeypatch):

@@ -151,7 +151,9 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                         if stop_after_chunks is not None and chunks_done >= stop_after_chunks:
                             stopped = True
                             break
-                        n = min(spec.eval_every, spec.num_updates - update)
+                        # Chunks end at multiples of eval_every (and at the run's end): a run
+                        # extended after a short last chunk first completes that chunk.
+                        n = min(spec.eval_every - update % spec.eval_every, spec.num_updates - update)
                         start = time.perf_counter()
                         state, metrics = backend.chunk(state, n, progress)
                         seconds = time.perf_counter() - start

@@ -20,7 +20,7 @@ from jaxnat.training.host_backend import HostBackend, is_host_env, new_host_spec
 from jaxnat.training.placement import Placement, device_count, resumed_devices
 from jaxnat.training.device_backend import compiled_program, make_envs, split_argument
 from jaxnat.training.records import check_sinks, open_sinks
-from jaxnat.training.rundir import (args_json, check_counts, new_run_dir, open_resumed, versions,
+from jaxnat.training.rundir import (args_json, check_counts, new_run_dir, open_resumed, versions, write_extension,
                                     with_eval_every)
 from jaxnat.training.spec import RunSpec, check_algo, check_trunk, resolve_config
 from jaxnat.training.chunk_loop import run_training
@@ -157,6 +157,12 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
         "versions": versions(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
         "command": sys.argv}
+    if saved is not None and spec.config.total_timesteps != saved["spec"]["config"]["total_timesteps"]:
+        old = RunSpec.from_json(saved["spec"])
+        saved = write_extension(run_dir, saved, spec)
+        console.print(f"extending the run from {old.num_updates} to {spec.num_updates} updates "
+                      f"({spec.num_updates * spec.steps_per_update:,} env steps per seed); a learning rate "
+                      "annealed over the run follows the new length's schedule from here (docs/api.md)")
     sinks = []
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
