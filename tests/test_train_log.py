@@ -107,6 +107,7 @@ def test_sinks_mirror_the_records_and_a_finished_run_extends(tmp_path, capsys, f
             assert train.main(["--resume", str(run), "--total-timesteps", steps]) == 2
             err = _error(capsys)
             assert err.count("\n") == 1 and why in err and f"--total-timesteps {steps} (the run: 512" in err
+            assert "give at least 640" in err
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
 
     # Extended from 4 to 6 updates: the records continue where they were (the first rows

@@ -120,8 +120,8 @@ def extended(spec: RunSpec, total_timesteps: int | None, run_dir: Path) -> RunSp
         why = ("cannot shorten a run" if total_timesteps < old else
                f"adds no update of {spec.steps_per_update} env steps (num_envs x num_steps)")
         raise TrainError(f"cannot resume {run_dir} with --total-timesteps {total_timesteps} (the run: {old}, "
-                         f"{spec.num_updates} updates): it {why}; give more than "
-                         f"{(spec.num_updates + 1) * spec.steps_per_update - 1} to extend the run, or leave it out")
+                         f"{spec.num_updates} updates): it {why}; give at least "
+                         f"{(spec.num_updates + 1) * spec.steps_per_update} to extend the run, or leave it out")
     config = dataclasses.replace(spec.config, total_timesteps=total_timesteps)
     return dataclasses.replace(spec, config=config)
 
