@@ -120,7 +120,9 @@ class TrainArgs:
     run_dir: Annotated[Optional[Path], tyro.conf.arg(metavar="PATH", help_behavior_hint="")] = None
     """Where to write the run (unset: runs/<env>-<algo>-<timestamp>)."""
     resume: Annotated[Optional[Path], tyro.conf.arg(metavar="RUN_DIR", help_behavior_hint="")] = None
-    """Continue the run in this directory from its latest checkpoint; other arguments must be left out or match its config.json."""
+    """Continue the run in this directory from its latest checkpoint; other arguments must be left out or match its config.json, except --devices, --log and a larger --total-timesteps, which extends the run to that many env steps per seed (an annealed learning rate follows the new length's schedule from there: docs/api.md)."""
+    log: Annotated[tuple[str, ...], tyro.conf.arg(metavar="{tensorboard,wandb} ...")] = ()
+    """Also log the training metrics and evaluations to these tools (metrics.jsonl and eval.jsonl are written either way): tensorboard (event files in RUN_DIR/tensorboard/, pip install 'jaxnat[tensorboard]'), wandb (your W&B settings apply: WANDB_MODE, WANDB_PROJECT, ...; pip install 'jaxnat[wandb]'). May differ on --resume."""
     config: Annotated[ConfigOverrides, tyro.conf.OmitArgPrefixes] = dataclasses.field(
         default_factory=ConfigOverrides)
     given: Annotated[tuple[str, ...], tyro.conf.Suppress] = ()

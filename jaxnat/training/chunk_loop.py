@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from jaxnat.training.args import TrainError
 from jaxnat.training.checkpoints import Checkpoints
 from jaxnat.training.progress import Progress
 from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
-                                     run_summary, terminated_label, write_jsonl)
+                                     run_summary, Sink, terminated_label, write_jsonl)
 from jaxnat.training.spec import RunSpec
 
 # `curve.png` is redrawn after a chunk at most this often (and always after the last one): a
@@ -70,9 +70,10 @@ class Backend(Protocol):
 
 
 def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new_run: dict | None,
-                 stop_after_chunks: int | None = None) -> tuple[Any, dict, bool]:
+                 stop_after_chunks: int | None = None, sinks: Sequence[Sink] = ()) -> tuple[Any, dict, bool]:
     """Train (or resume) `spec` in `run_dir`; `new_run`: the `config.json` to write for a new
-    run (None when resuming). Returns `(state of the last group, summary, complete)`; raises
+    run (None when resuming); `sinks`: where the metric and evaluation rows are mirrored once
+    they are in the JSONL (`records.Sink`). Returns `(state of the last group, summary, complete)`; raises
     `KeyboardInterrupt` after saving the summary when interrupted."""
     session_start = time.perf_counter()
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -102,6 +103,8 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                 for i, seed in enumerate(group)]
         write_jsonl(eval_path, rows)
         eval_rows.extend(rows)
+        for sink in sinks:
+            sink.write("eval", rows)
         return scores
 
     try:
@@ -148,7 +151,9 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                         if stop_after_chunks is not None and chunks_done >= stop_after_chunks:
                             stopped = True
                             break
-                        n = min(spec.eval_every, spec.num_updates - update)
+                        # Chunks end at multiples of eval_every (and at the run's end): a run
+                        # extended after a short last chunk first completes that chunk.
+                        n = min(spec.eval_every - update % spec.eval_every, spec.num_updates - update)
                         start = time.perf_counter()
                         state, metrics = backend.chunk(state, n, progress)
                         seconds = time.perf_counter() - start
@@ -159,6 +164,8 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                                 for j in range(n) for i, seed in enumerate(group)]
                         write_jsonl(metrics_path, rows)
                         metrics_rows.extend(rows)
+                        for sink in sinks:
+                            sink.write("train", rows)
                         scores = None
                         if backend.evaluates_each_chunk or update == spec.num_updates:
                             scores = evaluate(group, state, update, seconds)

@@ -19,7 +19,8 @@ from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_
 from jaxnat.training.host_backend import HostBackend, is_host_env, new_host_spec
 from jaxnat.training.placement import Placement, device_count, resumed_devices
 from jaxnat.training.device_backend import compiled_program, make_envs, split_argument
-from jaxnat.training.rundir import (args_json, check_counts, new_run_dir, open_resumed, versions,
+from jaxnat.training.records import check_sinks, open_sinks
+from jaxnat.training.rundir import (args_json, check_counts, new_run_dir, open_resumed, versions, write_extension,
                                     with_eval_every)
 from jaxnat.training.spec import RunSpec, check_algo, check_trunk, resolve_config
 from jaxnat.training.chunk_loop import run_training
@@ -140,6 +141,7 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
                          "jaxnat.training.make_sharded_train, Natural Atari with jaxnat.training.host_backend.make_learner"
                          "(..., devices='all') (docs/api.md, 'Several devices and hosts')")
     console = console or Console()
+    check_sinks(args.log)  # a missing package: one line now, not after compiling
     spec, run_dir, saved, envs = _setup(args, console)
     host = is_host_env(spec.env_id)  # NaturalAtari/*: emulated on the host, trained from a Python loop
     _print_config(console, spec, run_dir)
@@ -155,10 +157,21 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
         "versions": versions(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
         "command": sys.argv}
+    if saved is not None and spec.config.total_timesteps != saved["spec"]["config"]["total_timesteps"]:
+        old = RunSpec.from_json(saved["spec"])
+        saved = write_extension(run_dir, saved, spec)
+        console.print(f"extending the run from {old.num_updates} to {spec.num_updates} updates "
+                      f"({spec.num_updates * spec.steps_per_update:,} env steps per seed); a learning rate "
+                      "annealed over the run follows the new length's schedule from here (docs/api.md)")
+    sinks = []
     try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        sinks = open_sinks(args.log, run_dir, spec.to_json())
         state, summary, complete = run_training(spec, run_dir, backend, console=console, new_run=new_run,
-                                                stop_after_chunks=stop_after_chunks)
+                                                stop_after_chunks=stop_after_chunks, sinks=sinks)
     finally:
+        for sink in sinks:
+            sink.close()
         backend.close()
     return TrainResult(run_dir, state, summary, complete)
 

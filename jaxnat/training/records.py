@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxnat.training.args import TrainError
 from jaxnat.training.spec import RunSpec
 
 
@@ -212,3 +213,120 @@ def print_summary(console, summary: dict) -> None:
     table.add_row("env steps/s (all seeds, over chunks)", fmt(sps["mean"], ",.0f"), fmt(sps["std"], ",.0f"))
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s", "")
     console.print(table)
+
+
+# Logging sinks (`jaxnat train --log NAME ...`). metrics.jsonl and eval.jsonl stay the record of
+# truth, written first; a sink mirrors the same rows to a tool's own viewer, and nothing is read
+# back from it (on resume, rows dropped from the JSONL after the checkpoint may linger in a sink).
+# Name -> (the module it imports, the pyproject extra that installs it).
+SINKS = {"tensorboard": ("tensorboardX", "tensorboard"), "wandb": ("wandb", "wandb")}
+# Row fields that place a value rather than being one.
+ROW_KEYS = ("chunk", "update", "env_steps", "seed")
+
+
+class Sink:
+    """Where a run's rows are mirrored: `write(kind, rows)` with kind "train" (metrics.jsonl's
+    rows, one per update per seed) or "eval" (eval.jsonl's, one per evaluation per seed), after
+    they are in the JSONL; `close()` when the run stops."""
+
+    def write(self, kind: str, rows: list[dict]) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+def scalars(row: dict):
+    """A row's `(name, value)` pairs worth plotting: its values, not where they belong, and no
+    null (an update in which no episode ended has no return)."""
+    return [(name, value) for name, value in row.items()
+            if name not in ROW_KEYS and isinstance(value, (int, float)) and not isinstance(value, bool)]
+
+
+def check_sinks(names) -> None:
+    """Refuse an unknown sink or one whose package is missing, in one line, before anything is
+    built or compiled: a run must not train for an hour and then fail to log."""
+    import importlib
+
+    for name in names:
+        if name not in SINKS:
+            raise TrainError(f"--log {name}: unknown sink; choose from {', '.join(SINKS)}")
+        module, extra = SINKS[name]
+        try:
+            importlib.import_module(module)  # imported, not only found: a broken install fails now too
+        except ImportError:
+            raise TrainError(f"--log {name} needs the {module} package: pip install 'jaxnat[{extra}]'") from None
+
+
+def open_sinks(names, run_dir: Path, config: dict) -> list[Sink]:
+    """The sinks `names` (checked by `check_sinks`) for the run in `run_dir`; `config`: the run
+    spec as JSON (W&B records it as the run's config)."""
+    makers = {"tensorboard": TensorBoardSink, "wandb": WandbSink}
+    return [makers[name](run_dir, config) for name in dict.fromkeys(names)]
+
+
+class TensorBoardSink(Sink):
+    """tensorboardX event files in `<run_dir>/tensorboard/seed_<s>/`: one TensorBoard run per
+    seed, so the seeds' curves overlay on one chart per tag (`train/episode_return`,
+    `eval/greedy_return`, ...), against env steps per seed like curve.png. A resumed run adds
+    event files beside the earlier ones; TensorBoard reads them together."""
+
+    def __init__(self, run_dir: Path, config: dict):
+        self.root = Path(run_dir) / "tensorboard"
+        self.writers: dict = {}
+
+    def _writer(self, seed: int):
+        if seed not in self.writers:
+            from tensorboardX import SummaryWriter
+
+            self.writers[seed] = SummaryWriter(logdir=str(self.root / f"seed_{seed}"))
+        return self.writers[seed]
+
+    def write(self, kind: str, rows: list[dict]) -> None:
+        for row in rows:
+            writer = self._writer(row["seed"])
+            for name, value in scalars(row):
+                writer.add_scalar(f"{kind}/{name}", value, global_step=row["env_steps"])
+        for writer in self.writers.values():
+            writer.flush()  # a chunk's rows are on disk when the chunk is (a viewer follows the run)
+
+    def close(self) -> None:
+        for writer in self.writers.values():
+            writer.close()
+
+
+class WandbSink(Sink):
+    """One W&B run per jaxnat run, its id kept in `<run_dir>/wandb_run_id` so that `--resume`
+    continues the same W&B run; W&B's files go under `<run_dir>/wandb/`. The user's W&B settings
+    (WANDB_MODE, WANDB_PROJECT, WANDB_ENTITY, a login) apply as they are; without WANDB_PROJECT
+    the project is "jaxnat". Values are keyed `seed_<s>/<kind>/<name>` and plotted against
+    `env_steps` (a metric of its own, `define_metric`), not W&B's step: W&B drops a row whose
+    step goes back, and a host run trains its seeds one after another (seed 1's updates start
+    at 1 again), as a resume redoes the updates after its checkpoint."""
+
+    def __init__(self, run_dir: Path, config: dict):
+        import os
+        import secrets
+
+        import wandb
+
+        id_path = Path(run_dir) / "wandb_run_id"
+        run_id = id_path.read_text().strip() if id_path.is_file() else secrets.token_hex(4)
+        id_path.write_text(run_id + "\n")
+        options = {} if os.environ.get("WANDB_PROJECT") else {"project": "jaxnat"}
+        self.run = wandb.init(id=run_id, resume="allow", name=Path(run_dir).name, dir=str(run_dir), config=config,
+                              **options)
+        self.run.define_metric("env_steps")
+        self.run.define_metric("*", step_metric="env_steps")
+
+    def write(self, kind: str, rows: list[dict]) -> None:
+        # One log call per env-step count: every seed of a device run's update in one row.
+        logged: dict[int, dict] = {}
+        for row in rows:
+            values = logged.setdefault(row["env_steps"], {"env_steps": row["env_steps"]})
+            values.update({f"seed_{row['seed']}/{kind}/{name}": value for name, value in scalars(row)})
+        for values in logged.values():
+            self.run.log(values)
+
+    def close(self) -> None:
+        self.run.finish()

@@ -43,8 +43,9 @@ def check_resume_args(args: TrainArgs, saved: dict) -> None:
     defaults = TrainArgs()
     conflicts = []
     for field in dataclasses.fields(TrainArgs):
-        # --devices may change on resume: where a run continues does not change its result.
-        if field.name in ("resume", "run_dir", "config", "given", "devices"):
+        # --devices and --log may change on resume: where a run continues and where its rows
+        # are mirrored do not change its result. --total-timesteps may grow it (`extended`).
+        if field.name in ("resume", "run_dir", "config", "given", "devices", "log", "total_timesteps"):
             continue
         value, default = getattr(args, field.name), getattr(defaults, field.name)
         if field.name == "env_kwargs":
@@ -87,6 +88,7 @@ def open_resumed(args: TrainArgs):
     try:
         spec = RunSpec.from_json(saved["spec"])
         check_resume_args(args, saved["spec"])
+        spec = extended(spec, args.total_timesteps, run_dir)
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise TrainError(f"cannot resume {run_dir}: its config.json's run spec is damaged ({type(err).__name__}: "
                          f"{err}); restore it from a copy, or start a new run") from None
@@ -95,6 +97,55 @@ def open_resumed(args: TrainArgs):
         raise TrainError(f"cannot resume {run_dir}: it is not writable ({reason}); make it writable, or copy the "
                          "run to a writable folder and resume the copy")
     return spec, run_dir, saved
+
+
+def extended(spec: RunSpec, total_timesteps: int | None, run_dir: Path) -> RunSpec:
+    """The resumed run's spec, with `--total-timesteps` (None: not given) as its new length
+    when it adds updates: training continues from the latest checkpoint up to it. Chunks keep
+    their length (`eval_every`), evaluations their cadence. A count that would shorten the run
+    or add no update is refused, showing both values.
+
+    The learning-rate schedule (PPO's and ACKTR's anneal_lr) is a function of the run's length:
+    the extended run continues on the new length's schedule from the update it has reached, so
+    the rate rises from the old schedule's end (0) to lr x (1 - done / new updates) and anneals
+    to 0 over the new end. Keeping the old schedule instead would train at rate 0 (nothing
+    learned), or at a negative one past its end (the schedule's `1 - done/updates`), and redoing
+    the past is not resuming; so the run is not the one that N steps from the start would give.
+    `write_extension` records the change in config.json once the programs are ready."""
+    old = spec.config.total_timesteps
+    if total_timesteps is None or total_timesteps == old:
+        return spec
+    new_updates = total_timesteps // spec.steps_per_update
+    if total_timesteps < old or new_updates <= spec.num_updates:
+        why = ("cannot shorten a run" if total_timesteps < old else
+               f"adds no update of {spec.steps_per_update} env steps (num_envs x num_steps)")
+        raise TrainError(f"cannot resume {run_dir} with --total-timesteps {total_timesteps} (the run: {old}, "
+                         f"{spec.num_updates} updates): it {why}; give at least "
+                         f"{(spec.num_updates + 1) * spec.steps_per_update} to extend the run, or leave it out")
+    config = dataclasses.replace(spec.config, total_timesteps=total_timesteps)
+    return dataclasses.replace(spec, config=config)
+
+
+def write_extension(run_dir: Path, saved: dict, spec: RunSpec) -> dict:
+    """Record in `run_dir/config.json` the new length `extended` gave `spec`: the spec's
+    total_timesteps and num_updates, and an `extensions` entry (from, to, when) per extension.
+    Written whole to a temporary file, then renamed over the old one: a crash leaves either."""
+    old = saved["spec"]["config"]["total_timesteps"]
+    if spec.config.total_timesteps == old:
+        return saved
+    saved = json.loads(json.dumps(saved))
+    saved["spec"]["config"]["total_timesteps"] = spec.config.total_timesteps
+    saved["spec"]["num_updates"] = spec.num_updates
+    if isinstance(saved["spec"].get("config_sources"), dict):
+        saved["spec"]["config_sources"]["total_timesteps"] = "given"
+    saved.setdefault("extensions", []).append({
+        "total_timesteps": [old, spec.config.total_timesteps],
+        "at": datetime.datetime.now().isoformat(timespec="seconds")})
+    path = run_dir / "config.json"
+    partial = path.with_name("config.json.partial")
+    partial.write_text(json.dumps(saved, indent=2, default=str) + "\n")
+    partial.replace(path)
+    return saved
 
 
 def check_counts(args: TrainArgs) -> None:
