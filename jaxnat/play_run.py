@@ -88,6 +88,9 @@ def check_args(args: PlayArgs) -> str:
     from jaxnat.trained import _read_spec
     from jaxnat.training.host_backend import is_host_env
 
+    if args.out is not None and args.out.is_dir():
+        example = args.out / f"episodes.{args.format or 'mp4'}"
+        raise LoadError(f"--out {args.out} is a folder: name a file in it, e.g. {example}")
     fmt = _video_format(args)
     for name in ("episodes", "fps", "max_steps", "scale"):
         value = getattr(args, name)
@@ -100,8 +103,6 @@ def check_args(args: PlayArgs) -> str:
         raise LoadError(f"{args.run_dir} trained on {spec.env_id}, emulated on the host: jaxnat play "
                         "supports runs on JAX envs only, not yet Natural Atari")
     folder = args.out.parent if args.out is not None else Path(args.run_dir) / "videos"
-    if args.out is not None and args.out.is_dir():
-        raise LoadError(f"--out {args.out} is a folder: name a file in it, e.g. {args.out / ('episodes.' + fmt)}")
     why = unwritable(folder)
     if why:
         raise LoadError(f"cannot write the video in {folder} ({why}): pass --out with a writable path")
