@@ -37,10 +37,14 @@ class RenderError(ValueError):
 
 class Frames:
     """`frames(obs, state)` -> uint8 `[..., H, W, 3]` for `env` (leading batch axes allowed
-    when `batched`). `fps` is the env's steps per second of simulated time (`render_fps`)."""
+    when `batched`). `fps` is the env's steps per second of simulated time (`render_fps`);
+    `timed` says whether it is one (a MuJoCo robot's) or `DEFAULT_FPS` for an env without a
+    physical time step. `reads_state`: the frame is drawn from `state` (the chase camera) and
+    `obs` is ignored; otherwise from `obs` alone, and `state` may be None (so a recorder keeps
+    only the one it needs)."""
 
     def __init__(self, env: Environment, params, *, batched: bool = False):
-        self.fps = DEFAULT_FPS
+        self.fps, self.timed = DEFAULT_FPS, False
         self._scene = None
         self._view = None
         base = env.unwrapped
@@ -57,20 +61,21 @@ class Frames:
         elif pixel and isinstance(base, pixel.PixelMuJoCo) and base.observation == "pixels":
             channels = base.renderer.channels
             self._view = lambda obs: _rgb(obs[..., -channels:])
-            self.fps = _fps(base.physics, base.frame_skip)
+            self.fps, self.timed = _fps(base.physics, base.frame_skip), True
         elif pixel and isinstance(base, pixel.PixelMuJoCo):
             self._scene = _scene(env, base.physics, lambda s: s.physics, base.frame_skip,
                                  (base.renderer.height, base.renderer.width), batched)
-            self.fps = _fps(base.physics, base.frame_skip)
+            self.fps, self.timed = _fps(base.physics, base.frame_skip), True
         elif mjx and isinstance(base, mjx.MJXEnv):
             self._scene = _scene(env, base, lambda s: s, 1, SCENE_SIZE, batched)
-            self.fps = _fps(base, 1)
+            self.fps, self.timed = _fps(base, 1), True
         elif getattr(space, "dtype", None) == np.uint8 and len(space.shape) == 3:
             rgb = space.shape[-1] == 3
             self._view = lambda obs: _rgb(obs if rgb else obs[..., -1:])
         else:
             raise RenderError(f"{env.name} has no RGB frame: its observation {space} is not an image "
                               "and it is not a MuJoCo robot")
+        self.reads_state = self._scene is not None
 
     def __call__(self, obs, state) -> np.ndarray:
         if self._view is not None:
