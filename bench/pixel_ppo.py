@@ -7,8 +7,9 @@ For each robot, observation, total env count (split over `--seeds` vmapped seeds
 `jaxnat train --seeds` and `jaxnat reproduce` run them), trunk dtype and convolution form
 (`jaxnat.agents.conv`), one row:
 
-- **compile s**: lowering and compiling the training program (rows compile side by side on
-  `--compile-ahead` threads, so with more than one a row's figure is an upper bound) (`--updates` PPO updates of every
+- **compile s**: lowering and compiling the training program, and the env alone's program
+  beside it (the first row compiles alone; later rows compile side by side on
+  `--compile-ahead` threads while another row runs, so theirs are upper bounds) (`--updates` PPO updates of every
   seed in one `lax.scan`, as a chunk of `jaxnat train`);
 - **train steps/s**: env steps per second of that program, timed on its second call, at the
   paper profile's PixelMuJoCo PPO settings (`jaxnat.reproduce.grid.PAPER_SCALE`: 16 steps per
@@ -93,8 +94,11 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     keys = jax.eval_shape(lambda: jax.random.split(jax.random.key(1), args.seeds))
     init = jax.jit(jax.vmap(learner.init))
     runner = jax.eval_shape(init, keys)
+    start = time.perf_counter()
     programs = {"env": random_box_rollout(env, params, row["total_envs"], config.num_steps)
-                .lower(jax.eval_shape(lambda: jax.random.key(0))).compile(), "init": init.lower(keys).compile()}
+                .lower(jax.eval_shape(lambda: jax.random.key(0))).compile()}
+    row["env_compile_s"] = time.perf_counter() - start
+    programs["init"] = init.lower(keys).compile()
     chunk = jax.jit(jax.vmap(lambda r: learner.run(r, config, num_updates=args.updates)), donate_argnums=0)
     start = time.perf_counter()
     programs["chunk"] = chunk.lower(runner).compile()
@@ -119,6 +123,29 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     return row
 
 
+def device_kernels(trace_dir: str, updates: int, top: int = 20) -> list:
+    """The `top` device kernels of a `jax.profiler` trace (its Perfetto JSON) by total time:
+    `[name, ms per update, share of device time]` (every stream of every GPU counted)."""
+    import collections
+    import glob
+    import gzip
+
+    paths = sorted(glob.glob(f"{trace_dir}/**/perfetto_trace.json.gz", recursive=True))
+    if not paths:
+        return []
+    with gzip.open(paths[-1]) as f:
+        trace = json.load(f)
+    events = trace["traceEvents"] if isinstance(trace, dict) else trace
+    devices = {e["pid"] for e in events if e.get("ph") == "M" and e.get("name") == "process_name"
+               and "GPU" in str(e.get("args", {}).get("name", ""))}
+    totals = collections.Counter()
+    for e in events:
+        if e.get("ph") == "X" and e.get("pid") in devices:
+            totals[e["name"]] += e.get("dur", 0.0)
+    whole = sum(totals.values()) or 1.0
+    return [[name, us / 1e3 / updates, us / whole] for name, us in totals.most_common(top)]
+
+
 def measure(args, row: dict) -> dict:
     """Run a prepared row's programs and fill in its rates."""
     import jax
@@ -136,6 +163,15 @@ def measure(args, row: dict) -> dict:
     row["update_s"] = (time.perf_counter() - start) / args.updates
     row["train_sps"] = steps_per_update / row["update_s"]
     row["train_over_env"] = row["train_sps"] / row["env_sps"]
+    if args.trace:
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as trace_dir:
+            with jax.profiler.trace(trace_dir, create_perfetto_trace=True):
+                runner, _ = jax.block_until_ready(programs["chunk"](runner))
+            row["top_kernels"] = device_kernels(trace_dir, args.updates)
+        for name, ms, share in row["top_kernels"]:
+            print(f"    {ms:9.2f} ms/update {share:6.1%}  {name[:110]}", flush=True)
     learner_flop = 3 * row["forward_mflop"] * 1e6 * ppo.PPOConfig.update_epochs * steps_per_update
     if args.phases:
         row["rollout_s"] = seconds(programs["rollout"], runner)
@@ -160,6 +196,8 @@ def main(argv=None) -> None:
     parser.add_argument("--physics", default="fast", choices=["fast", "default"])
     parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,
                         help="also time the rollout, acting and update alone")
+    parser.add_argument("--trace", action="store_true",
+                        help="profile one program call per row and print its top device kernels")
     parser.add_argument("--compile-ahead", type=int, default=4,
                         help="rows compiled at once on worker threads (compiling is host work)")
     parser.add_argument("--no-record", action="store_true")
@@ -168,14 +206,17 @@ def main(argv=None) -> None:
     specs = [(robot, observation, total_envs, dtype, conv) for robot in args.robots for observation in args.observations
              for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs]
     rows = []
+    first = prepare(args, *specs[0])  # alone: its compile time is the clean one
     with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
-        for future in [pool.submit(prepare, args, *spec) for spec in specs]:
-            row = measure(args, future.result())
+        futures = [pool.submit(prepare, args, *spec) for spec in specs[1:]]
+        for prepared in [first, *(future.result() for future in futures)]:
+            row = measure(args, prepared)
             rows.append(row)
-            print(json.dumps(row), flush=True)
+            print(json.dumps({k: v for k, v in row.items() if k != "top_kernels"}), flush=True)
     table = common.markdown_table(rows, [
         ("robot", "robot", ""), ("observation", "observation", ""), ("total_envs", "envs (all seeds)", ",d"),
         ("dtype", "trunk dtype", ""), ("conv", "conv", ""), ("compile_s", "compile s", ".0f"),
+        ("env_compile_s", "env compile s", ".0f"),
         ("env_sps", "env alone steps/s", ".3e"), ("train_sps", "train steps/s", ".3e"),
         ("train_over_env", "train / env", ".2f"), ("update_s", "update s", ".3f"), ("rollout_s", "rollout s", ".3f"),
         ("acting_s", "acting s", ".3f"), ("learn_s", "learn s", ".3f"),
