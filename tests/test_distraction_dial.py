@@ -1,11 +1,13 @@
 """Distraction as a dial, PixelMuJoCo (`PixelParams.distraction`): the video floor's strength
-`video_alpha` and its `frame_rate` as traced params.
+`video_alpha`, its `frame_rate`, the video on the sky `sky_alpha` and the noise's spread
+`noise_sigma` as traced params.
 
 What the dial promises: the defaults are the plain env bit for bit; the endpoints are exact
 (`video_alpha=0` is floor="checker"'s frames under the same keys, 1 the video floor); the
 effect grows with the strength; a vmapped sweep equals separate calls and is traced once.
 The physics is `test_pixel_mujoco.Sliding` (a posed HalfCheetah slid along x), which compiles in
-seconds where MJX's step takes minutes; the dial lives in the pixel layer only.
+seconds where MJX's step takes minutes; the dial lives in the pixel layer only. Its fixtures
+(`physics`, `checker`, `video_env`) are test_pixel_mujoco's, imported rather than rebuilt.
 """
 
 import jax
@@ -15,33 +17,25 @@ import pytest
 
 pytest.importorskip("mujoco")
 
-from test_pixel_mujoco import Sliding, floor_mask, make_env  # noqa: E402
+# test_pixel_mujoco's fixtures, shared by import: pytest finds them in this module's namespace,
+# and the tests' arguments of the same names are them, not redefinitions (ruff's F811).
+# ruff: noqa: F811
+from test_pixel_mujoco import (  # noqa: E402,F401
+    VIDEO,
+    checker,
+    floor_mask,
+    make_env,
+    physics,
+    video_env,
+)
 
 from jaxnat.mjx_pixel.floor import floor_rgb  # noqa: E402
 from jaxnat.mjx_pixel.pixel import Distraction  # noqa: E402
 
-VIDEO = dict(floor="video", video_shape=(32, 32), video_max_frames=64)
-
 
 @pytest.fixture(scope="module")
-def physics():
-    return Sliding()
-
-
-@pytest.fixture(scope="module")
-def video(physics):
-    natural = pytest.importorskip("jaxnat.natural")
-    try:
-        natural.default_video_paths()
-    except Exception as err:  # opencv-doc missing
-        pytest.skip(str(err))
-    env = make_env(physics, **VIDEO)
-    return env, env.default_params, jax.jit(env.reset), jax.jit(env.step)
-
-
-@pytest.fixture(scope="module")
-def checker(physics):
-    env = make_env(physics)
+def video(video_env):
+    env = video_env
     return env, env.default_params, jax.jit(env.reset), jax.jit(env.step)
 
 
@@ -83,7 +77,8 @@ def test_defaults_are_the_plain_env(video):
     from jaxnat.natural import cursor_step
 
     env, params, reset, step = video
-    assert params.distraction == Distraction(video_alpha=1.0, frame_rate=1)
+    assert params.distraction == Distraction(video_alpha=1.0, frame_rate=1, sky_alpha=0.0,
+                                             noise_sigma=50.0)
     render = jax.jit(env.render)
     old = jax.jit(lambda *a: old_render(env, *a))
     _, state = reset(jax.random.key(0), params)
@@ -154,12 +149,15 @@ def test_vmapped_sweep_equals_separate_calls_in_one_trace(video):
         return jnp.stack(observations, 1)
 
     alphas = jnp.array([0.0, 0.3, 0.7, 1.0])
-    swept, axes = params.sweep(video_alpha=alphas, frame_rate=jnp.array([1, 0, 2, 1]))
+    skies = jnp.array([0.0, 1.0, 0.5, 0.25])
+    swept, axes = params.sweep(video_alpha=alphas, frame_rate=jnp.array([1, 0, 2, 1]),
+                               sky_alpha=skies)
     sweep = jax.jit(run)
     keys = jax.random.split(jax.random.key(7), 4)
     batched = np.asarray(sweep(keys, swept))
     for i in range(4):
-        alone = with_distraction(params, video_alpha=alphas[i], frame_rate=swept.distraction.frame_rate[i])
+        alone = with_distraction(params, video_alpha=alphas[i], sky_alpha=skies[i],
+                                 frame_rate=swept.distraction.frame_rate[i])
         obs, state = reset(keys[i], alone)
         observations = [obs]
         for t in range(2):
@@ -167,7 +165,7 @@ def test_vmapped_sweep_equals_separate_calls_in_one_trace(video):
             observations.append(obs)
         np.testing.assert_array_equal(batched[i], np.stack(observations))
     other, _ = params.sweep(video_alpha=jnp.array([0.1, 0.2, 0.9, 0.5]),
-                            frame_rate=jnp.array([3, 1, 0, 1]))
+                            frame_rate=jnp.array([3, 1, 0, 1]), sky_alpha=jnp.ones(4))
     sweep(keys, other)
     assert len(traces) == 1
 
@@ -194,7 +192,13 @@ def test_out_of_range_values_are_clear_errors(physics, video):
                           (dict(frame_rate=-1), "frame_rate must be >= 0"),
                           (dict(frame_rate=1.5), "frame_rate must be a whole number"),
                           (dict(video_alpha=0.5, floor="checker"), 'need floor="video"'),
-                          (dict(frame_rate=0, floor="noise"), 'need floor="video"')]:
+                          (dict(frame_rate=0, floor="noise"), 'need floor="video"'),
+                          (dict(sky_alpha=1.5, **VIDEO), r"sky_alpha must lie in \[0, 1\]"),
+                          (dict(sky_alpha=0.5), 'need floor="video"'),
+                          (dict(noise_sigma=-1.0, floor="noise"), "noise_sigma must be a finite"),
+                          (dict(noise_sigma=float("nan"), observation="noise"),
+                           "noise_sigma must be a finite"),
+                          (dict(noise_sigma=20.0), 'noise_sigma needs observation="noise"')]:
         with pytest.raises(ValueError, match=match):
             make_env(physics, **kwargs)
     env, params, *_ = video
@@ -202,7 +206,11 @@ def test_out_of_range_values_are_clear_errors(physics, video):
         env.check_params(with_distraction(params, video_alpha=np.array([0.5, 2.0])))
     env.check_params(with_distraction(params, video_alpha=np.array([0.0, 0.5, 1.0])))
     with pytest.raises(ValueError, match="sweep takes Distraction fields"):
-        params.sweep(sky_alpha=jnp.ones(2))
+        params.sweep(sky=jnp.ones(2))
+    with pytest.raises(ValueError, match="sky_alpha must lie"):
+        params.sweep(sky_alpha=jnp.array([0.5, -0.5]))
+    with pytest.raises(ValueError, match="noise_sigma must be"):
+        params.sweep(noise_sigma=jnp.array([0.0, -3.0]))
     with pytest.raises(ValueError, match="frame_rate must be >= 0"):
         params.sweep(frame_rate=jnp.array([1, -2]))
     with pytest.raises(ValueError, match="one leading length"):
@@ -211,8 +219,113 @@ def test_out_of_range_values_are_clear_errors(physics, video):
 
     with pytest.raises(ValueError, match="video_alpha must lie"):
         jaxnat.make("PixelMuJoCo/Swimmer-v0", floor="video", video_alpha=2.0)
+    with pytest.raises(ValueError, match="noise_sigma must be"):
+        jaxnat.make("PixelMuJoCo/Swimmer-v0", observation="noise", noise_sigma=-1.0)
 
 
 def test_constructor_sets_the_defaults(physics):
-    env = make_env(physics, **VIDEO, video_alpha=0.25, frame_rate=4)
-    assert env.default_params.distraction == Distraction(video_alpha=0.25, frame_rate=4)
+    env = make_env(physics, **VIDEO, video_alpha=0.25, frame_rate=4, sky_alpha=0.5)
+    assert env.default_params.distraction == Distraction(video_alpha=0.25, frame_rate=4,
+                                                         sky_alpha=0.5)
+    env = make_env(physics, observation="noise", noise="centred", noise_sigma=10.0)
+    assert env.default_params.distraction.noise_sigma == 10.0
+    assert make_env(physics, floor="noise").default_params.distraction.noise_sigma == 50.0
+
+
+def sky_mask(env, physics_state):
+    """Pixels that hit nothing: the sky."""
+    data = physics_state.data
+    pos, mat = env.camera.pose(data)
+    return np.asarray(env.renderer.cast(pos, mat, data.geom_xpos, data.geom_xmat).geom < 0)
+
+
+def test_sky_alpha_endpoints_and_growth(video):
+    """On a fixed state: sky_alpha=0 is the default frame (the defaults test covers today's
+    sky); 1 puts the screen-stretched video frame on every sky pixel and changes nothing else;
+    in between every pixel moves away from the plain frame (never back), strictly on average."""
+    from jaxnat.mjx_pixel.floor import screen_video
+    from jaxnat.natural import cursor_index
+
+    env, params, reset, _ = video
+    _, state = reset(jax.random.key(3), params)
+    key = jax.random.wrap_key_data(state.key)
+    render = jax.jit(lambda p: env.render(key, state.physics, p, state.cursor))
+    alphas = np.linspace(0.0, 1.0, 5)
+    frames = [np.asarray(render(with_distraction(params, sky_alpha=a)), np.int32) for a in alphas]
+    np.testing.assert_array_equal(frames[0], np.asarray(render(params)))
+    sky = sky_mask(env, state.physics)
+    assert sky.any() and not sky.all()
+    np.testing.assert_array_equal(frames[-1][~sky], frames[0][~sky])
+    video_rgb = screen_video(params.video.frames, cursor_index(params.video, state.cursor),
+                             *frames[0].shape[:2])
+    gray = 0.299 * video_rgb[..., 0] + 0.587 * video_rgb[..., 1] + 0.114 * video_rgb[..., 2]
+    expected = np.asarray(jnp.round(gray * 255.0).astype(jnp.uint8))
+    np.testing.assert_array_equal(frames[-1][..., 0][sky], expected[sky])
+    distance = [np.abs(f - frames[0]) for f in frames]
+    for near, far in zip(distance, distance[1:]):
+        assert np.all(far >= near)
+    means = [d.mean() for d in distance]
+    assert all(b > a for a, b in zip(means, means[1:])), means
+
+
+@pytest.fixture(scope="module")
+def noise_obs(physics):
+    env = make_env(physics, observation="noise")
+    return env, env.default_params, jax.jit(env.reset), jax.jit(env.step)
+
+
+def test_noise_sigma_default_endpoint_growth_and_sweep(noise_obs):
+    """observation="noise": the default sigma draws today's values (the law's `sample`, the
+    table route, under the state's key) bit for bit; sigma=0 is all black (the authors' law's
+    mean); the values grow with sigma under one key; a vmapped sweep over sigma equals separate
+    calls and is traced once."""
+    env, params, reset, step = noise_obs
+    obs, state = reset(jax.random.key(0), params)
+    shape = env.observation_space(params).shape
+    np.testing.assert_array_equal(obs, env.noise.sample(jax.random.wrap_key_data(state.key), shape))
+    obs, state, *_ = step(jax.random.key(1), state, jnp.zeros(6), params)
+    np.testing.assert_array_equal(obs, env.noise.sample(jax.random.wrap_key_data(state.key), shape))
+    sigmas = jnp.array([0.0, 10.0, 50.0, 120.0])
+    draws = [np.asarray(reset(jax.random.key(0), with_distraction(params, noise_sigma=s))[0])
+             for s in sigmas]
+    assert not draws[0].any()
+    for low, high in zip(draws, draws[1:]):
+        assert np.all(high >= low) and high.mean() > low.mean()
+    traces = []
+
+    def run(keys, swept):
+        traces.append(1)  # runs while tracing only
+        return jax.vmap(env.reset, in_axes=(0, axes))(keys, swept)[0]
+
+    swept, axes = params.sweep(noise_sigma=sigmas)
+    sweep = jax.jit(run)
+    keys = jnp.stack([jax.random.key(0)] * 4)
+    np.testing.assert_array_equal(np.asarray(sweep(keys, swept)), np.stack(draws))
+    sweep(keys, params.sweep(noise_sigma=sigmas[::-1])[0])
+    assert len(traces) == 1
+
+
+def test_noise_floor_sigma(checker):
+    """floor="noise": the default sigma renders the floor as before the dial (`floor_rgb`
+    without a sigma); sigma=0 blackens every floor pixel and leaves the rest."""
+    env, params, reset, _ = checker
+    _, state = reset(jax.random.key(3), params)
+    noise_env = make_env(env.physics, floor="noise")
+    noise_params = noise_env.default_params
+    data = state.physics.data
+    cam_pos, cam_mat = noise_env.camera.pose(data)
+    key = jax.random.key(5)
+
+    def old(key):
+        def floor(xy, footprint=None):
+            return floor_rgb("noise", noise_env.table, xy, footprint, key=key,
+                             channels=noise_env.renderer.channels, noise=noise_env.noise)
+        return noise_env.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor)
+
+    render = jax.jit(lambda p: noise_env.render(key, state.physics, p))
+    np.testing.assert_array_equal(render(noise_params), jax.jit(old)(key))
+    black = np.asarray(render(with_distraction(noise_params, noise_sigma=0.0)))
+    floor = floor_mask(env, state.physics)
+    assert not black[..., 0][floor].any()
+    plain = np.asarray(render(noise_params))
+    np.testing.assert_array_equal(black[..., 0][~floor], plain[..., 0][~floor])

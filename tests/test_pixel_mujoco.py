@@ -21,6 +21,7 @@ from jaxnat.mjx_pixel.pixel import PixelMuJoCo  # noqa: E402
 from jaxnat.testing import check_env  # noqa: E402
 
 SIZE = 32
+VIDEO = dict(floor="video", video_shape=(32, 32), video_max_frames=64)  # a small video floor
 
 
 @struct.dataclass
@@ -166,7 +167,7 @@ def video_env(physics):
         natural.default_video_paths()
     except Exception as err:  # opencv-doc missing
         pytest.skip(str(err))
-    return make_env(physics, floor="video", video_shape=(32, 32), video_max_frames=64)
+    return make_env(physics, **VIDEO)
 
 
 def test_floor_modes_change_only_floor_pixels(checker, video_env):

@@ -24,3 +24,16 @@ def test_agents_snippet_runs(capsys):
         pytest.skip("Classify/Digits-v0 data not installed")
     printed = capsys.readouterr().out
     assert printed.count("[") == 2  # two per-seed arrays
+
+
+def test_distraction_snippet_runs(capsys):
+    """The one-program difficulty sweep: five strengths, one value each."""
+    from jaxnat.datasets import DatasetNotFoundError
+
+    try:
+        exec(compile(_snippet("## Distraction as a dial"), "README.md (Distraction)", "exec"),  # noqa: S102
+             {})
+    except DatasetNotFoundError:
+        pytest.skip("Classify/Digits-v0 data not installed")
+    printed = capsys.readouterr().out
+    assert printed.count(".") == 5  # five floats

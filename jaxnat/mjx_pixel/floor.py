@@ -293,7 +293,8 @@ def _checker_cells(values):
 
 
 def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=None, tile=None,
-              key=None, channels: int = 3, noise=None, mips=None, video_alpha=None) -> jax.Array:
+              key=None, channels: int = 3, noise=None, mips=None, video_alpha=None,
+              noise_sigma=None) -> jax.Array:
     """float32 `[..., 3]` in [0, 1]: the floor's colour at world points `xy [..., 2]`.
 
     Args:
@@ -320,6 +321,9 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
         video_alpha: for "video", the video's weight over the checker, a float in [0, 1] (may
             be traced; values outside are clipped): `alpha * video + (1 - alpha) * checker`
             (`blend_video`). None: the video alone (as 1, without computing the checker).
+        noise_sigma: for "noise", the noise's strength (may be traced): the law's draws with
+            their spread scaled to `noise_sigma` (`NoiseLaw.sample_scaled`; the law's own scale
+            is its plain draws bit for bit). None: the law as it is.
     """
     if mode == "checker":
         if table.floor_texture is None:
@@ -351,7 +355,10 @@ def floor_rgb(mode: str, table, xy, footprint=None, *, frame=None, frame_index=N
         from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
 
         law = noise_law(DEFAULT_NOISE if noise is None else noise)
-        return _unit_rgb(law.sample(key, xy.shape[:-1] + (channels,)))
+        shape = xy.shape[:-1] + (channels,)
+        if noise_sigma is None:
+            return _unit_rgb(law.sample(key, shape))
+        return _unit_rgb(law.sample_scaled(key, shape, noise_sigma))
     raise ValueError(f"floor must be one of {FLOOR_MODES}, got {mode!r}")
 
 
@@ -369,6 +376,19 @@ def _video_rgb(xy, footprint, frame, frame_index, tile, mips) -> jax.Array:
     tile = jnp.broadcast_to(jnp.asarray(tile, jnp.float32), (2,))
     colour = texture_at(frame, xy, tile, frame_index)
     return _unit_rgb(colour)
+
+
+def screen_video(frame, frame_index, height: int, width: int) -> jax.Array:
+    """float32 `[height, width, 3]` in [0, 1]: the video frame (`frame [h, w, C]`, or the bank
+    `[F, h, w, C]` read at `frame_index`) stretched over the whole image, each pixel the texel
+    under its centre (nearest: two gathers by host indices, no filtering). The sky's video
+    (`Distraction.sky_alpha`): a background fixed to the screen, as the Distracting Control
+    Suite's, where the floor's video is fixed to the world."""
+    current = frame if frame_index is None else frame[frame_index]
+    h, w = current.shape[:2]
+    rows = np.minimum(((np.arange(height) + 0.5) * h / height).astype(np.int32), h - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * w / width).astype(np.int32), w - 1)
+    return _unit_rgb(jnp.take(jnp.take(current, rows, axis=0), cols, axis=1))
 
 
 def blend_video(video, checker, alpha) -> jax.Array:

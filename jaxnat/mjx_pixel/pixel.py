@@ -46,9 +46,20 @@ Semantics: `docs/environments.md` section 4.
     per agent step (the authors' MuJoCo code advanced 4); 0 freezes the episode's first frame.
     A video that ends inside a jump hands over to a new random video at its first frame, as at
     rate 1.
+  - `sky_alpha` (float in [0, 1], default 0; floor="video" only): the pixels that hit nothing
+    show `sky_alpha * video + (1 - sky_alpha) * sky`, the current video frame stretched over
+    the whole image (fixed to the screen, nearest texel: `floor.screen_video`) over the sky
+    gradient; 0 is today's sky exactly, 1 the video alone (the same selected endpoints). The
+    stretched frame is two small gathers a render, made at every strength.
+  - `noise_sigma` (float >= 0, default the law's scale: 50 for both `NOISE_LAWS`;
+    observation="noise" or floor="noise" only): the noise's spread. The values are the law's
+    cells drawn as before, each cell's quantile z scaled: `clip(floor(mean + noise_sigma * z),
+    0, 255)` (`natural.scaled_noise`), so under one key every value moves away from the law's
+    mean as sigma grows, 0 is the constant `floor(mean)` (black for "authors"), and the law's
+    own scale selects its table: today's draws bit for bit.
   Out-of-range values are one-line `ValueError`s when the env is built and in `check_params`
   (`jaxnat.make` calls it); traced values cannot be checked, and are clipped instead
-  (`video_alpha` to [0, 1], `frame_rate` to >= 0).
+  (`video_alpha` and `sky_alpha` to [0, 1], `frame_rate` and `noise_sigma` to >= 0).
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
   default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
@@ -88,9 +99,9 @@ from flax import struct
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState, is_concrete
 from jaxnat.mjx_pixel.camera import TrackingCamera
-from jaxnat.mjx_pixel.floor import FLOOR_MODES, floor_rgb
+from jaxnat.mjx_pixel.floor import FLOOR_MODES, blend_video, floor_rgb, screen_video
 from jaxnat.mjx_pixel.render import GeomTable, Renderer
-from jaxnat.natural.noise import DEFAULT_NOISE, NoiseLaw, noise_law
+from jaxnat.natural.noise import DEFAULT_NOISE, NOISE_SCALE, NoiseLaw, noise_law
 
 __all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "Distraction", "PHYSICS", "OBSERVATIONS"]
 
@@ -123,6 +134,8 @@ class Distraction:
 
     video_alpha: float = 1.0  # floor="video": the video's weight over the checker, in [0, 1]
     frame_rate: int = 1  # floor="video": video frames per agent step, >= 0 (0: frozen)
+    sky_alpha: float = 0.0  # floor="video": the video's weight over the sky, in [0, 1]
+    noise_sigma: float = NOISE_SCALE  # observation or floor "noise": the noise's spread, >= 0
 
 
 @struct.dataclass(kw_only=True)
@@ -155,7 +168,7 @@ class PixelParams(EnvParams):
         if None in lengths.values() or len(set(lengths.values())) != 1:
             raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
         # Ranges now, while the values are concrete (the floor is the env's: `check_params`).
-        _check_distraction("video", **{k: a for k, a in arrays.items() if is_concrete(a)})
+        _check_distraction(**{k: a for k, a in arrays.items() if is_concrete(a)})
         axes = jax.tree.map(lambda _: None, self)
         axes = axes.replace(distraction=Distraction(
             **{k: (0 if k in values else None) for k in names}))
@@ -187,6 +200,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             over the checker in [0, 1] (1: the video floor; 0: the checker's frames).
         frame_rate: floor="video": the default `Distraction.frame_rate`, video frames per agent
             step (1; 0 freezes the episode's first frame).
+        sky_alpha: floor="video": the default `Distraction.sky_alpha`, the video's weight over
+            the sky in [0, 1] (0: today's sky).
+        noise_sigma: observation="noise" or floor="noise": the default
+            `Distraction.noise_sigma`, the noise's spread (None: the law's scale, today's
+            draws).
         video_split: "train", "test" (disjoint videos) or "all".
         video_shape: (H, W) the videos are decoded to before being laid on the floor.
         video_max_frames: cap on the frames held on the device (None: all).
@@ -219,6 +237,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         floor_filter: str = "mip",
         video_alpha: float = 1.0,
         frame_rate: int = 1,
+        sky_alpha: float = 0.0,
+        noise_sigma: float | None = None,
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -226,7 +246,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             raise ValueError(f"floor must be one of {FLOOR_MODES}, got {floor!r}")
         if int(frame_skip) < 1 or int(frame_stack) < 1:
             raise ValueError(f"frame_skip and frame_stack must be >= 1, got {frame_skip}, {frame_stack}")
-        _check_distraction(floor, video_alpha=video_alpha, frame_rate=frame_rate)
+        law = noise_law(noise)
+        noise_sigma = law.scale if noise_sigma is None else noise_sigma
+        _check_distraction(floor, "noise" in (observation, floor), law.scale,
+                           video_alpha=video_alpha, frame_rate=frame_rate, sky_alpha=sky_alpha,
+                           noise_sigma=noise_sigma)
         if physics is None or isinstance(physics, str):
             if robot not in PHYSICS:
                 raise ValueError(f"robot must be one of {sorted(PHYSICS)}, got {robot!r}")
@@ -236,7 +260,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.physics = physics
         self.observation = observation
         self.floor = floor
-        self.noise = noise_law(noise)
+        self.noise = law
         self.frame_skip, self.frame_stack = int(frame_skip), int(frame_stack)
         self.camera = TrackingCamera.from_model(physics.model)
         self.table = GeomTable.from_model(physics.model)
@@ -256,7 +280,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
 
             self._video_mips = pack_mips(self._video.frames)
         self.video_split = video_split
-        self.distraction = Distraction(video_alpha=float(video_alpha), frame_rate=int(frame_rate))
+        self.distraction = Distraction(video_alpha=float(video_alpha), frame_rate=int(frame_rate),
+                                       sky_alpha=float(sky_alpha),
+                                       noise_sigma=float(noise_sigma))
 
     @property
     def name(self) -> str:
@@ -272,8 +298,10 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
     def check_params(self, params: PixelParams) -> None:
         super().check_params(params)
         d = params.distraction
-        _check_distraction(self.floor, **{k: getattr(d, k) for k in ("video_alpha", "frame_rate")
-                                          if is_concrete(getattr(d, k))})
+        _check_distraction(self.floor, "noise" in (self.observation, self.floor),
+                           self.noise.scale,
+                           **{f.name: getattr(d, f.name) for f in dataclasses.fields(d)
+                              if is_concrete(getattr(d, f.name))})
 
     def action_space(self, params: PixelParams) -> spaces.Space:
         return self.physics.action_space(params.physics)
@@ -291,7 +319,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             stack = jnp.concatenate([state.history, state.latest], axis=-1)
             return jnp.where(state.fresh, jnp.tile(state.latest, self.frame_stack), stack)
         if self.observation == "noise":
-            return self.noise.sample(_noise_key(state), self.observation_space(params).shape)
+            return self.noise.sample_scaled(_noise_key(state), self.observation_space(params).shape,
+                                            params.distraction.noise_sigma)
         if self.observation == "constant":
             return jnp.zeros((1,), jnp.float32)
         return state.latest
@@ -308,22 +337,26 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         noise floor; `cursor` picks the video frame (floor="video")."""
         data = physics_state.data
         cam_pos, cam_mat = self.camera.pose(data)
-        frames = frame_index = None
+        frames = frame_index = sky = None
         if self.floor == "video":
             from jaxnat.natural import cursor_index
 
             video = params.video
             frames = video.frames
             frame_index = cursor_index(video, cursor)
+            r = self.renderer
+            sky = blend_video(screen_video(frames, frame_index, r.height, r.width),
+                              r.sky_gradient(), params.distraction.sky_alpha)
 
         def floor(xy, footprint=None):  # the renderer passes a footprint with floor_filter="mip"
             return floor_rgb(self.floor, self.table, xy, footprint, frame=frames,
                              frame_index=frame_index,
                              tile=params.video_tile, key=key, channels=self.renderer.channels,
                              noise=self.noise, mips=params.video_mips,
-                             video_alpha=params.distraction.video_alpha)
+                             video_alpha=params.distraction.video_alpha,
+                             noise_sigma=params.distraction.noise_sigma)
 
-        return self.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor)
+        return self.renderer.render(cam_pos, cam_mat, data.geom_xpos, data.geom_xmat, floor, sky)
 
     def reset_env(self, key, params: PixelParams):
         key_physics, key_video, key_obs = jax.random.split(key, 3)
@@ -397,17 +430,31 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         return obs, state, total, done, info
 
 
-def _check_distraction(floor: str, video_alpha=1.0, frame_rate=1) -> None:
-    """One-line `ValueError`s for `Distraction` values out of range (host numbers or arrays)."""
+def _check_distraction(floor: str | None = None, noisy: bool | None = None,
+                       law_scale: float = NOISE_SCALE, video_alpha=1.0, frame_rate=1,
+                       sky_alpha=0.0, noise_sigma=None) -> None:
+    """One-line `ValueError`s for `Distraction` values out of range (host numbers or arrays).
+    `floor` and `noisy` (the env draws noise: observation or floor "noise") also refuse a
+    strength the env would ignore; None (`PixelParams.sweep`, which has no env) skips that."""
     alpha, rate = np.asarray(video_alpha, np.float64), np.asarray(frame_rate)
-    if not np.all((alpha >= 0.0) & (alpha <= 1.0)):
-        raise ValueError(f"video_alpha must lie in [0, 1], got {video_alpha}")
+    sky = np.asarray(sky_alpha, np.float64)
+    sigma = np.asarray(law_scale if noise_sigma is None else noise_sigma, np.float64)
+    for name, value, given in (("video_alpha", alpha, video_alpha), ("sky_alpha", sky, sky_alpha)):
+        if not np.all((value >= 0.0) & (value <= 1.0)):
+            raise ValueError(f"{name} must lie in [0, 1], got {given}")
+    if not np.all(np.isfinite(sigma) & (sigma >= 0.0)):
+        raise ValueError(f"noise_sigma must be a finite number >= 0, got {noise_sigma}")
     if not (np.issubdtype(rate.dtype, np.integer) or np.all(rate == np.round(rate))):
         raise ValueError(f"frame_rate must be a whole number of video frames, got {frame_rate}")
     if not np.all(rate >= 0):
         raise ValueError(f"frame_rate must be >= 0 (0 freezes the frame), got {frame_rate}")
-    if floor != "video" and (np.any(alpha != 1.0) or np.any(rate != 1)):
-        raise ValueError(f'video_alpha and frame_rate need floor="video", got floor={floor!r}')
+    if floor not in (None, "video") and (np.any(alpha != 1.0) or np.any(rate != 1)
+                                         or np.any(sky != 0.0)):
+        raise ValueError(f'video_alpha, frame_rate and sky_alpha need floor="video", got '
+                         f'floor={floor!r}')
+    if noisy is False and np.any(sigma != law_scale):
+        raise ValueError(f'noise_sigma needs observation="noise" or floor="noise", got '
+                         f'floor={floor!r}')
 
 
 def _noise_key(state: PixelState) -> jax.Array:

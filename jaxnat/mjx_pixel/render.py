@@ -521,16 +521,18 @@ class Renderer:
         point = tuple(hit.point[..., i] for i in range(3))
         return self._shade(hit.geom, normal, point, hit.lit, cam_mat, floor_rgb, hit.depth)
 
-    def render(self, cam_pos, cam_mat, geom_xpos, geom_xmat, floor_rgb=None) -> jax.Array:
+    def render(self, cam_pos, cam_mat, geom_xpos, geom_xmat, floor_rgb=None,
+               sky_rgb=None) -> jax.Array:
         """`shade(cast(...))` in one pass: one uint8 `[H, W, C]` frame. `floor_rgb` may also be a
         function of the hit points' world `xy [H, W, 2]` returning `[H, W, 3]` (see
         `floor.floor_rgb`): the floor texture is then looked up inside the same kernel. With
         `floor_filter="mip"` it is called as `floor_rgb(xy, footprint)`, `footprint` each
         pixel's `floor.Footprint` (its world x-y step per pixel right and down: `footprint`,
-        `floor.texture_mip`)."""
+        `floor.texture_mip`). `sky_rgb` (float32 `[H, W, 3]` in [0, 1]) colours the pixels
+        that hit nothing in place of the sky gradient (`sky_gradient`)."""
         with jax.named_scope(RENDER_SCOPE):  # names its ops in compiled programs
             depth, g, normal, point, lit = self._trace(cam_pos, cam_mat, geom_xpos, geom_xmat)
-            return self._shade(g, normal, point, lit, cam_mat, floor_rgb, depth)
+            return self._shade(g, normal, point, lit, cam_mat, floor_rgb, depth, sky_rgb)
 
     # --- the per-pixel work -------------------------------------------------------------------
 
@@ -735,7 +737,7 @@ class Renderer:
         # A miss (infinite depth) reads the last level: in range, and its colour is discarded.
         return Footprint(steps[0], steps[1], depth)
 
-    def _shade(self, g, normal, point, lit, cam_mat, floor_rgb, depth):
+    def _shade(self, g, normal, point, lit, cam_mat, floor_rgb, depth, sky_rgb=None):
         """uint8 `[H, W, C]` from per-pixel geom ids, normals and points (tuples of arrays)."""
         table = self.table
         safe_g = jnp.maximum(g, 0)
@@ -757,7 +759,7 @@ class Renderer:
         if cosines:
             cosines[0] = cosines[0] * lit
         ambient = table.headlight_ambient + table.light_ambient
-        sky = self._sky()
+        sky = self._sky() if sky_rgb is None else [sky_rgb[..., c] for c in range(3)]
         colour = []
         for c in range(3):
             light = float(ambient[c]) + head * float(table.headlight_diffuse[c])
@@ -770,6 +772,11 @@ class Renderer:
             value = jnp.clip(rgb[c] * light, 0.0, 1.0)
             colour.append(jnp.where(g < 0, sky[c], value))
         return self._to_uint8(colour)
+
+    def sky_gradient(self) -> np.ndarray:
+        """float32 `[H, 1, 3]` host constants: the sky's colour per row (`_sky`), the background
+        a `sky_rgb` replaces or blends over."""
+        return np.stack(self._sky(), -1)
 
     def _sky(self):
         """Per channel, `[H, 1]` host constants: the sky's vertical gradient, from the top

@@ -22,6 +22,11 @@ pixel, which is faster in JAX and in NumPy (the speed-ups are recorded in
 bench/results/natural_sources.md). A traced scale or mean (vmapped over envs) takes the direct
 route: a float normal per pixel. The JAX and NumPy versions draw from the same law
 with different generators: their values differ, their distributions do not.
+
+A noise *strength* dial (`scaled_noise`, the distraction's `noise_sigma`) keeps the table
+route's draws and scales each cell's quantile by a traced sigma, so one key gives the same
+cells at every strength (monotone in sigma, pixel by pixel) and the law's own scale gives the
+table's values bit for bit.
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ import numpy as np
 
 __all__ = ["NOISE_SCALE", "NoiseLaw", "NOISE_LAWS", "DEFAULT_NOISE", "noise_law",
            "gaussian_noise", "gaussian_noise_np", "constant_color", "constant_color_np",
-           "noise_table"]
+           "noise_table", "scaled_noise"]
 
 NOISE_SCALE = 50.0
 _TABLE_BITS = 16
@@ -56,6 +61,11 @@ class NoiseLaw:
     def sample(self, key: jax.Array, shape: Sequence[int]) -> jax.Array:
         """Draws of `shape` (uint8, JAX): `gaussian_noise` with this law."""
         return gaussian_noise(key, shape, self.scale, self.mean)
+
+    def sample_scaled(self, key: jax.Array, shape: Sequence[int], sigma) -> jax.Array:
+        """Draws of `shape` (uint8, JAX) at strength `sigma` (may be traced): `scaled_noise`
+        with this law; `sigma == self.scale` is `sample` bit for bit."""
+        return scaled_noise(key, shape, sigma, self.scale, self.mean)
 
     def sample_np(self, rng: np.random.Generator, shape: Sequence[int]) -> np.ndarray:
         """Draws of `shape` (uint8, NumPy): `gaussian_noise_np` with this law."""
@@ -99,12 +109,46 @@ def noise_table(scale: float = NOISE_SCALE, mean: float = 0.0) -> np.ndarray:
     if not (math.isfinite(scale) and math.isfinite(mean)) or scale < 0:
         raise ValueError(f"noise needs a finite scale >= 0 and a finite mean, got scale={scale}, "
                          f"mean={mean}")
-    size = 1 << _TABLE_BITS
-    inverse_cdf = NormalDist().inv_cdf
-    z = np.array([inverse_cdf((i + 0.5) / size) for i in range(size)])
-    table = np.clip(np.floor(mean + scale * z), 0, 255).astype(np.uint8)
+    table = np.clip(np.floor(mean + scale * _quantiles()), 0, 255).astype(np.uint8)
     table.flags.writeable = False
     return table
+
+
+@functools.lru_cache(maxsize=2)
+def _quantiles(dtype=np.float64) -> np.ndarray:
+    """[65536]: N(0, 1)'s midpoint quantile of each of `noise_table`'s equal-probability cells."""
+    size = 1 << _TABLE_BITS
+    inverse_cdf = NormalDist().inv_cdf
+    z = np.array([inverse_cdf((i + 0.5) / size) for i in range(size)]).astype(dtype)
+    z.flags.writeable = False
+    return z
+
+
+def _cell_index(key: jax.Array, size: int) -> jax.Array:
+    """uint32 [size]: a uniform 16-bit cell per value, two from each 32-bit word (half the
+    random bits of one word a value)."""
+    words = jax.random.bits(key, ((size + 1) // 2,), jnp.uint32)
+    return jnp.concatenate([words & 0xFFFF, words >> 16])[:size]
+
+
+def scaled_noise(key: jax.Array, shape: Sequence[int], sigma: float | jax.Array,
+                 scale: float = NOISE_SCALE, mean: float = 0.0) -> jax.Array:
+    """uint8 noise of `shape` at strength `sigma` (may be traced; negative is clipped to 0):
+    clip(floor(mean + sigma * z), 0, 255), z the quantile of the cell that `gaussian_noise`'s
+    table route draws for the law `(scale, mean)` with the same key.
+
+    Why the same cells: a strength sweep under one key then moves every value away from `mean`
+    monotonically as sigma grows, sigma = 0 is the constant `floor(mean)`, and sigma == `scale`
+    selects the law's table itself, so the default strength is `gaussian_noise(key, shape,
+    scale, mean)` bit for bit (the float32 product alone may differ from the float64 table by
+    one level at a cell's edge)."""
+    shape = tuple(shape)
+    index = _cell_index(key, math.prod(shape))
+    table = jnp.asarray(noise_table(float(scale), float(mean)))[index]
+    sigma = jnp.maximum(jnp.asarray(sigma, jnp.float32), 0.0)
+    values = jnp.floor(jnp.float32(mean) + sigma * jnp.asarray(_quantiles(np.float32))[index])
+    scaled = jnp.clip(values, 0.0, 255.0).astype(jnp.uint8)
+    return jnp.where(sigma == jnp.float32(scale), table, scaled).reshape(shape)
 
 
 def _is_number(x) -> bool:
@@ -118,11 +162,7 @@ def gaussian_noise(key: jax.Array, shape: Sequence[int], scale: float | jax.Arra
     shape = tuple(shape)
     if _is_number(scale) and _is_number(mean):
         table = jnp.asarray(noise_table(float(scale), float(mean)))
-        size = math.prod(shape)
-        # Two 16-bit uniforms from each 32-bit word: half the random bits of one word a pixel.
-        words = jax.random.bits(key, ((size + 1) // 2,), jnp.uint32)
-        index = jnp.concatenate([words & 0xFFFF, words >> 16])[:size]
-        return table[index].reshape(shape)
+        return table[_cell_index(key, math.prod(shape))].reshape(shape)
     values = mean + jax.random.normal(key, shape, jnp.float32) * scale
     return jnp.clip(values, 0.0, 255.0).astype(jnp.uint8)
 

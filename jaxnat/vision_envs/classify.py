@@ -23,6 +23,9 @@ class. Semantics: `docs/environments.md` section 1.
   `0..C-1`), the revealed mask (255/0, channel `C`) and the current window (255/0, channel
   `C+1`). The mask channel tells an unrevealed pixel from a black one (the authors used -1).
 - **Info**: `{}` (`terminated` already says the label was right).
+- **Distraction** (`ClassifyParams.distraction`, `jaxnat.vision_envs.distraction`): additive
+  pixel noise `noise_sigma` (default 0, the plain env bit for bit) on the revealed image,
+  fresh every step, as a traced param; `params.sweep(noise_sigma=...)` vmaps a difficulty curve.
 
 Example::
 
@@ -45,6 +48,9 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState, is_concrete
+from jaxnat.vision_envs.distraction import (
+    Distraction, DistractionSweep, check_distraction, noise_key_data, observe_with_noise,
+)
 from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
 __all__ = [
@@ -67,16 +73,19 @@ class ClassifyState(EnvState):
     # (r, c). Packing cuts the state a step reads and writes from H*W bytes to H*W/8, which
     # matters because a batched step is memory bound. `pack_mask`/`unpack_mask` convert.
     revealed: jax.Array  # uint32[H, ceil(W / 32)]
+    # uint32 data of the key of this observation's noise (`distraction.noise_key_data`).
+    noise_key: jax.Array = struct.field(default_factory=lambda: jnp.zeros(2, jnp.uint32))
 
 
 @struct.dataclass(kw_only=True)
-class ClassifyParams(EnvParams):
+class ClassifyParams(DistractionSweep, EnvParams):
     images: jax.Array  # uint8 [N, H, W, C]
     labels: jax.Array  # int32 [N]
     window: int = 5
     max_steps_in_episode: int = 20
     correct_reward: float = 1.0
     wrong_reward: float = -0.1
+    distraction: Distraction = struct.field(default_factory=Distraction)
 
 
 class Classify(Environment[ClassifyState, ClassifyParams]):
@@ -96,6 +105,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         observation_writer: how observations are written, "auto" (the default), "wordwise" or
             "bytewise" (`jaxnat.vision_envs.observation`); the bytes are the same, only the
             speed differs (`bench/classify_throughput.py` compares them).
+        noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (0: none).
     """
 
     params_type = ClassifyParams
@@ -110,7 +120,9 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         w: int | None = None,
         M: int | None = None,
         observation_writer: str = "auto",
+        noise_sigma: float = 0.0,
     ):
+        check_distraction(Distraction(noise_sigma=noise_sigma))
         if start not in _STARTS:
             raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
         if observation_writer not in WRITERS:
@@ -143,6 +155,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         # Device-resident once; params hand the same buffers to every trace.
         self._images = jnp.asarray(images)
         self._labels = jnp.asarray(labels)
+        self._distraction = Distraction(noise_sigma=float(noise_sigma))
 
     @property
     def name(self) -> str:
@@ -152,6 +165,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         super().check_params(params)
         if is_concrete(params.window):
             _check_window(int(params.window), self.image_shape)
+        check_distraction(params.distraction)
 
     @property
     def default_params(self) -> ClassifyParams:
@@ -160,6 +174,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
             labels=self._labels,
             window=self._window,
             max_steps_in_episode=self._max_steps,
+            distraction=self._distraction,
         )
 
     def observation_space(self, params: ClassifyParams) -> spaces.Box:
@@ -185,6 +200,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
             label=params.labels[image_index],
             top_left=top_left,
             revealed=self._window_bits(top_left, side),
+            noise_key=noise_key_data(key),
         )
         return self.get_obs(state, params), state
 
@@ -197,7 +213,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         limit = jnp.array([h, w]) - side
         top_left = jnp.clip(state.top_left + jnp.asarray(MOVES)[move] * side, 0, limit)
         revealed = state.revealed | self._window_bits(top_left, side)
-        state = state.replace(top_left=top_left, revealed=revealed)
+        state = state.replace(top_left=top_left, revealed=revealed, noise_key=noise_key_data(key))
         correct = label == state.label
         reward = jnp.where(correct, params.correct_reward, params.wrong_reward)
         return self.get_obs(state, params), state, reward, correct, {}
@@ -207,8 +223,10 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         h, w = self.image_shape[:2]
         revealed = unpack_mask(state.revealed, w)
         window = window_mask(state.top_left, params.window, h, w)
-        return masked_image_observation(params.images, state.image_index, revealed,
-                                        [revealed, window], writer=self.observation_writer)
+        return observe_with_noise(
+            lambda images, index: masked_image_observation(
+                images, index, revealed, [revealed, window], writer=self.observation_writer),
+            params.images, state.image_index, state.noise_key, params.distraction.noise_sigma)
 
     def _window_bits(self, top_left, side) -> jax.Array:
         """`pack_mask(window_mask(...))`, computed word by word without a reduction."""

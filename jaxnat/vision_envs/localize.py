@@ -32,6 +32,9 @@ section 2 (the paper's task; where the authors' code differs, this env follows t
   the footprint (channel 3, 255 inside, 0 outside), and the goal class id. The paper gives the
   agent the goal; the authors' code never did.
 - **Info**: `{}`.
+- **Distraction** (`LocalizeParams.distraction`, `jaxnat.vision_envs.distraction`): additive
+  pixel noise `noise_sigma` (default 0, the plain env bit for bit) on the photo channels, fresh
+  every step, as a traced param; `params.sweep(noise_sigma=...)` vmaps a difficulty curve.
 
 `w` is a constructor argument (static), not a traced param: the footprint's pixels are read
 with a `w` x `w` slice, and which images have a valid goal depends on where the start
@@ -60,6 +63,9 @@ from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState
 from jaxnat.datasets.segmentation import SegmentationDataset
 from jaxnat.vision_envs.classify import DOWN, LEFT, MOVES, RIGHT, UP, window_mask
+from jaxnat.vision_envs.distraction import (
+    Distraction, DistractionSweep, check_distraction, noise_key_data, observe_with_noise,
+)
 from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
 __all__ = ["Localize", "LocalizeState", "LocalizeParams", "valid_goals",
@@ -73,15 +79,18 @@ class LocalizeState(EnvState):
     image_index: jax.Array  # int32: which image of the split
     goal: jax.Array  # int32: the class to find
     top_left: jax.Array  # int32[2]: (row, col) of the footprint
+    # uint32 data of the key of this observation's noise (`distraction.noise_key_data`).
+    noise_key: jax.Array = struct.field(default_factory=lambda: jnp.zeros(2, jnp.uint32))
 
 
 @struct.dataclass(kw_only=True)
-class LocalizeParams(EnvParams):
+class LocalizeParams(DistractionSweep, EnvParams):
     images: jax.Array  # uint8 [N, H, W, 3]
     class_maps: jax.Array  # uint8 [N, H, W], VOID = 255
     goals: jax.Array  # bool [N, K]: classes that may be the goal in each image
     max_steps_in_episode: int = 200
     success_reward: float = 1.0
+    distraction: Distraction = struct.field(default_factory=Distraction)
 
 
 class Localize(Environment[LocalizeState, LocalizeParams]):
@@ -105,6 +114,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         observation_writer: how `pixels` is written, "auto" (the default), "wordwise" or
             "bytewise" (`jaxnat.vision_envs.observation`); the bytes are the same, only the
             speed differs (`bench/localize_throughput.py` compares them).
+        noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (0: none).
     """
 
     params_type = LocalizeParams
@@ -124,7 +134,9 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         seed: int | None = None,
         backgrounds: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
         observation_writer: str = "auto",
+        noise_sigma: float = 0.0,
     ):
+        check_distraction(Distraction(noise_sigma=noise_sigma))
         if observation_writer not in WRITERS:
             raise ValueError(f"observation_writer must be one of {WRITERS}, got "
                              f"{observation_writer!r}")
@@ -161,6 +173,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         self._images = jnp.asarray(dataset.images[keep])
         self._class_maps = jnp.asarray(dataset.class_maps[keep])
         self._goals = jnp.asarray(goals[keep])
+        self._distraction = Distraction(noise_sigma=float(noise_sigma))
 
     @property
     def name(self) -> str:
@@ -169,7 +182,11 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
     @property
     def default_params(self) -> LocalizeParams:
         return LocalizeParams(images=self._images, class_maps=self._class_maps, goals=self._goals,
-                              max_steps_in_episode=self._max_steps)
+                              max_steps_in_episode=self._max_steps, distraction=self._distraction)
+
+    def check_params(self, params: LocalizeParams) -> None:
+        super().check_params(params)
+        check_distraction(params.distraction)
 
     def observation_space(self, params: LocalizeParams) -> spaces.Dict:
         h, w = self.image_shape
@@ -189,6 +206,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
             image_index=image_index,
             goal=goal.astype(jnp.int32),
             top_left=jnp.array(self.start, jnp.int32),
+            noise_key=noise_key_data(key),
         )
         return self.get_obs(state, params), state
 
@@ -197,7 +215,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         limit = jnp.array(self.image_shape) - side
         move = jnp.clip(action, 0, len(MOVES) - 1)  # out of range: clipped (every discrete env's rule)
         top_left = jnp.clip(state.top_left + jnp.asarray(MOVES)[move] * side, 0, limit)
-        state = state.replace(top_left=top_left)
+        state = state.replace(top_left=top_left, noise_key=noise_key_data(key))
         under = jax.lax.dynamic_slice(params.class_maps[state.image_index], top_left, (side, side))
         found = jnp.any(under == state.goal)
         reward = jnp.where(found, params.success_reward, 0.0)
@@ -208,8 +226,10 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         h, w = self.image_shape
         footprint = window_mask(state.top_left, self.footprint, h, w)
         everywhere = jnp.ones((h, w), jnp.bool_)
-        pixels = masked_image_observation(params.images, state.image_index, everywhere,
-                                          [footprint], writer=self.observation_writer)
+        pixels = observe_with_noise(
+            lambda images, index: masked_image_observation(
+                images, index, everywhere, [footprint], writer=self.observation_writer),
+            params.images, state.image_index, state.noise_key, params.distraction.noise_sigma)
         return {"pixels": pixels, "goal": state.goal}
 
 

@@ -1,0 +1,106 @@
+"""Distraction as a dial for the vision envs (Classify, Localize): additive pixel noise.
+
+`Distraction` is the params group (`ClassifyParams.distraction`, `LocalizeParams.distraction`)
+of traced strengths, so that one jitted, vmapped program evaluates or trains over a whole
+difficulty curve (`DistractionSweep.sweep` builds the batched params and their `in_axes`):
+
+- `noise_sigma` (float >= 0, default 0): every observed image value becomes
+  `clip(round(value + noise_sigma * z), 0, 255)` as uint8, `z` i.i.d. N(0, 1) per pixel and
+  channel, fresh every reset and step (`noisy_image`; `round` is half to even, `jnp.round`).
+  Only the image channels take noise: Classify's hidden pixels stay 0 and the mask, window and
+  footprint planes stay 255/0, so what the agent may know is unchanged, only how clearly it
+  sees it. Under one key, `|noisy - clean|` never shrinks as sigma grows (rounding and
+  clipping are monotone); at 0 the observation is the plain env's, bit for bit.
+
+The noise's key is the reset's or the step's key folded with `NOISE_STREAM`, kept in the
+state (`noise_key`) because `get_obs` takes no key. It is used only when sigma > 0: the plain
+env draws nothing, and its images and goals come from the same splits as before the dial. With
+params shared by a batch (the usual `in_axes=None`) the choice is a `lax.cond`, so the default
+observation costs what it did; vmapped over strengths it becomes a select, both built.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from jaxnat.core import is_concrete
+
+__all__ = ["Distraction", "DistractionSweep", "NOISE_STREAM", "noisy_image", "noise_key_data",
+           "observe_with_noise", "check_distraction"]
+
+NOISE_STREAM = 0x6E6F6973  # "nois": the fold-in that makes the noise's key
+
+
+@struct.dataclass
+class Distraction:
+    """The vision envs' distraction strengths (module docstring): traced numbers. A group of
+    its own inside the params so that `in_axes` can name it apart from the dataset, which a
+    sweep shares. The defaults are the plain env."""
+
+    noise_sigma: float = 0.0  # additive N(0, sigma^2) pixel noise on the image channels, >= 0
+
+
+class DistractionSweep:
+    """`sweep` for params with a `distraction: Distraction` field."""
+
+    def sweep(self, **values) -> tuple[Any, Any]:
+        """`(params, in_axes)`: these params with the named `Distraction` fields replaced by
+        arrays of one leading length (a strength axis), and the matching `in_axes` prefix for
+        `jax.vmap` (0 on those fields, None elsewhere: the dataset stays shared)::
+
+            swept, axes = params.sweep(noise_sigma=jnp.linspace(0, 64, 5))
+            jax.vmap(env.reset, in_axes=(0, axes))(keys, swept)
+        """
+        names = [f.name for f in dataclasses.fields(Distraction)]
+        unknown = sorted(set(values) - set(names))
+        if unknown or not values:
+            raise ValueError(f"sweep takes Distraction fields {names}, got {sorted(values)}")
+        arrays = {k: jnp.asarray(v) for k, v in values.items()}
+        lengths = {k: (a.shape[0] if a.ndim else None) for k, a in arrays.items()}
+        if None in lengths.values() or len(set(lengths.values())) != 1:
+            raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
+        check_distraction(Distraction(**arrays))
+        axes = jax.tree.map(lambda _: None, self)
+        axes = axes.replace(distraction=Distraction(
+            **{k: (0 if k in values else None) for k in names}))
+        return self.replace(distraction=self.distraction.replace(**arrays)), axes
+
+
+def check_distraction(distraction: Distraction) -> None:
+    """One-line `ValueError`s for concrete values out of range (traced ones are clipped)."""
+    sigma = distraction.noise_sigma
+    if is_concrete(sigma):
+        value = np.asarray(sigma, np.float64)
+        if not np.all(np.isfinite(value) & (value >= 0.0)):
+            raise ValueError(f"noise_sigma must be a finite number >= 0, got {sigma}")
+
+
+def noise_key_data(key: jax.Array) -> jax.Array:
+    """The state's `noise_key`: the raw data of the reset's or step's key (folded with
+    `NOISE_STREAM` only when noise is drawn, so the plain env hashes nothing)."""
+    return jax.random.key_data(key)
+
+
+def noisy_image(image: jax.Array, key_data: jax.Array, sigma) -> jax.Array:
+    """uint8 `clip(round(image + sigma * z), 0, 255)`, z ~ N(0, 1) per value, drawn from
+    `key_data` folded with `NOISE_STREAM`; `sigma` may be traced (negative: 0)."""
+    key = jax.random.fold_in(jax.random.wrap_key_data(key_data), NOISE_STREAM)
+    sigma = jnp.maximum(jnp.asarray(sigma, jnp.float32), 0.0)
+    z = jax.random.normal(key, image.shape, jnp.float32)
+    return jnp.clip(jnp.round(image.astype(jnp.float32) + sigma * z), 0.0, 255.0).astype(jnp.uint8)
+
+
+def observe_with_noise(build, images, index, key_data, sigma):
+    """`build(images, index)` (an observation from the dataset and an image index) with the
+    image noised when `sigma > 0` (`noisy_image`, passed to `build` as a one-image dataset);
+    exactly `build(images, index)` at sigma <= 0."""
+    sigma = jnp.asarray(sigma, jnp.float32)
+    return jax.lax.cond(sigma > 0.0,
+                        lambda: build(noisy_image(images[index], key_data, sigma)[None], 0),
+                        lambda: build(images, index))

@@ -1,0 +1,184 @@
+"""Distraction as a dial, Classify and Localize (`jaxnat.vision_envs.distraction`): additive
+pixel noise `noise_sigma` as a traced param.
+
+What the dial promises: the default (0) is the plain env bit for bit; a strength's image is
+`clip(round(image + sigma * z), 0, 255)` on the image channels only (hidden pixels and the
+binary planes untouched); the effect grows with sigma under one key; a vmapped sweep over
+sigma equals separate calls and is traced once. Each test runs on Classify (conftest's
+`toy_dataset`, width 10: the byte-wise writer) and on Localize (test_localize's `dataset`,
+width 24) with both observation writers, since the noised image reaches the word-wise writer
+as a one-image dataset.
+"""
+
+# test_localize's `dataset` fixture, shared by import: pytest finds it in this module's
+# namespace, and the arguments of that name are it, not redefinitions (ruff's F811).
+# ruff: noqa: F811
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_localize import dataset  # noqa: F401
+
+from jaxnat.vision_envs.classify import DOWN, RIGHT, Classify, unpack_mask, window_mask
+from jaxnat.vision_envs.distraction import NOISE_STREAM, Distraction
+from jaxnat.vision_envs.localize import Localize
+from jaxnat.vision_envs.observation import masked_image_observation_reference
+
+CASES = ("classify", "localize-bytewise", "localize-wordwise")
+
+
+class Case:
+    """One env under test, its jitted reset and step, and what differs between the two
+    families: the action, where the pixels are, which pixels show the image."""
+
+    def __init__(self, name, toy_dataset, dataset):
+        self.classify = name == "classify"
+        if self.classify:
+            self.env = Classify(toy_dataset, w=3, M=5)
+        else:
+            self.env = Localize(dataset, w=4, M=7, observation_writer=name.split("-")[1])
+        self.params = self.env.default_params
+        self.reset, self.step = jax.jit(self.env.reset), jax.jit(self.env.step)
+
+    def action(self, t):
+        move = (RIGHT, DOWN)[t % 2]
+        return jnp.array([move, 2], jnp.int32) if self.classify else jnp.int32(move)
+
+    def pixels(self, obs):
+        return np.asarray(obs if self.classify else obs["pixels"])
+
+    def shown(self, state):
+        """bool [H, W]: pixels that show the image, and the binary planes after it."""
+        env = self.env
+        h, w = env.image_shape[:2]
+        if self.classify:
+            revealed = unpack_mask(state.revealed, w)
+            return revealed, [revealed, window_mask(state.top_left, self.params.window, h, w)]
+        return jnp.ones((h, w), bool), [window_mask(state.top_left, env.footprint, h, w)]
+
+    def plain(self, state, params):
+        """The observation's pixels as the env wrote them before the dial."""
+        shown, planes = self.shown(state)
+        return np.asarray(masked_image_observation_reference(params.images, state.image_index,
+                                                             shown, planes))
+
+    def rollout(self, params, steps=3, key=0):
+        obs, state = self.reset(jax.random.key(key), params)
+        observations, states = [self.pixels(obs)], [state]
+        for t in range(steps):
+            obs, state, *_ = self.step(jax.random.key(key + t + 1), state, self.action(t), params)
+            observations.append(self.pixels(obs))
+            states.append(state)
+        return np.stack(observations), states
+
+
+_BUILT = {}  # one Case per name for the module: the data are fixed, so reuse its compiled jits
+
+
+@pytest.fixture(params=CASES)
+def case(request, toy_dataset, dataset):
+    if request.param not in _BUILT:
+        _BUILT[request.param] = Case(request.param, toy_dataset, dataset)
+    return _BUILT[request.param]
+
+
+def with_sigma(params, sigma):
+    return params.replace(distraction=params.distraction.replace(noise_sigma=sigma))
+
+
+def test_default_is_the_plain_env(case):
+    assert case.params.distraction == Distraction(noise_sigma=0.0)
+    observations, states = case.rollout(case.params)
+    for obs, state in zip(observations, states):
+        np.testing.assert_array_equal(obs, case.plain(state, case.params))
+    zero, _ = case.rollout(with_sigma(case.params, jnp.float32(0.0)))
+    np.testing.assert_array_equal(zero, observations)
+
+
+def test_noise_is_the_stated_formula_on_the_image_only(case):
+    """At sigma = 30: the image channels are clip(round(image + 30 z), 0, 255) where shown (z
+    from the state's noise key folded with NOISE_STREAM), 0 where hidden; the planes are
+    untouched; the noise is fresh every step."""
+    params = with_sigma(case.params, 30.0)
+    observations, states = case.rollout(params)
+    c = case.params.images.shape[-1]
+    for obs, state in zip(observations, states):
+        plain = case.plain(state, params)
+        np.testing.assert_array_equal(obs[..., c:], plain[..., c:])
+        key = jax.random.fold_in(jax.random.wrap_key_data(state.noise_key), NOISE_STREAM)
+        z = np.asarray(jax.random.normal(key, plain[..., :c].shape, jnp.float32))
+        image = np.asarray(params.images[state.image_index], np.float32)
+        expected = np.clip(np.round(image + np.float32(30.0) * z), 0, 255)
+        shown = np.asarray(case.shown(state)[0])
+        expected = np.where(shown[..., None], expected, 0)
+        diff = np.abs(obs[..., :c].astype(np.int32) - expected)
+        assert diff.max() <= 1 and (diff == 0).mean() > 0.99  # float rounding at .5 only
+        assert (obs[..., :c][shown] != plain[..., :c][shown]).mean() > 0.5
+    assert np.any(observations[1][..., :c] != observations[2][..., :c])
+
+
+def test_effect_grows_with_sigma(case):
+    """Under one key: no value moves back toward the clean image as sigma grows, the mean
+    distance grows strictly, and sigma=0 is the clean image."""
+    sigmas = [0.0, 4.0, 16.0, 64.0, 255.0]
+    frames = [case.rollout(with_sigma(case.params, s), steps=1)[0].astype(np.int32)
+              for s in sigmas]
+    distance = [np.abs(f - frames[0]) for f in frames]
+    assert not distance[0].any()
+    for near, far in zip(distance, distance[1:]):
+        assert np.all(far >= near)
+    means = [d.mean() for d in distance]
+    assert all(b > a for a, b in zip(means, means[1:])), means
+
+
+def test_vmapped_sweep_equals_separate_calls_in_one_trace(case):
+    env, params = case.env, case.params
+    traces = []
+
+    def run(keys, swept):
+        traces.append(1)  # runs while tracing only
+        obs, state = jax.vmap(env.reset, in_axes=(0, axes))(keys, swept)
+        observations = [obs]
+        for t in range(2):
+            step_keys = jax.vmap(lambda k: jax.random.fold_in(k, t + 1))(keys)
+            actions = jnp.stack([case.action(t)] * keys.shape[0])
+            obs, state, *_ = jax.vmap(env.step, in_axes=(0, 0, 0, axes))(
+                step_keys, state, actions, swept)
+            observations.append(obs)
+        return jax.tree.map(lambda *o: jnp.stack(o, 1), *observations)
+
+    sigmas = jnp.array([0.0, 8.0, 40.0, 0.0])
+    swept, axes = params.sweep(noise_sigma=sigmas)
+    sweep = jax.jit(run)
+    keys = jax.random.split(jax.random.key(7), 4)
+    batched = case.pixels(sweep(keys, swept))
+    for i in range(4):
+        alone = with_sigma(params, sigmas[i])
+        obs, state = case.reset(keys[i], alone)
+        observations = [case.pixels(obs)]
+        for t in range(2):
+            obs, state, *_ = case.step(jax.random.fold_in(keys[i], t + 1), state, case.action(t),
+                                       alone)
+            observations.append(case.pixels(obs))
+        np.testing.assert_array_equal(batched[i], np.stack(observations))
+    sweep(keys, params.sweep(noise_sigma=jnp.array([1.0, 2.0, 3.0, 4.0]))[0])
+    assert len(traces) == 1
+
+
+def test_out_of_range_values_are_clear_errors(toy_dataset, dataset):
+    for build in (lambda **k: Classify(toy_dataset, w=3, **k),
+                  lambda **k: Localize(dataset, w=4, **k)):
+        for sigma in (-1.0, float("nan"), float("inf")):
+            with pytest.raises(ValueError, match="noise_sigma must be a finite number >= 0"):
+                build(noise_sigma=sigma)
+        env = build(noise_sigma=12.0)
+        params = env.default_params
+        assert params.distraction == Distraction(noise_sigma=12.0)
+        with pytest.raises(ValueError, match="noise_sigma must be"):
+            env.check_params(with_sigma(params, np.array([0.0, -2.0])))
+        with pytest.raises(ValueError, match="noise_sigma must be"):
+            params.sweep(noise_sigma=jnp.array([1.0, -1.0]))
+        with pytest.raises(ValueError, match="sweep takes Distraction fields"):
+            params.sweep(video_alpha=jnp.ones(2))
+        with pytest.raises(ValueError, match="one leading length"):
+            params.sweep(noise_sigma=jnp.float32(1.0))
