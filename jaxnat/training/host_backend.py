@@ -150,6 +150,7 @@ class HostBackend:
     seed. Checkpoints: `checkpoints/seed_<s>/`, the learner's `HostState`."""
 
     evaluates_each_chunk = False
+    eval_steps = None  # whole games: their length is known when they end (`EvalProgress` shows time only)
 
     def __init__(self, spec: RunSpec, compiler_options: dict | None = None):
         self.spec = spec
@@ -183,7 +184,7 @@ class HostBackend:
             progress(self.learner.updates_of(state), metrics)
         return state, {name: np.asarray([[row[name] for row in rows]]) for name in rows[0]}
 
-    def evaluate(self, group, state) -> dict:
+    def evaluate(self, group, state, progress=None) -> dict:
         scores = {}
         for mode in ("sampled", "greedy"):
             returns = evaluate_host(self.learner, self.learner.params(state), self.test_env, self.spec.eval_episodes,
@@ -191,7 +192,7 @@ class HostBackend:
             scores[f"{mode}_return"] = np.asarray([returns.mean()])
         return scores
 
-    def chance(self) -> None:
+    def chance(self, progress=None) -> None:
         """Not measured: random play of whole Atari games costs as much as evaluating a seed."""
         return None
 
