@@ -144,3 +144,27 @@ def test_classify_names_first_guess_accuracy_and_the_fraction_right_by_the_end(m
               "greedy_first_step_terminated": [0.62]}
     assert "(first-guess accuracy 62.0%, right label by episode end 95.0%)" in _scores_field(scores, "Classify/MNIST-v0")
     assert "first-guess" not in _scores_field(scores, "Localize/Clutter-v0")
+
+
+def _readme_block(heading: str) -> str:
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    return re.search(r"```python\n(.*?)```", text[text.index(heading):], re.S).group(1)
+
+
+def test_readme_quick_start_draws_a_key_per_use(capsys):
+    code = _readme_block("## Quick start")
+    calls = [line for line in code.splitlines() if "env.reset" in line or ".sample)" in line or "= step(" in line]
+    used = [line.split("jax.random.split(")[1].split(",")[0] for line in calls]
+    assert len(used) == 3 and len(set(used)) == 3, used  # reset, sampling and step: three keys
+    exec(compile(code.replace("n = 65536", "n = 256"), "README.md (Quick start)", "exec"), {})  # noqa: S102
+    reward, terminated = map(float, capsys.readouterr().out.split())
+    assert 0.0 < terminated < 0.3 and -0.1 < reward < 0.2
+
+
+def test_readme_ppo_snippet_shows_its_output():
+    code = _readme_block("## Agents")
+    after = code[code.index("print(scores"):].splitlines()[1:]
+    assert any(line.startswith("# [") for line in after), "the printed per-seed arrays, as they look"
