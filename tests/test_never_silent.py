@@ -168,3 +168,10 @@ def test_readme_ppo_snippet_shows_its_output():
     code = _readme_block("## Agents")
     after = code[code.index("print(scores"):].splitlines()[1:]
     assert any(line.startswith("# [") for line in after), "the printed per-seed arrays, as they look"
+
+
+def test_jaxnat_list_lists_the_env_ids(capsys):
+    from jaxnat import cli
+
+    assert cli.main(["list"]) == 0
+    assert "Classify (" in capsys.readouterr().out
