@@ -20,8 +20,12 @@ COMMANDS = {
     "play": ("jaxnat.play_run", "write a video (MP4 or GIF) of a trained run's policy playing test episodes"),
     "reproduce": ("jaxnat.reproduce.command", "run the paper's experiments (a grid of train runs) and write a findings report"),
     "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),
-    "envs": ("jaxnat.list_envs", "list the registered env ids by family"),
+    "envs": ("jaxnat.list_envs", "list the registered env ids by family (also: jaxnat list)"),
 }
+
+
+# Other names users type for a command (`jaxnat list`: what other tools call listing envs).
+ALIASES = {"list": "envs"}
 
 
 def _usage() -> str:
@@ -85,7 +89,7 @@ def main(argv=None) -> int:
 
         print(f"jaxnat {__version__}")
         return 0
-    name, rest = argv[0], argv[1:]
+    name, rest = ALIASES.get(argv[0], argv[0]), argv[1:]
     if name not in COMMANDS:
         close = difflib.get_close_matches(name, COMMANDS, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""

@@ -50,12 +50,13 @@ def evaluate(args: EvalArgs, *, console=None, compiler_options: dict | None = No
     """`jaxnat eval`: load the policy, play `args.episodes` episodes, print and return the mean
     return and terminated fraction (the accuracy for Classify and Localize), each a
     `reproduce.stats.Interval` (the mean with its 95% percentile-bootstrap interval over
-    episodes), and the mean length. Raises `LoadError`."""
+    episodes), for Classify `first_guess_accuracy` (the first guess right, chance 1/classes), and
+    the mean length. Raises `LoadError`."""
     from rich.console import Console
 
     from jaxnat.reproduce.stats import bootstrap_ci
     from jaxnat.training.device_backend import split_argument
-    from jaxnat.training.records import terminated_label
+    from jaxnat.training.records import FIRST_GUESS, shows_first_guess, terminated_label
 
     console = console or Console()
     if args.episodes < 1:
@@ -70,13 +71,20 @@ def evaluate(args: EvalArgs, *, console=None, compiler_options: dict | None = No
     with console.status(f"compiling and playing {args.episodes} episodes ({mode} actions)..."):
         episodes = play_episodes(policy, jax.random.key(args.key), args.episodes, greedy=args.greedy)
     label = terminated_label(policy.env_id)
-    result = {"return": bootstrap_ci(episodes["return"]), label: bootstrap_ci(episodes["terminated"]),
+    # The result's keys stay "accuracy" (Classify, Localize) or "terminated"; the display names
+    # them plainly (`records.terminated_label`, `records.FIRST_GUESS`).
+    key = "accuracy" if policy.env_id.split("/")[0] in ("Classify", "Localize") else "terminated"
+    result = {"return": bootstrap_ci(episodes["return"]), key: bootstrap_ci(episodes["terminated"]),
               "length": float(episodes["length"].mean())}
-    ret, done = result["return"], result[label]
+    rows = [("return", result["return"], "+.4f"), (label, result[key], ".1%")]
+    if shows_first_guess(policy.env_id):  # right at the first step: an episode of length 1 that terminated
+        result["first_guess_accuracy"] = bootstrap_ci(episodes["terminated"] & (episodes["length"] == 1))
+        rows.append((FIRST_GUESS, result["first_guess_accuracy"], ".1%"))
+    width = max(len(name) for name, *_ in rows)
     console.print(f"{args.episodes} episodes, {mode} actions (mean [95% bootstrap interval]):")
-    console.print(f"  return    {ret.mean:+.4f} [{ret.low:+.4f}, {ret.high:+.4f}]")
-    console.print(f"  {label:<9} {done.mean:.1%} [{done.low:.1%}, {done.high:.1%}]")
-    console.print(f"  length    {result['length']:.1f}")
+    for name, ci, pattern in rows:
+        console.print(f"  {name:<{width}} {ci.mean:{pattern}} [{ci.low:{pattern}}, {ci.high:{pattern}}]")
+    console.print(f"  {'length':<{width}} {result['length']:.1f}")
     unfinished = int(episodes["unfinished"].sum())
     if unfinished:
         console.print(f"[dim]{unfinished} of {args.episodes} episodes reached no end within "

@@ -158,7 +158,8 @@ def test_jaxnat_eval_prints_the_mean_return_and_accuracy(tiny_run, capsys):
     out = capsys.readouterr().out
     assert "checkpoint at update 2 · test split" in out
     assert re.search(r"8 episodes, greedy actions .*\n  return +[-+]\d+\.\d{4} \[[-+]\d", out), out
-    assert re.search(r"  accuracy +\d+\.\d%", out), out
+    assert re.search(r"  right label by episode end +\d+\.\d%", out), out
+    assert re.search(r"  first-guess accuracy +\d+\.\d%", out), out
 
 
 @needs_digits

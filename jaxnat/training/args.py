@@ -51,6 +51,23 @@ CHOICES = {"dtype": DTYPES, "optimizer": tuple(OPTIMIZERS), "loss": tuple(LOSSES
 SWITCHES = ("normalize_observations", "normalize_rewards")  # unset: decided by the observation space
 
 
+# Test episodes per seed per evaluation when --eval-episodes is not given, by env family: sized
+# to the episode's length, since every evaluation plays each episode to its end (a scan over the
+# time limit) twice, greedy and sampled, and the chance score once more. 1,000 short episodes
+# (Classify's 20 steps, Localize's 200) cost no more than a chunk of training and pin accuracy to
+# about ±3%; 1,000 of MuJoCo's 1,000-step episodes are 2M physics steps per seed per evaluation
+# (13 minutes of silence on a CPU before the first update), so the continuous-control families
+# take the 10 that CleanRL and the paper profile use. Natural Atari plays whole games on the host
+# (`host_backend.MAX_EVAL_EPISODES`). A family not listed takes `EVAL_EPISODES_OTHER`.
+EVAL_EPISODES = {"Classify": 1000, "Localize": 1000, "MuJoCo": 10, "PixelMuJoCo": 10, "NaturalAtari": 32}
+EVAL_EPISODES_OTHER = 100
+
+
+def default_eval_episodes(env_id: str) -> int:
+    """`--eval-episodes` when not given: `EVAL_EPISODES` of the env id's family."""
+    return EVAL_EPISODES.get(env_id.partition("/")[0], EVAL_EPISODES_OTHER)
+
+
 # What a config field means, where its name and default do not say (shown in --help).
 FIELD_HELP = {
     "clip_rewards": "train on sign(reward) (baselines' ClipRewardEnv), before any reward scaling; "
@@ -115,8 +132,10 @@ class TrainArgs:
     """With --devices: envs (the default) splits each seed's envs over the devices and averages gradients across them (data parallel; ppo and a2c; num_envs must divide evenly; the same result on any device count); seeds places whole seeds on the devices (seeds must divide evenly; each seed's result is the one-device run's)."""
     eval_every: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Updates per chunk: evaluate, log and checkpoint after every this many updates (unset: about 20 evaluations over the run). Host-emulated envs (NaturalAtari) checkpoint only; their seeds are evaluated when each finishes."""
-    eval_episodes: int = 1000
-    """Test episodes per seed per evaluation."""
+    eval_episodes: Annotated[Optional[int], tyro.conf.arg(
+        metavar="INT", help_behavior_hint="", help="Test episodes per seed per evaluation, each played to its end "
+        "(unset: sized to the family's episode length: " + ", ".join(f"{f} {n}" for f, n in EVAL_EPISODES.items())
+        + f", else {EVAL_EPISODES_OTHER}).")] = None
     run_dir: Annotated[Optional[Path], tyro.conf.arg(metavar="PATH", help_behavior_hint="")] = None
     """Where to write the run (unset: runs/<env>-<algo>-<timestamp>)."""
     resume: Annotated[Optional[Path], tyro.conf.arg(metavar="RUN_DIR", help_behavior_hint="")] = None

@@ -29,9 +29,9 @@ import numpy as np
 
 from jaxnat.training.args import TrainError
 from jaxnat.training.checkpoints import Checkpoints
-from jaxnat.training.progress import Progress
+from jaxnat.training.progress import EvalProgress, Progress
 from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
-                                     run_summary, Sink, terminated_label, write_jsonl)
+                                     run_summary, shows_first_guess, Sink, terminated_label, write_jsonl, FIRST_GUESS)
 from jaxnat.training.spec import RunSpec
 
 # `curve.png` is redrawn after a chunk at most this often (and always after the last one): a
@@ -46,6 +46,9 @@ class Backend(Protocol):
 
     groups: list[list[int]]  # seed values trained together, in order
     evaluates_each_chunk: bool  # score the test split after every chunk (else at a group's end)
+    # Steps of one evaluation pass (a scan over a test episode's time limit), reported to the
+    # `progress.EvalProgress` that `evaluate` and `chance` are handed; None: not known ahead.
+    eval_steps: int | None
 
     def checkpoint_dir(self, group: list[int]) -> str:
         """The group's checkpoint folder, relative to the run directory."""
@@ -62,11 +65,13 @@ class Backend(Protocol):
     def chunk(self, state, num_updates: int, progress: Progress) -> tuple[Any, dict]:
         """`(state, metrics)`: `num_updates` more updates; metrics `{name: [len(group), n]}`."""
 
-    def evaluate(self, group: list[int], state) -> dict:
-        """Test-split scores `{name: [len(group)]}` (`greedy_return`, `sampled_return`, ...)."""
+    def evaluate(self, group: list[int], state, progress: EvalProgress) -> dict:
+        """Test-split scores `{name: [len(group)]}` (`greedy_return`, `sampled_return`, ...),
+        greedy then sampled (two passes)."""
 
-    def chance(self) -> dict | None:
-        """The uniform random policy's test scores `{return, terminated_fraction, ...}`, or None."""
+    def chance(self, progress: EvalProgress) -> dict | None:
+        """The uniform random policy's test scores `{return, terminated_fraction, ...}`, or None
+        (one pass)."""
 
 
 def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new_run: dict | None,
@@ -83,18 +88,26 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
         metrics_path.write_text("")
         eval_path.write_text("")
     metrics_rows, eval_rows = read_jsonl(metrics_path), read_jsonl(eval_path)
-    chance = backend.chance()
+    what = f"scoring the uniform random policy on the test split ({_episodes_field(spec, spec.seeds, backend)})"
+    with EvalProgress(console, what, 1, backend.eval_steps) as shown:
+        chance = backend.chance(shown)
     if chance is not None:
-        accuracy = chance.get("terminated_fraction")
+        accuracy, first = chance.get("terminated_fraction"), chance.get("first_step_terminated")
         console.print(f"chance (uniform random policy on the test split): return {chance['return']:+.3f}"
-                      + ("" if accuracy is None else f" · {terminated_label(spec.env_id)} {accuracy:.1%}"))
+                      + ("" if accuracy is None else f" · {terminated_label(spec.env_id)} {accuracy:.1%}")
+                      + (f" · {FIRST_GUESS} {first:.1%}" if shows_first_guess(spec.env_id) and first is not None
+                         else ""))
     prior_wall, chunks_done, interrupted, stopped = 0.0, 0, False, False
     last_plot = -float("inf")
     num_chunks = -(-spec.num_updates // spec.eval_every)
     state = None
 
-    def evaluate(group, state, update: int, chunk_seconds: float | None) -> dict:
-        scores = backend.evaluate(group, state)
+    def evaluate(group, state, update: int, chunk_seconds: float | None, bar: Progress | None = None) -> dict:
+        seeds = "" if len(group) == len(spec.seed_values) else f"seed {', '.join(map(str, group))}, "
+        what = (f"evaluating {seeds}update {update} on the test split ({_episodes_field(spec, len(group), backend)}, "
+                "greedy then sampled)")
+        with EvalProgress(console, what, 2, backend.eval_steps, bar) as shown:
+            scores = backend.evaluate(group, state, shown)
         sps = None if chunk_seconds is None else last_chunk_steps * len(group) / chunk_seconds
         rows = [{"chunk": -(-update // spec.eval_every), "update": update,
                  "env_steps": update * spec.steps_per_update, "seed": seed,
@@ -168,7 +181,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                             sink.write("train", rows)
                         scores = None
                         if backend.evaluates_each_chunk or update == spec.num_updates:
-                            scores = evaluate(group, state, update, seconds)
+                            scores = evaluate(group, state, update, seconds, progress)
                         chunk_index = -(-update // spec.eval_every)
                         checkpoints.save(state, {"chunk": chunk_index, "update": update,
                                                  "env_steps": update * spec.steps_per_update,
@@ -180,7 +193,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                         progress.sync(update, None if scores is None else f"{mean_std(scores['greedy_return'])[0]:+.3f}")
                         console.print(f"{label}chunk {chunk_index}/{num_chunks} · update {update}/{spec.num_updates}"
                                       f" · {update * spec.steps_per_update:,} env steps/seed · "
-                                      f"{_train_field(metrics)}{_scores_field(scores, terminated_label(spec.env_id))} · "
+                                      f"{_train_field(metrics)}{_scores_field(scores, spec.env_id)} · "
                                       f"{n * spec.steps_per_update * len(group) / seconds:,.0f} steps/s")
                 if stopped:
                     break
@@ -222,18 +235,30 @@ def _restore(checkpoints: Checkpoints, state, directory: Path):
                          "a new run") from None
 
 
+def _episodes_field(spec: RunSpec, seeds: int, backend: Backend) -> str:
+    """How much one pass of an evaluation plays: "5 seeds x 1,000 episodes of up to 20 steps"."""
+    steps = backend.eval_steps
+    seeds = f"{seeds} seed{'s' * (seeds != 1)} x "
+    length = "whole games" if steps is None else f"episodes of up to {steps:,} steps"
+    return f"{seeds}{spec.eval_episodes:,} {length}"
+
+
 def _train_field(metrics: dict) -> str:
     mean, std = mean_std(nanmean(metrics["episode_return"], 1))
     return "no episode ended yet" if np.isnan(mean) else f"train return {mean:+.3f} ± {std:.3f}"
 
 
-def _scores_field(scores: dict | None, label: str) -> str:
-    """The test scores of a progress line; `label`: `records.terminated_label`."""
+def _scores_field(scores: dict | None, env_id: str) -> str:
+    """The test scores of a progress line: returns, and the greedy policy's terminated fraction
+    (`records.terminated_label`) and, for Classify, its first-guess accuracy."""
     if scores is None:
         return ""
     greedy, greedy_std = mean_std(scores["greedy_return"])
     sampled, _ = mean_std(scores["sampled_return"])
     accuracy = ""
     if "greedy_terminated_fraction" in scores:
-        accuracy = f" ({label} {mean_std(scores['greedy_terminated_fraction'])[0]:.1%})"
+        fields = [f"{terminated_label(env_id)} {mean_std(scores['greedy_terminated_fraction'])[0]:.1%}"]
+        if shows_first_guess(env_id) and "greedy_first_step_terminated" in scores:
+            fields.insert(0, f"{FIRST_GUESS} {mean_std(scores['greedy_first_step_terminated'])[0]:.1%}")
+        accuracy = f" ({', '.join(fields)})"
     return f" · test greedy {greedy:+.3f} ± {greedy_std:.3f}{accuracy} · sampled {sampled:+.3f}"

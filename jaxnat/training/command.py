@@ -15,7 +15,7 @@ import jax
 
 from jaxnat.cli import exit_status
 from jaxnat.sharding import initialize_from_env
-from jaxnat.training.args import PROG, TrainArgs, TrainError, parse_args, parse_env_kwargs
+from jaxnat.training.args import PROG, TrainArgs, TrainError, default_eval_episodes, parse_args, parse_env_kwargs
 from jaxnat.training.host_backend import HostBackend, is_host_env, new_host_spec
 from jaxnat.training.placement import Placement, device_count, resumed_devices
 from jaxnat.training.device_backend import compiled_program, make_envs, split_argument
@@ -61,7 +61,8 @@ def _setup(args: TrainArgs, console):
                          "stepped in one compiled program")
     env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
-    spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, args.eval_episodes)
+    episodes = args.eval_episodes or default_eval_episodes(args.env_id)
+    spec = RunSpec(args.env_id, env_kwargs, args.algo, None, args.seeds, args.seed, 1, episodes)
     envs = make_envs(spec)  # handed on to the programs, which need them too
     env, params, *_ = envs
     try:

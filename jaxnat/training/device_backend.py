@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import contextlib
 import copy
 import dataclasses
 import functools
@@ -65,6 +66,17 @@ def _update_callback(update, metrics) -> None:
         sink(update, metrics)
 
 
+_EVAL_SINK = None  # the running evaluation's display, `sink(pass_index, steps_done)`; None: drop
+
+
+def _eval_callback(pass_index, steps_done) -> None:
+    """The host callback of the evaluation and chance programs (`make_evaluate`'s `progress`),
+    forwarded to the current evaluation's display (`progress.EvalProgress`), as `_update_callback`."""
+    sink = _EVAL_SINK
+    if sink is not None:
+        sink(pass_index, steps_done)
+
+
 class DeviceBackend:
     """`chunk_loop.Backend` for pure-JAX envs: the compiled functions of one run spec (init, a chunk
     of updates, evaluation), every seed at once in one vmapped program; the test split is
@@ -92,13 +104,13 @@ class DeviceBackend:
         self.params, self.test_params = self._place_params(params, test_params)
         network, episodes = self.learner.network, spec.eval_episodes
         # A test episode's length bounds the evaluation's scan, whose length is static.
-        max_steps = int(self.test_params.max_steps_in_episode)
+        max_steps = self.eval_steps = int(self.test_params.max_steps_in_episode)
 
         def evaluate(test_params, *args):
-            return jax.vmap(make_evaluate(network, test_env, test_params, episodes, max_steps))(*args)
+            return jax.vmap(make_evaluate(network, test_env, test_params, episodes, max_steps, _eval_callback))(*args)
 
         def chance(test_params, keys):
-            return jax.vmap(make_chance(test_env, test_params, episodes, max_steps))(keys)
+            return jax.vmap(make_chance(test_env, test_params, episodes, max_steps, _eval_callback))(keys)
 
         keys = jax.ShapeDtypeStruct((spec.seeds,), jax.random.key(0).dtype)
         place = self.placement
@@ -206,13 +218,15 @@ class DeviceBackend:
         finally:
             _SINK = None
 
-    def evaluate(self, group, state) -> dict:
+    def evaluate(self, group, state, progress=None) -> dict:
         params, normalizer = self.placement.put(self.learner.policy_of(state), self._scored)
-        return jax.device_get(self._program("evaluate")(self.test_params, params, self.eval_keys(), normalizer))
+        with _reporting_to(progress):
+            return jax.device_get(self._program("evaluate")(self.test_params, params, self.eval_keys(), normalizer))
 
-    def chance(self) -> dict:
+    def chance(self, progress=None) -> dict:
         """The uniform random policy's test scores, over the seeds' evaluation keys."""
-        scores = jax.device_get(self._program("chance")(self.test_params, self.eval_keys()))
+        with _reporting_to(progress):
+            scores = jax.device_get(self._program("chance")(self.test_params, self.eval_keys()))
         return {name: float(np.mean(value)) for name, value in scores.items()}
 
     def close(self) -> None:
@@ -240,6 +254,17 @@ class DeviceBackend:
         other.spec = spec
         other.params, other.test_params = self._place_params(params, test_params)
         return other
+
+
+@contextlib.contextmanager
+def _reporting_to(progress):
+    """Evaluation programs run inside report their steps to `progress` (None: nowhere)."""
+    global _EVAL_SINK
+    _EVAL_SINK = progress
+    try:
+        yield
+    finally:
+        _EVAL_SINK = None
 
 
 def _structural_kwargs(env_id: str) -> set[str]:

@@ -42,7 +42,7 @@ from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
 from jaxnat.sharding import process_share
-from jaxnat.training.args import TrainArgs, TrainError, check_split_kwargs, parse_env_kwargs
+from jaxnat.training.args import TrainArgs, TrainError, check_split_kwargs, default_eval_episodes, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, resolve_config
 
 __all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend",
@@ -116,7 +116,7 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
     with host_errors(args.env_id):  # (DQN takes Nature DQN's Huber loss here: `agents.defaults`)
         config, sources = resolve_config(args, observation_space(args.env_id, env_kwargs))
     check_env_parts(args.env_parts, args.algo, config.num_envs)
-    eval_episodes = args.eval_episodes
+    eval_episodes = args.eval_episodes or min(default_eval_episodes(args.env_id), MAX_EVAL_EPISODES)
     if eval_episodes > MAX_EVAL_EPISODES:
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
                       f"{eval_episodes}): whole Atari games are long[/dim]")
@@ -150,6 +150,7 @@ class HostBackend:
     seed. Checkpoints: `checkpoints/seed_<s>/`, the learner's `HostState`."""
 
     evaluates_each_chunk = False
+    eval_steps = None  # whole games: their length is known when they end (`EvalProgress` shows time only)
 
     def __init__(self, spec: RunSpec, compiler_options: dict | None = None):
         self.spec = spec
@@ -183,7 +184,7 @@ class HostBackend:
             progress(self.learner.updates_of(state), metrics)
         return state, {name: np.asarray([[row[name] for row in rows]]) for name in rows[0]}
 
-    def evaluate(self, group, state) -> dict:
+    def evaluate(self, group, state, progress=None) -> dict:
         scores = {}
         for mode in ("sampled", "greedy"):
             returns = evaluate_host(self.learner, self.learner.params(state), self.test_env, self.spec.eval_episodes,
@@ -191,7 +192,7 @@ class HostBackend:
             scores[f"{mode}_return"] = np.asarray([returns.mean()])
         return scores
 
-    def chance(self) -> None:
+    def chance(self, progress=None) -> None:
         """Not measured: random play of whole Atari games costs as much as evaluating a seed."""
         return None
 

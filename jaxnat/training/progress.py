@@ -86,3 +86,98 @@ class Progress:
             self._calls = (update - self._start) * self._per_update
             fields = {} if test is None else {"test": test}
             self.progress.update(self.task, completed=update * self.spec.steps_per_update, **fields)
+
+
+class EvalProgress:
+    """What the run is doing while the test split is scored (an evaluation, or the chance score):
+    `what` (which policy, how many episodes of what length), steps done and an estimate of the
+    time left.
+
+    An evaluation is one compiled program per call (every seed vmapped, each episode a lane of
+    one scan over the episode's time limit), so it cannot be cut into per-seed or per-episode
+    calls without changing the keys, and with them the scores. It reports from inside instead:
+    `__call__(pass_index, steps_done)`, from the program's host callback
+    (`rollout.evaluate._report_steps`), about 20 times per pass. The scan runs its full length
+    whatever the episodes do, so steps done over `passes x steps` is the fraction done and a
+    linear estimate of the time left is a fair one.
+
+    On a terminal: while training, the training bar's test field shows the percentage (one live
+    display at a time); before it, a transient bar of its own. Elsewhere (a log file, CI): a
+    plain line every `interval` seconds from a thread, so an evaluation that takes minutes
+    says so, and one of a few seconds prints nothing. `steps` None (a host backend's games,
+    whose length nobody knows before they end): elapsed time only."""
+
+    def __init__(self, console, what: str, passes: int, steps: int | None, bar: Progress | None = None,
+                 interval: float = 15.0):
+        self.console, self.what, self.bar, self.interval = console, what, bar, interval
+        self.steps = steps
+        self.total = None if steps is None else passes * steps
+        self.done = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._own = None
+        self._ticker = None
+
+    def __enter__(self):
+        self._start = time.monotonic()
+        live = self.console.is_terminal or self.console.is_jupyter
+        if live and self.bar is not None and self.bar.live:
+            self.bar.progress.update(self.bar.task, test="evaluating")
+        elif live:
+            from rich.progress import (BarColumn, MofNCompleteColumn, Progress as RichProgress, SpinnerColumn,
+                                       TextColumn, TimeElapsedColumn, TimeRemainingColumn)
+
+            columns = [SpinnerColumn(), TextColumn(self.what)]
+            if self.total is not None:
+                columns += [BarColumn(bar_width=8), MofNCompleteColumn(), TextColumn("steps · eta"),
+                            TimeRemainingColumn()]
+            self._own = RichProgress(*columns, TextColumn("·"), TimeElapsedColumn(), console=self.console,
+                                     transient=True)
+            self._task = self._own.add_task("evaluating", total=self.total)
+            self._own.start()
+        else:
+            self._ticker = threading.Thread(target=self._tick, daemon=True)
+            self._ticker.start()
+        return self
+
+    def __call__(self, pass_index, steps_done) -> None:
+        if self.steps is None:
+            return
+        done = int(pass_index) * self.steps + int(steps_done)
+        with self._lock:
+            if done <= self.done:  # several devices report the same step
+                return
+            self.done = done
+        if self._own is not None:
+            self._own.update(self._task, completed=done)
+        elif self.bar is not None and self.bar.live:
+            self.bar.progress.update(self.bar.task, test=f"evaluating {done / self.total:.0%}")
+
+    def line(self) -> str:
+        """The plain progress line: what, steps done, elapsed, the estimate of the time left."""
+        elapsed = time.monotonic() - self._start
+        with self._lock:
+            done = self.done
+        parts = [self.what]
+        if self.total is not None:
+            parts.append(f"step {done:,}/{self.total:,}")
+        parts.append(f"{_clock(elapsed)} elapsed")
+        if self.total is not None and done:
+            parts.append(f"eta {_clock(elapsed * (self.total - done) / done)}")
+        return " · ".join(parts)
+
+    def _tick(self) -> None:
+        while not self._stop.wait(self.interval):
+            self.console.print(self.line(), highlight=False)
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._ticker is not None:
+            self._ticker.join()
+        if self._own is not None:
+            self._own.stop()
+
+
+def _clock(seconds: float) -> str:
+    seconds = int(seconds)
+    return f"{seconds // 60}:{seconds % 60:02d}"

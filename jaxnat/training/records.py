@@ -87,10 +87,24 @@ def nanmean(x, axis):
 
 
 def terminated_label(env_id: str) -> str:
-    """What the fraction of terminated episodes means, as displayed: "accuracy" where termination
-    is success (Classify: the right label; Localize: the target found), else "terminated" (a
-    MuJoCo robot that fell, an Atari game over). The summary's keys keep the name "accuracy"."""
-    return "accuracy" if env_id.split("/")[0] in ("Classify", "Localize") else "terminated"
+    """What the fraction of terminated episodes means, as displayed. Classify: "right label by
+    episode end" (an episode ends at the first right guess, so with M guesses a random policy
+    scores 1 - (1 - 1/classes)^M, 88% for 10 classes and M = 20: called "accuracy", it read as
+    below chance beside a return far above it); Localize: "accuracy" (the target found); else
+    "terminated" (a MuJoCo robot that fell, an Atari game over). The summary's keys keep the
+    name "accuracy"."""
+    family = env_id.split("/")[0]
+    return {"Classify": "right label by episode end", "Localize": "accuracy"}.get(family, "terminated")
+
+
+# Classify's first guess right (an episode that terminated at its first step): the accuracy a
+# classifier reports, chance 1/classes; shown beside `terminated_label`'s fraction.
+FIRST_GUESS = "first-guess accuracy"
+
+
+def shows_first_guess(env_id: str) -> bool:
+    """Whether the fraction of episodes ending at their first step is shown (`FIRST_GUESS`)."""
+    return env_id.split("/")[0] == "Classify"
 
 
 def line_with_band(ax, x, mean, low, high, label: str, **style):
@@ -160,10 +174,14 @@ def run_summary(spec: RunSpec, history: History, wall_time: float, complete: boo
     per_seed = {"train_return": nanmean(history.returns[-window:], 0),
                 "train_accuracy": nanmean(history.terminated[-window:], 0)}
     last = history.evals[-1] if history.evals else {}
-    for name, key in [("test_greedy_return", "greedy_return"),
-                      ("test_greedy_accuracy", "greedy_terminated_fraction"),
-                      ("test_sampled_return", "sampled_return"),
-                      ("test_sampled_accuracy", "sampled_terminated_fraction")]:
+    scores = [("test_greedy_return", "greedy_return"),
+              ("test_greedy_accuracy", "greedy_terminated_fraction"),
+              ("test_sampled_return", "sampled_return"),
+              ("test_sampled_accuracy", "sampled_terminated_fraction")]
+    if shows_first_guess(spec.env_id):
+        scores += [("test_greedy_first_guess_accuracy", "greedy_first_step_terminated"),
+                   ("test_sampled_first_guess_accuracy", "sampled_first_step_terminated")]
+    for name, key in scores:
         per_seed[name] = last.get(key, np.full(spec.seeds, np.nan))
     metrics = {}
     for name, values in per_seed.items():
@@ -193,22 +211,29 @@ def print_summary(console, summary: dict) -> None:
     table.add_column("mean", justify="right")
     table.add_column("± std", justify="right")
     term = terminated_label(summary["env_id"])
-    labels = {"train_return": "train return (last chunk)", "train_accuracy": f"train {term} (last chunk)",
-              "test_greedy_return": "test greedy return", "test_greedy_accuracy": f"test greedy {term}",
-              "test_sampled_return": "test sampled return", "test_sampled_accuracy": f"test sampled {term}"}
+    labels = {"train_return": "train return (last chunk)", "train_accuracy": f"train {term} (last chunk)"}
+    for mode in ("greedy", "sampled"):
+        labels.update({f"test_{mode}_return": f"test {mode} return",
+                       f"test_{mode}_first_guess_accuracy": f"test {mode} {FIRST_GUESS}",
+                       f"test_{mode}_accuracy": f"test {mode} {term}"})
 
     def fmt(x, pattern):
         return "—" if x is None else format(x, pattern)
 
     for name, label in labels.items():
+        if name not in summary["metrics"]:  # (first-guess accuracy: Classify, since it was recorded)
+            continue
         m = summary["metrics"][name]
         pattern = ".1%" if "accuracy" in name else "+.4f"
         table.add_row(label, fmt(m["mean"], pattern), fmt(m["std"], pattern.lstrip("+")))
     chance = summary.get("chance")
     if chance:
-        table.add_row("chance: uniform random policy, test return", fmt(chance.get("return"), "+.4f"), "")
+        table.add_row("chance (random policy): test return", fmt(chance.get("return"), "+.4f"), "")
         if chance.get("terminated_fraction") is not None:
-            table.add_row(f"chance: uniform random policy, test {term}", fmt(chance["terminated_fraction"], ".1%"), "")
+            table.add_row(f"chance (random policy): test {term}", fmt(chance["terminated_fraction"], ".1%"), "")
+        if shows_first_guess(summary["env_id"]) and chance.get("first_step_terminated") is not None:
+            table.add_row(f"chance (random policy): test {FIRST_GUESS}",
+                          fmt(chance["first_step_terminated"], ".1%"), "")
     sps = summary["steps_per_second"]
     table.add_row("env steps/s (all seeds, over chunks)", fmt(sps["mean"], ",.0f"), fmt(sps["std"], ",.0f"))
     table.add_row("wall time", f"{summary['wall_time_s']:.1f} s", "")
