@@ -23,7 +23,8 @@ For each robot, observation, total env count (split over `--seeds` vmapped seeds
   minus acting is the env inside the learner;
 - **learner TFLOP/s**: the update's convolution and dense FLOPs (3x the trunk's forward FLOPs
   per sample per epoch: forward, and backward for inputs and weights; XLA's cost analysis of
-  one forward pass, which has no loops) over the update's time.
+  one forward pass in the im2col form, whose convolutions are matmuls it counts) over the
+  update's time.
 
 Each robot is `PixelMuJoCo/<robot>-v0` with `physics="fast"` (`--physics`); observations
 `checker` and `video` are the 84x84x4 pixel frames on those floors, `noise` is pure-noise
@@ -107,7 +108,9 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     one_seed = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype),
                                       runner.train_state.params)
     obs = jax.ShapeDtypeStruct((1, *runner.obs.shape[2:]), runner.obs.dtype)
-    analysis = jax.jit(network.apply).lower(one_seed, obs).compile().cost_analysis()
+    # Counted on the im2col form: its convolutions are matmuls, which XLA's cost analysis
+    # counts; cuDNN's convolutions (the other forms) it does not.
+    analysis = jax.jit(network.clone(conv="im2col").apply).lower(one_seed, obs).compile().cost_analysis()
     analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
     row["forward_mflop"] = float(analysis.get("flops", float("nan"))) / 1e6
     if args.phases:

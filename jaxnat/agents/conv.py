@@ -17,7 +17,9 @@ over its weights into one *grouped* convolution, several times slower than the f
   a multiple of its stride) run `"native"`.
 
 All compute the same function (tests check values and gradients under vmap); `"auto"` picks by
-the backend at trace time.
+the backend at trace time: im2col on CPU, s2d elsewhere (on an H100, PPO from 84x84x4 pixels
+learned 1.3x faster with s2d than with native in float32 and 2.5x in bfloat16:
+`bench/results/pixel_ppo.md`).
 """
 
 from __future__ import annotations
@@ -128,12 +130,12 @@ def _native(stride: int):
 def conv2d(x, kernel, stride: int, implementation: str = "auto"):
     """VALID convolution of `x` `[..., H, W, C]` with an HWIO `kernel`, any leading dims.
 
-    `implementation`: `"im2col"`, `"native"`, `"s2d"` or `"auto"` (im2col on CPU, native
+    `implementation`: `"im2col"`, `"native"`, `"s2d"` or `"auto"` (im2col on CPU, s2d
     elsewhere); see the module docstring for why each exists."""
     if implementation not in IMPLEMENTATIONS:
         raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
     if implementation == "auto":
-        implementation = "im2col" if jax.default_backend() == "cpu" else "native"
+        implementation = "im2col" if jax.default_backend() == "cpu" else "s2d"
     if implementation == "im2col":
         return _im2col(x, kernel, stride)
     if implementation == "s2d":

@@ -61,7 +61,8 @@ def _dense(features: int, scale: float = np.sqrt(2), dtype: str = "float32", nam
 
 class ValidConv(nn.Module):
     """A VALID, strided 2-D convolution with an HWIO kernel (as `nn.Conv`); `implementation`
-    picks how it is computed (`jaxnat.agents.conv`: im2col on CPU, XLA's own per seed on GPU)."""
+    picks how it is computed (`jaxnat.agents.conv`: im2col on CPU; on GPU XLA's own per seed,
+    strided layers on space-to-depth inputs)."""
 
     features: int
     kernel: int
