@@ -28,10 +28,12 @@ def test_paper_profile_trains_every_finding_cell_at_the_papers_budget(paper_cell
     assert grid.PAPER_BUDGETS["atari"] == 10_000_000  # agent steps: 40M frames
 
 
-def test_paper_profile_batches_are_gpu_sized_except_host_atari(paper_cells):
+def test_paper_profile_batches_are_gpu_sized_except_host_atari_and_calibrated_algos(paper_cells):
     for cell in paper_cells:
         if cell.host or cell.experiment == grid.CALIBRATION:
             continue
+        if cell.experiment in ("classify", "localize") and cell.algo in ("a2c", "acktr"):
+            continue  # the authors' batch: the calibration cleared no larger one
         assert cell.overrides["num_envs"] >= 128, cell.name  # the authors: 8-32
     steps = {(c.experiment, c.algo): c.overrides.get("num_steps") for c in paper_cells if not c.host}
     assert steps[("classify", "ppo")] == 32 and steps[("classify", "a2c")] == 5 and steps[("classify", "acktr")] == 20
@@ -88,7 +90,7 @@ def test_calibration_is_named_only_on_request_and_matches_steps(paper_cells):
     assert calibration.optimizer_steps(by["classify", "a2c", "authors"]) == (16, 5, 1000 / 80)
     assert calibration.optimizer_steps(by["classify", "acktr", "authors"]) == (32, 20, 1000 / 640)
     profile = next(c for c in paper_cells if c.name.startswith("classify-") and c.algo == "ppo")
-    assert by["classify", "ppo", "profile"].overrides == {k: v for k, v in profile.overrides.items()}
+    assert by["classify", "ppo", grid.profile_variant("classify", "ppo")].overrides == profile.overrides
     assert by["mujoco", "ppo", "sign-clipped rewards"].overrides.get("clip_rewards") is True
 
 
@@ -165,14 +167,35 @@ def test_a_cell_out_of_device_memory_fails_alone_and_the_stream_goes_on(tmp_path
     assert "fewer envs per seed" in board.outcomes[first.name] and board.outcomes[second.name] == "finished"
 
 
+def test_the_profile_trains_at_the_batch_the_calibration_cleared(paper_cells):
+    """Sitting 2's calibration: at 512 envs only PPO with the authors' optimizer steps per env
+    step stayed in the authors' band, so the profile trains classification PPO there and A2C
+    and ACKTR (one optimizer step per update) at the authors' batch."""
+    assert {(g, a): grid.profile_variant(g, a) for g, a in
+            [("classify", "ppo"), ("classify", "a2c"), ("classify", "acktr"), ("mujoco", "ppo")]} == {
+        ("classify", "ppo"): "512 envs, optimizer steps restored", ("classify", "a2c"): "authors",
+        ("classify", "acktr"): "authors", ("mujoco", "ppo"): "profile"}
+    cells = {(c.experiment, c.algo): c for c in paper_cells if c.labels.get("trunk", "cnn") == "cnn"
+             and c.name.endswith(("-ppo", "-a2c", "-acktr"))}
+    for experiment in ("classify", "localize"):
+        assert calibration.optimizer_steps(cells[experiment, "ppo"])[2] == 1000 * 16 / 1024
+        assert calibration.optimizer_steps(cells[experiment, "a2c"]) == (16, 5, 1000 / 80)
+        assert calibration.optimizer_steps(cells[experiment, "acktr"]) == (32, 20, 1000 / 640)
+
+
 def test_calibration_status_opens_the_report_with_each_profile_cell_against_the_band():
-    authors, profile = _calibrated("authors", 0.7), _calibrated("profile", 0.4)
+    chosen = grid.profile_variant("classify", "ppo")
+    authors, profile = _calibrated("authors", 0.7), _calibrated(chosen, 0.4)
     lines = calibration.calibration_status([authors, profile])
     assert lines[0].startswith("> **Calibration of the batch**")
-    assert "> - classify PPO: the profile's cell 0.4 [0.35, 0.45] is below the authors' 0.7 [0.65, 0.75]." in lines
+    assert (f"> - classify PPO: the profile's batch ({chosen}) 0.4 [0.35, 0.45] is below the authors' "
+            "0.7 [0.65, 0.75].") in lines
     alone = calibration.calibration_status([authors])
-    assert any("the profile's cell has not run (other batches: authors 0.7" in line for line in alone)
+    assert any(f"the profile's batch ({chosen}) has not run (other batches: authors 0.7" in line for line in alone)
     assert calibration.calibration_status([]) == []
+    a2c = dataclasses.replace(authors.cell, algo="a2c")
+    line = calibration.calibration_status([dataclasses.replace(authors, cell=a2c)])[2]
+    assert line == "> - classify A2C: the profile trains at the authors' batch: 0.7 [0.65, 0.75]."
 
 
 @pytest.fixture(scope="module")
@@ -191,12 +214,14 @@ def test_smoke_calibration_trains_and_reports_its_band(calibrated):
 
     tmp_path = calibrated
     text = (tmp_path / "report.md").read_text()
-    assert "## Calibration: the profile's batch against the authors'" in text
-    assert "> - classify PPO: the profile's cell" in text and (tmp_path / "calibration.png").is_file()
+    assert "## Calibration: the batch against the authors'" in text
+    assert "> - classify PPO: the profile's batch (512 envs, optimizer steps restored)" in text
+    assert (tmp_path / "calibration.png").is_file()
     rows = [line for line in text.splitlines() if line.startswith("| classify | PPO |")]
-    assert [row.split(" | ")[2] for row in rows] == ["authors", "profile"]
+    assert [row.split(" | ")[2] for row in rows] == ["authors", "512 envs, optimizer steps restored (the profile's)"]
     cells = json.loads((tmp_path / "results.json").read_text())["cells"]
-    assert {c["name"] for c in cells} == {"calibration-classify-ppo-authors", "calibration-classify-ppo-profile"}
+    assert {c["name"] for c in cells} == {"calibration-classify-ppo-authors",
+                                          "calibration-classify-ppo-512-envs-optimizer-steps-restored"}
 
 
 def test_two_shards_into_one_folder_give_the_report_of_one_run(calibrated, tmp_path):

@@ -1,19 +1,20 @@
 """The calibration section of a report: does the paper profile's larger batch change the science?
 
-The paper profile trains with hundreds of envs per seed where the authors had 8-32
-(`grid.PAPER_SCALE`), so it takes far fewer optimizer steps per env step. `jaxnat reproduce
---only calibration` trains the same cell at the authors' batch, at the profile's and at batches
-and settings between (`grid.CALIBRATION_VARIANTS`), every one to `grid.CALIBRATION_STEPS` env
-steps per seed, and this section compares them at those matched steps.
+A GPU wants hundreds of envs per seed where the authors had 8-32, and a larger batch takes
+fewer optimizer steps per env step. `jaxnat reproduce --only calibration` trains the same cell
+at the authors' batch, at 512 envs per seed and at batches and settings between
+(`grid.CALIBRATION_VARIANTS`), every one to `grid.CALIBRATION_STEPS` env steps per seed, and
+this section compares them at those matched steps. The paper profile (`grid.PAPER_SCALE`)
+trains at the variant the calibration cleared (`grid.profile_variant`), named in the section.
 
 **The quantity** is the verdicts' (`verdicts.py`): each seed's training return over the last 10%
 of its updates with episodes, the mean over seeds with a 95% bootstrap interval. **The authors'
 band** is that interval for the group's "authors" cell of the same algorithm. Each other cell is
 *inside* the band when the two intervals overlap, *above* or *below* when they are apart; a cell
 that did not beat its own untrained policy (`verdicts.learned`) is marked *did not learn* and
-compared with nothing. When the profile's cell falls below the band the fix the issue prescribes
-is to restore optimizer steps per env step first (PPO's epochs and minibatches: the "4x
-minibatches" variant), the learning rate second; the table shows which variant closes the gap.
+compared with nothing. When a large batch falls below the band, the fix is to restore optimizer
+steps per env step first (PPO's minibatches: the "optimizer steps restored" variant), the
+learning rate second; the table shows which variant closes the gap.
 
 PixelMuJoCo's group compares reward treatments at the profile's batch (no authors' cell: see
 `grid.CALIBRATION_VARIANTS`), each against its untrained policy only.
@@ -22,7 +23,7 @@ PixelMuJoCo's group compares reward treatments at the profile's batch (no author
 from __future__ import annotations
 
 from jaxnat.agents import ALGORITHMS
-from jaxnat.reproduce.grid import CALIBRATION, CALIBRATION_STEPS
+from jaxnat.reproduce.grid import CALIBRATION, CALIBRATION_STEPS, profile_variant
 from jaxnat.reproduce.verdicts import learned
 
 __all__ = ["calibration_results", "calibration_panels", "calibration_section", "calibration_status",
@@ -77,22 +78,27 @@ def calibration_status(results: list) -> list[str]:
     lines = []
     for (group, algo), rows in _groups(results).items():
         by = {r.cell.labels["variant"]: r for r in rows if r.complete}
-        profile, authors = by.get("profile"), by.get(AUTHORS)
-        if profile is None:
-            said = "the profile's cell has not run"
+        chosen = profile_variant(group, algo)
+        profile, authors = by.get(chosen), by.get(AUTHORS)
+        name = "the profile's cell" if chosen in (None, "profile") else f"the profile's batch ({chosen})"
+        if chosen == AUTHORS:
+            said = ("the profile trains at the authors' batch" +
+                    (f": {authors.final_train}" if authors is not None else ", whose cell has not run"))
+        elif profile is None:
+            said = f"{name} has not run"
         elif authors is None:
-            said = (f"the profile's cell {profile.final_train}; the authors' cell has not run"
-                    if group != "mujoco" else f"the profile's cell {profile.final_train} ({band_position(profile, None)})")
+            said = (f"{name} {profile.final_train}; the authors' cell has not run"
+                    if group != "mujoco" else f"{name} {profile.final_train} ({band_position(profile, None)})")
         else:
-            said = (f"the profile's cell {profile.final_train} is {band_position(profile, authors)} the authors' "
-                    f"{authors.final_train}")
-        said_already = {"profile", AUTHORS} if profile is not None and authors is not None else {"profile"}
+            said = f"{name} {profile.final_train} is {band_position(profile, authors)} the authors' {authors.final_train}"
+        said_already = {chosen, AUTHORS} if profile is not None and authors is not None else {chosen}
         others = "; ".join(f"{variant} {r.final_train}" for variant, r in by.items() if variant not in said_already)
         lines.append(f"- {group} {algo.upper()}: {said}" + (f" (other batches: {others})" if others else "") + ".")
     if not lines:
         return []
-    return ["> **Calibration of the batch** (the same cell at matched env steps, `--only calibration`; a verdict "
-            "about an algorithm whose profile cell is not inside the authors' band depends on the batch):", ">",
+    return ["> **Calibration of the batch** (the same cell at matched env steps, `--only calibration`; the paper "
+            "profile trains at the batch it cleared; a verdict about an algorithm whose profile batch is not inside "
+            "the authors' band depends on the batch):", ">",
             *[f"> {line}" for line in lines], ""]
 
 
@@ -109,12 +115,13 @@ def calibration_section(results: list, figure: str | None = None) -> list[str]:
     groups = _groups(results)
     if not groups:
         return []
-    lines = ["## Calibration: the profile's batch against the authors'", "",
+    lines = ["## Calibration: the batch against the authors'", "",
              f"Each cell trained to the same env steps per seed ({CALIBRATION_STEPS:,}: {CALIBRATION_STEPS / 1e7:.0%} of the "
              "paper's budget, so these rows judge the batch, never a claim of the paper; a cell that did not beat its "
              "untrained policy says so in the last column); train return = each seed's mean over its last 10% "
              "of updates with episodes (mean [95% bootstrap CI] over seeds). Against the authors' band: the "
-             "authors'-batch cell's interval (inside: the intervals overlap). Rules: `jaxnat/reproduce/calibration.py`.",
+             "authors'-batch cell's interval (inside: the intervals overlap). The paper profile trains at the row marked "
+             "\"(the profile's)\". Rules: `jaxnat/reproduce/calibration.py`.",
              "", "| group | algo | variant | envs x steps per update | optimizer steps per 1,000 env steps | env steps/seed "
              "| train return | untrained (test, sampled) | against the authors' band |", "|---|---|---|---|---|---|---|---|---|"]
     for (group, algo), rows in groups.items():
@@ -124,7 +131,10 @@ def calibration_section(results: list, figure: str | None = None) -> list[str]:
             trained = int(r.steps.max()) if r.steps.size else 0
             position = "—" if r is authors else ("incomplete" if not r.complete else band_position(r, authors))
             untrained = "not recorded" if r.untrained is None else str(r.untrained)
-            lines.append(f"| {group} | {algo.upper()} | {r.cell.labels['variant']} | {envs} x {steps} | {per_k:.3g} | "
+            variant = r.cell.labels["variant"]
+            if variant == profile_variant(group, algo) and variant != "profile":
+                variant += " (the profile's)"
+            lines.append(f"| {group} | {algo.upper()} | {variant} | {envs} x {steps} | {per_k:.3g} | "
                          f"{trained:,} | {r.final_train} | {untrained} | {position} |")
     lines += [""]
     if figure:

@@ -338,7 +338,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
 
     calibration = calibration_panels(results)
     if calibration:
-        plot_figure(out / "calibration.png", "Calibration: the profile's batch against the authors'", calibration)
+        plot_figure(out / "calibration.png", "Calibration: the batch against the authors'", calibration)
     lines += calibration_section(results, "calibration.png" if calibration else None)
 
     lines += ["## Final returns (mean [95% bootstrap CI] over seeds)", "",
