@@ -17,6 +17,7 @@ from typing import Callable
 COMMANDS = {
     "train": ("jaxnat.train", "train PPO, A2C, ACKTR or DQN over several seeds; metrics, curves, checkpoints"),
     "eval": ("jaxnat.eval_run", "play a trained run's policy: mean return with a 95% interval, accuracy"),
+    "sweep": ("jaxnat.sweep_run", "a generalisation curve: a trained run's return over a grid of distraction strengths"),
     "play": ("jaxnat.play_run", "write a video (MP4 or GIF) of a trained run's policy playing test episodes"),
     "reproduce": ("jaxnat.reproduce.command", "run the paper's experiments (a grid of train runs) and write a findings report"),
     "demo": ("jaxnat.demo", "a random policy over many vmapped Classify/Digits-v0 envs"),

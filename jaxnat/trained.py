@@ -22,7 +22,8 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 
-__all__ = ["LoadError", "TrainedPolicy", "load_policy", "play_episodes", "SPLITS"]
+__all__ = ["LoadError", "TrainedPolicy", "load_policy", "play_episodes", "sweep_episodes", "sweep_params",
+           "dial_fields", "SPLITS"]
 
 SPLITS = ("test", "train")
 
@@ -150,17 +151,14 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
                          apply=apply, _act=jax.jit(apply, static_argnames="greedy"))
 
 
-def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
-                  max_steps: int | None = None) -> dict:
-    """Each of `num_episodes` envs plays its first episode with `policy` (at most `max_steps`
-    steps, default the env's time limit), in one jitted program vmapped over the episodes:
-    per-episode arrays `return`, `length`, `terminated` (for Classify: classified right;
-    Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy."""
-    env, env_params = policy.env, policy.env_params
-    if max_steps is None:
-        max_steps = int(env_params.max_steps_in_episode)
+def _episode(policy: TrainedPolicy, max_steps: int, greedy: bool) -> Callable:
+    """`episode(params, normalizer, env_params, key)`: the first episode of an env reset with
+    `key`, played with `policy.apply` for at most `max_steps` steps; its return, length,
+    `terminated` and `unfinished` (cut at `max_steps`). `env_params` is an argument so that a
+    sweep can vmap it over a strength axis."""
+    env = policy.env
 
-    def episode(params, normalizer, key):
+    def episode(params, normalizer, env_params, key):
         key_reset, key_steps = jax.random.split(key)
         obs, state = env.reset(key_reset, env_params)
 
@@ -179,5 +177,70 @@ def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
                                                                       jax.random.split(key_steps, max_steps))
         return {"return": total, "length": length, "terminated": terminated, "unfinished": running}
 
-    play = jax.jit(jax.vmap(episode, in_axes=(None, None, 0)))
-    return jax.device_get(play(policy.params, policy.normalization, jax.random.split(key, num_episodes)))
+    return episode
+
+
+def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
+                  max_steps: int | None = None) -> dict:
+    """Each of `num_episodes` envs plays its first episode with `policy` (at most `max_steps`
+    steps, default the env's time limit), in one jitted program vmapped over the episodes:
+    per-episode arrays `return`, `length`, `terminated` (for Classify: classified right;
+    Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy."""
+    if max_steps is None:
+        max_steps = int(policy.env_params.max_steps_in_episode)
+    play = jax.jit(jax.vmap(_episode(policy, max_steps, greedy), in_axes=(None, None, None, 0)))
+    return jax.device_get(play(policy.params, policy.normalization, policy.env_params,
+                               jax.random.split(key, num_episodes)))
+
+
+def dial_fields(env_params) -> tuple[str, ...]:
+    """The names of `env_params`' distraction dial (`env_params.distraction`'s fields, which
+    `env_params.sweep` takes), or () for an env without one."""
+    group = getattr(env_params, "distraction", None)
+    if group is None or not hasattr(env_params, "sweep") or not dataclasses.is_dataclass(group):
+        return ()
+    return tuple(f.name for f in dataclasses.fields(group))
+
+
+def sweep_params(policy: TrainedPolicy, **values) -> tuple[Any, Any]:
+    """`(params, in_axes)`: `policy.env_params` with the named distraction fields swept
+    (`env_params.sweep(**values)`: arrays of one leading length, the strength axis), checked by
+    the sweep and by the env (`check_params`: e.g. PixelMuJoCo's `video_alpha` needs
+    `floor="video"`). Raises `ValueError` (one line) for an env without a dial, a name that is
+    not one of its fields, or a value out of range."""
+    fields = dial_fields(policy.env_params)
+    if not fields:
+        raise ValueError(f"{policy.env_id} has no distraction dial: sweeps need an env whose params have "
+                         "a `distraction` group (PixelMuJoCo, Classify, Localize)")
+    unknown = sorted(set(values) - set(fields))
+    if unknown or not values:
+        raise ValueError(f"{policy.env_id}'s distraction dial has no {', '.join(map(repr, unknown)) or 'field given'}; "
+                         f"its fields: {', '.join(fields)}")
+    swept, axes = policy.env_params.sweep(**values)
+    check = getattr(policy.env, "check_params", None)
+    if check is not None:
+        check(swept)
+    return swept, axes
+
+
+def sweep_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
+                   max_steps: int | None = None, **values) -> dict:
+    """`play_episodes` at every strength of a distraction grid, in ONE jitted program vmapped
+    over the strengths (and, inside, over the episodes): a generalisation curve.
+
+        curve = sweep_episodes(policy, jax.random.key(0), 100, greedy=True,
+                               noise_sigma=jnp.array([0.0, 16.0, 32.0, 64.0]))
+        curve["return"].mean(axis=1)  # one mean return per strength
+
+    `values` are `policy.env_params.sweep`'s (distraction fields -> arrays of one length S,
+    checked there and by the env: `sweep_params`, whose `ValueError`s are one line). Every
+    strength plays the same `num_episodes` keys, `jax.random.split(key, num_episodes)` as
+    `play_episodes` splits them (common random numbers: the strengths differ only in the
+    dial), so at a strength equal to the policy's own params a row is `play_episodes(policy,
+    key, num_episodes)`. Returns `play_episodes`' arrays, each of shape [S, num_episodes]."""
+    swept, axes = sweep_params(policy, **values)
+    if max_steps is None:
+        max_steps = int(policy.env_params.max_steps_in_episode)
+    per_strength = jax.vmap(_episode(policy, max_steps, greedy), in_axes=(None, None, None, 0))
+    play = jax.jit(jax.vmap(per_strength, in_axes=(None, None, axes, None)))
+    return jax.device_get(play(policy.params, policy.normalization, swept, jax.random.split(key, num_episodes)))
