@@ -10,6 +10,10 @@ rebuilds the run's envs (`device_backend.make_envs`, the trainer's own), its lea
 (`load_checkpoint`), and takes one seed's slice of `Learner.policy_of`. Acting is the
 trainer's evaluation step (`rollout.act`, `rollout.choose`, `normalize.normalize`,
 `rollout.env_action`) on a batch of one, so a loaded policy acts as the trainer scored it.
+
+`play_episodes` plays a policy's episodes in one jitted program (`jaxnat eval`'s);
+`sweep_episodes` plays them at every strength of a distraction grid (`params.sweep`), all
+strengths in one jitted program on the same episode keys (`jaxnat sweep`'s curve).
 """
 
 from __future__ import annotations
