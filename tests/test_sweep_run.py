@@ -118,3 +118,31 @@ def test_a_run_on_an_env_without_a_dial_is_refused(tiny_run, tmp_path, capsys): 
     assert err.count("\n") == 1 and err.startswith("jaxnat sweep: error: "), err
     assert "trained on MuJoCo/HalfCheetah-v0, which has no distraction dial" in err
     assert sweep_run._dial_of("PixelMuJoCo/HalfCheetah-v0") == ("video_alpha", "frame_rate", "sky_alpha", "noise_sigma")
+
+
+def test_the_env_refuses_a_strength_it_would_ignore():
+    """`sweep_params` checks the swept params with the env too: PixelMuJoCo's checker floor has no
+    video to blend (a stand-in policy: the check needs only the env and its params)."""
+    import types
+
+    import jaxnat
+    from jaxnat.trained import sweep_params
+
+    env, params = jaxnat.make("PixelMuJoCo/HalfCheetah-v0", autoreset=False)
+    stand_in = types.SimpleNamespace(env=env, env_params=params, env_id="PixelMuJoCo/HalfCheetah-v0")
+    with pytest.raises(ValueError, match=r'video_alpha, frame_rate and sky_alpha need floor="video"'):
+        sweep_params(stand_in, video_alpha=np.array([0.0, 0.5]))
+    with pytest.raises(ValueError, match=r"frame_rate must be a whole number"):
+        sweep_params(stand_in, frame_rate=np.array([0.0, 1.5]))
+
+
+@needs_digits
+def test_out_names_the_json_and_a_folder_is_refused(tiny_run, policy, tmp_path, monkeypatch, capsys):  # noqa: F811
+    monkeypatch.setattr(sweep_run, "load_policy", lambda *a, **k: policy)  # this module's, loaded once
+    argv = [str(tiny_run[0]), "--param", "noise_sigma", "--values", "8", "--episodes", "2"]
+    assert sweep_run.main([*argv, "--out", str(tmp_path)]) == 2
+    assert "is a folder: name a file in it" in capsys.readouterr().err
+    out = tmp_path / "curves" / "digits.json"
+    assert sweep_run.main([*argv, "--out", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == str(out)
+    assert json.loads(out.read_text())["values"] == [8.0]
