@@ -156,7 +156,8 @@ def sweep(args: SweepArgs, *, console=None, compiler_options: dict | None = None
     mode = "greedy" if args.greedy else "sampled"
     own = getattr(policy.env_params.distraction, args.param)
     console.print(f"{policy.algo} on {policy.env_id} · seed {policy.seed_value} · checkpoint at update "
-                  f"{policy.update} · {where} · trained at {args.param}={own}")
+                  f"{policy.update} · {where} · trained at "
+                  f"{f'{args.param}={own}' if own is not None else f'{args.param} off (the plain env)'}")
     with console.status(f"compiling and playing {args.episodes} episodes at each of {len(strengths)} "
                         f"strengths, in one program ({mode} actions)..."):
         episodes = sweep_episodes(policy, jax.random.key(args.key), args.episodes, greedy=args.greedy,
@@ -185,7 +186,8 @@ def sweep(args: SweepArgs, *, console=None, compiler_options: dict | None = None
     result = {"run_dir": str(args.run_dir), "env_id": policy.env_id, "algo": policy.algo,
               "seed_index": policy.seed_index, "seed": policy.seed_value, "update": policy.update,
               "split": args.split, "param": args.param,
-              "trained_at": float(np.asarray(own)) if np.ndim(own) == 0 else None,
+              # The run's own strength (None: the dial was off, the plain env).
+              "trained_at": float(np.asarray(own)) if own is not None and np.ndim(own) == 0 else None,
               "values": strengths.tolist(), "episodes": args.episodes, "greedy": args.greedy, "key": args.key,
               "common_random_numbers": True, "confidence": 0.95, "rows": rows}
     path = args.out or (Path(args.run_dir) / "sweeps" / (f"{args.param}-{args.split}-seed{policy.seed_value}-update"

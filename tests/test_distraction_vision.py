@@ -87,7 +87,7 @@ def with_sigma(params, sigma):
 
 
 def test_default_is_the_plain_env(case):
-    assert case.params.distraction == Distraction(noise_sigma=0.0)
+    assert case.params.distraction == Distraction(noise_sigma=None)  # off: no noise in the program
     observations, states = case.rollout(case.params)
     for obs, state in zip(observations, states):
         np.testing.assert_array_equal(obs, case.plain(state, case.params))

@@ -73,12 +73,13 @@ def test_jaxnat_sweep_prints_the_curve_and_writes_json(tiny_run, capsys):  # noq
     out = capsys.readouterr().out
     path = run_dir / "sweeps" / "noise_sigma-test-seed0-update2-greedy-key2.json"
     assert out.splitlines()[-1] == str(path)
-    assert "trained at noise_sigma=0.0" in out
+    assert "trained at noise_sigma off (the plain env)" in out
     assert re.search(r"\n +96  [-+]\d\.\d{4} \[[-+]\d\.\d{4}, [-+]\d\.\d{4}\]  \d+\.\d% \[", out), out
     saved = json.loads(path.read_text())
-    assert saved["values"] == [0.0, 32.0, 96.0] and saved["common_random_numbers"] and saved["trained_at"] == 0.0
+    assert saved["values"] == [0.0, 32.0, 96.0] and saved["common_random_numbers"] and saved["trained_at"] is None
     assert [len(row["episode_returns"]) for row in saved["rows"]] == [8, 8, 8]
-    # At the run's own strength, the row is jaxnat eval's, with the same key and episodes.
+    # At strength 0 the observations are the plain env's (the run's), so the row is jaxnat
+    # eval's, with the same key and episodes.
     ours = eval_run.evaluate(eval_run.tyro.cli(eval_run.EvalArgs, args=[str(run_dir), "--episodes", "8", "--greedy",
                                                                           "--key", "2"]), compiler_options=FAST)
     row = saved["rows"][0]

@@ -24,7 +24,8 @@ class. Semantics: `docs/environments.md` section 1.
   `C+1`). The mask channel tells an unrevealed pixel from a black one (the authors used -1).
 - **Info**: `{}` (`terminated` already says the label was right).
 - **Distraction** (`ClassifyParams.distraction`, `jaxnat.vision_envs.distraction`): additive
-  pixel noise `noise_sigma` (default 0, the plain env bit for bit) on the revealed image,
+  pixel noise `noise_sigma` (default None: off, the plain env bit for bit; 0 draws noise at
+  zero strength, the same observations) on the revealed image,
   fresh every step, as a traced param; `params.sweep(noise_sigma=...)` vmaps a difficulty curve.
 
 Example::
@@ -105,7 +106,8 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         observation_writer: how observations are written, "auto" (the default), "wordwise" or
             "bytewise" (`jaxnat.vision_envs.observation`); the bytes are the same, only the
             speed differs (`bench/classify_throughput.py` compares them).
-        noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (0: none).
+        noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (None: the dial
+            off, no noise in the program; a number, 0 included: on, sweepable).
     """
 
     params_type = ClassifyParams
@@ -120,7 +122,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         w: int | None = None,
         M: int | None = None,
         observation_writer: str = "auto",
-        noise_sigma: float = 0.0,
+        noise_sigma: float | None = None,
     ):
         check_distraction(Distraction(noise_sigma=noise_sigma))
         if start not in _STARTS:
@@ -155,7 +157,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         # Device-resident once; params hand the same buffers to every trace.
         self._images = jnp.asarray(images)
         self._labels = jnp.asarray(labels)
-        self._distraction = Distraction(noise_sigma=float(noise_sigma))
+        self._distraction = Distraction(noise_sigma=None if noise_sigma is None else float(noise_sigma))
 
     @property
     def name(self) -> str:

@@ -4,19 +4,25 @@
 of traced strengths, so that one jitted, vmapped program evaluates or trains over a whole
 difficulty curve (`DistractionSweep.sweep` builds the batched params and their `in_axes`):
 
-- `noise_sigma` (float >= 0, default 0): every observed image value becomes
+- `noise_sigma` (float >= 0, or None, the default): every observed image value becomes
   `clip(round(value + noise_sigma * z), 0, 255)` as uint8, `z` i.i.d. N(0, 1) per pixel and
   channel, fresh every reset and step (`noisy_image`; `round` is half to even, `jnp.round`).
   Only the image channels take noise: Classify's hidden pixels stay 0 and the mask, window and
   footprint planes stay 255/0, so what the agent may know is unchanged, only how clearly it
   sees it. Under one key, `|noisy - clean|` never shrinks as sigma grows (rounding and
-  clipping are monotone); at 0 the observation is the plain env's, bit for bit.
+  clipping are monotone); at 0 the observation is the plain env's, bit for bit (the integer
+  image plus exactly 0).
+
+None switches the dial off: a None leaf is no pytree leaf, so it stays a Python None under
+`jit` and the program has no noise in it at all (the plain env, at the plain env's cost). A
+number, 0 included, switches it on: the noise is drawn every step and scaled by the traced
+sigma, so one program serves every strength and `params.sweep(noise_sigma=...)` vmaps a curve.
+There is no branch on the traced value: a `lax.cond` inside a rollout's loop can cost a GPU a
+device-to-host round trip per step.
 
 The noise's key is the reset's or the step's key folded with `NOISE_STREAM`, kept in the
-state (`noise_key`) because `get_obs` takes no key. It is used only when sigma > 0: the plain
-env draws nothing, and its images and goals come from the same splits as before the dial. With
-params shared by a batch (the usual `in_axes=None`) the choice is a `lax.cond`, so the default
-observation costs what it did; vmapped over strengths it becomes a select, both built.
+state (`noise_key`) because `get_obs` takes no key; the plain env's images and goals come from
+the same splits as before the dial.
 """
 
 from __future__ import annotations
@@ -43,7 +49,9 @@ class Distraction:
     its own inside the params so that `in_axes` can name it apart from the dataset, which a
     sweep shares. The defaults are the plain env."""
 
-    noise_sigma: float = 0.0  # additive N(0, sigma^2) pixel noise on the image channels, >= 0
+    # Additive N(0, sigma^2) pixel noise on the image channels, >= 0; None: the dial is off
+    # (no noise in the program: the module docstring says why not a branch on 0).
+    noise_sigma: float | None = None
 
 
 class DistractionSweep:
@@ -75,7 +83,7 @@ class DistractionSweep:
 def check_distraction(distraction: Distraction) -> None:
     """One-line `ValueError`s for concrete values out of range (traced ones are clipped)."""
     sigma = distraction.noise_sigma
-    if is_concrete(sigma):
+    if sigma is not None and is_concrete(sigma):
         value = np.asarray(sigma, np.float64)
         if not np.all(np.isfinite(value) & (value >= 0.0)):
             raise ValueError(f"noise_sigma must be a finite number >= 0, got {sigma}")
@@ -98,9 +106,8 @@ def noisy_image(image: jax.Array, key_data: jax.Array, sigma) -> jax.Array:
 
 def observe_with_noise(build, images, index, key_data, sigma):
     """`build(images, index)` (an observation from the dataset and an image index) with the
-    image noised when `sigma > 0` (`noisy_image`, passed to `build` as a one-image dataset);
-    exactly `build(images, index)` at sigma <= 0."""
-    sigma = jnp.asarray(sigma, jnp.float32)
-    return jax.lax.cond(sigma > 0.0,
-                        lambda: build(noisy_image(images[index], key_data, sigma)[None], 0),
-                        lambda: build(images, index))
+    image noised (`noisy_image`, passed to `build` as a one-image dataset); exactly
+    `build(images, index)` when `sigma` is None (the dial off: nothing drawn)."""
+    if sigma is None:
+        return build(images, index)
+    return build(noisy_image(images[index], key_data, sigma)[None], 0)

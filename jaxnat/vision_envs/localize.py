@@ -33,7 +33,8 @@ section 2 (the paper's task; where the authors' code differs, this env follows t
   agent the goal; the authors' code never did.
 - **Info**: `{}`.
 - **Distraction** (`LocalizeParams.distraction`, `jaxnat.vision_envs.distraction`): additive
-  pixel noise `noise_sigma` (default 0, the plain env bit for bit) on the photo channels, fresh
+  pixel noise `noise_sigma` (default None: off, the plain env bit for bit; 0 draws noise at
+  zero strength, the same observations) on the photo channels, fresh
   every step, as a traced param; `params.sweep(noise_sigma=...)` vmaps a difficulty curve.
 
 `w` is a constructor argument (static), not a traced param: the footprint's pixels are read
@@ -114,7 +115,8 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         observation_writer: how `pixels` is written, "auto" (the default), "wordwise" or
             "bytewise" (`jaxnat.vision_envs.observation`); the bytes are the same, only the
             speed differs (`bench/localize_throughput.py` compares them).
-        noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (0: none).
+        noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (None: the dial
+            off, no noise in the program; a number, 0 included: on, sweepable).
     """
 
     params_type = LocalizeParams
@@ -134,7 +136,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         seed: int | None = None,
         backgrounds: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
         observation_writer: str = "auto",
-        noise_sigma: float = 0.0,
+        noise_sigma: float | None = None,
     ):
         check_distraction(Distraction(noise_sigma=noise_sigma))
         if observation_writer not in WRITERS:
@@ -173,7 +175,7 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         self._images = jnp.asarray(dataset.images[keep])
         self._class_maps = jnp.asarray(dataset.class_maps[keep])
         self._goals = jnp.asarray(goals[keep])
-        self._distraction = Distraction(noise_sigma=float(noise_sigma))
+        self._distraction = Distraction(noise_sigma=None if noise_sigma is None else float(noise_sigma))
 
     @property
     def name(self) -> str:
