@@ -4,7 +4,8 @@ Random actions from fixed keys (seed 0), so a rerun on the same machine draws th
 
     python scripts/gallery.py [--out docs/gallery] [--families classify,localize,mujoco,atari]
 
-One PNG per family under `--out` (`classify.png`, `localize.png`, `pixel_mujoco.png`,
+About 3 minutes on a shared 2-core CPU (PixelMuJoCo's three MJX compiles 1.5-2.5 of them,
+Localize's scenes most of the rest). One PNG per family under `--out` (`classify.png`, `localize.png`, `pixel_mujoco.png`,
 `natural_atari.png`). Each row is one env, each column one step `t`; a panel's caption says
 what the agent did. Rows whose data (or ale-py and its ROMs) are missing here are skipped
 with the reason printed; a family with no row left writes no file.
