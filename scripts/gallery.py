@@ -5,8 +5,8 @@ Random actions from fixed keys (seed 0), so a rerun on the same machine draws th
     python scripts/gallery.py [--out docs/gallery] [--families classify,localize,mujoco,atari]
 
 About 3 minutes on a shared 2-core CPU (PixelMuJoCo's three MJX compiles 1.5-2.5 of them,
-Localize's scenes most of the rest). One PNG per family under `--out` (`classify.png`, `localize.png`, `pixel_mujoco.png`,
-`natural_atari.png`). Each row is one env, each column one step `t`; a panel's caption says
+Localize's scenes most of the rest). One PNG per family under `--out` (`classify.png`,
+`localize.png`, `pixel_mujoco.png`, `natural_atari.png`). Each row is one env, each column one step `t`; a panel's caption says
 what the agent did. Rows whose data (or ale-py and its ROMs) are missing here are skipped
 with the reason printed; a family with no row left writes no file.
 
@@ -250,11 +250,16 @@ def mujoco_rows(shown, *, seed: int = 0, floors=("checker", "video", "noise")):
 
     import jaxnat
     from jaxnat.compat.frames import Frames
+    from jaxnat.datasets import DatasetNotFoundError
 
     env_id = "PixelMuJoCo/HalfCheetah-v0"
     rows, actions = [], None
     for floor in floors:
-        env, params = jaxnat.make(env_id, physics="fast", floor=floor, autoreset=False)
+        try:
+            env, params = jaxnat.make(env_id, physics="fast", floor=floor, autoreset=False)
+        except DatasetNotFoundError as error:  # floor="video" without opencv-doc's videos
+            print(f"mujoco: skipped floor={floor!r}: {str(error).splitlines()[0]}")
+            continue
         if actions is None:
             space = env.action_space(params)
             keys = jax.random.split(jax.random.key(seed + 1), max(shown))
@@ -272,7 +277,13 @@ def mujoco_rows(shown, *, seed: int = 0, floors=("checker", "video", "noise")):
 
 
 def atari_rows(shown, *, seed: int = 0):
+    import ale_py.roms  # ImportError without ale-py: the row is skipped
+
     import jaxnat
+
+    rom = ale_py.roms.get_rom_path("breakout")
+    if rom is None or not Path(rom).is_file():
+        raise FileNotFoundError(f"ale-py {ale_py.__version__} has no Breakout ROM here")
 
     rows = []
     rng = np.random.default_rng(seed)
