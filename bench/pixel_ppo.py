@@ -19,8 +19,9 @@ For each robot, observation, total env count (split over `--seeds` vmapped seeds
 - **phases** (`--phases`, each jitted alone, vmapped over seeds, seconds per update): the rollout
   (env steps plus acting), acting alone (the policy's forward pass on the rollout's batches:
   each step values the previous step's final observations in the same call, so 2N per step),
-  and the update (GAE and the epochs). Their sum is near the end-to-end update time; rollout
-  minus acting is the env inside the learner;
+  and the update's GAE and epochs (the end-to-end update time less the rollout's; the bench
+  reads the runner only through its learner, as code outside the agents must). Rollout minus
+  acting is the env inside the learner;
 - **learner TFLOP/s**: the update's convolution and dense FLOPs (3x the trunk's forward FLOPs
   per sample per epoch: forward, and backward for inputs and weights; XLA's cost analysis of
   one forward pass in the im2col form, whose convolutions are matmuls it counts) over the
@@ -84,7 +85,6 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     import jax.numpy as jnp
 
     import jaxnat
-    from jaxnat.agents import ppo
 
     env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, **OBSERVATIONS[observation])
     per_seed = total_envs // args.seeds
@@ -105,9 +105,10 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     programs["chunk"] = chunk.lower(runner).compile()
     row["compile_s"] = time.perf_counter() - start
     network = learner.network
-    one_seed = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype),
-                                      runner.train_state.params)
-    obs = jax.ShapeDtypeStruct((1, *runner.obs.shape[2:]), runner.obs.dtype)
+    seeds_params = learner.policy_of(runner)[0]  # the runner is read through its learner only
+    one_seed = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), seeds_params)
+    space = env.observation_space(params)
+    obs = jax.ShapeDtypeStruct((1, *space.shape), space.dtype)
     # Counted on the im2col form: its convolutions are matmuls, which XLA's cost analysis
     # counts; cuDNN's convolutions (the other forms) it does not.
     analysis = jax.jit(network.clone(conv="im2col").apply).lower(one_seed, obs).compile().cost_analysis()
@@ -119,9 +120,8 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
         _, transitions = jax.eval_shape(rollout, runner)
         programs["acting"] = jax.jit(jax.vmap(lambda p, o: jax.lax.map(
             lambda x: network.apply(p, jnp.concatenate([x, x]))[1].sum(), o))).lower(
-                runner.train_state.params, transitions.obs).compile()
-        programs["learn"] = jax.jit(jax.vmap(lambda ts, tr, k: ppo.RULE.learn(config, network, ts, tr, k))).lower(
-            runner.train_state, transitions, keys).compile()
+                seeds_params, transitions.obs).compile()
+    programs["policy_of"] = learner.policy_of
     row["programs"] = programs
     return row
 
@@ -179,8 +179,9 @@ def measure(args, row: dict) -> dict:
     if args.phases:
         row["rollout_s"] = seconds(programs["rollout"], runner)
         _, transitions = programs["rollout"](runner)
-        row["acting_s"] = seconds(programs["acting"], runner.train_state.params, transitions.obs)
-        row["learn_s"] = seconds(programs["learn"], runner.train_state, transitions, keys)
+        row["acting_s"] = seconds(programs["acting"], programs["policy_of"](runner)[0], transitions.obs)
+        # The update's GAE and epochs: the whole update less its rollout.
+        row["learn_s"] = row["update_s"] - row["rollout_s"]
         row["learner_tflops"] = learner_flop / row["learn_s"] / 1e12
         del transitions
     row["end_to_end_tflops"] = (learner_flop + 2 * row["forward_mflop"] * 1e6 * steps_per_update) / row["update_s"] / 1e12
