@@ -23,9 +23,8 @@ For each robot, observation, total env count (split over `--seeds` vmapped seeds
   reads the runner only through its learner, as code outside the agents must). Rollout minus
   acting is the env inside the learner;
 - **learner TFLOP/s**: the update's convolution and dense FLOPs (3x the trunk's forward FLOPs
-  per sample per epoch: forward, and backward for inputs and weights; XLA's cost analysis of
-  one forward pass in the im2col form, whose convolutions are matmuls it counts) over the
-  update's time.
+  per sample per epoch: forward, and backward for inputs and weights; XLA:CPU's cost analysis
+  of one forward pass, which counts XLA's own convolutions) over the update's time.
 
 Each robot is `PixelMuJoCo/<robot>-v0` with `physics="fast"` (`--physics`); observations
 `checker` and `video` are the 84x84x4 pixel frames on those floors, `noise` is pure-noise
@@ -109,9 +108,10 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     one_seed = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), seeds_params)
     space = env.observation_space(params)
     obs = jax.ShapeDtypeStruct((1, *space.shape), space.dtype)
-    # Counted on the im2col form: its convolutions are matmuls, which XLA's cost analysis
-    # counts; cuDNN's convolutions (the other forms) it does not.
-    analysis = jax.jit(network.clone(conv="im2col").apply).lower(one_seed, obs).compile().cost_analysis()
+    # Counted by XLA:CPU's cost analysis of XLA's own convolutions: on a GPU the convolutions
+    # are cuDNN calls, which its cost analysis leaves out.
+    with jax.default_device(jax.devices("cpu")[0]):
+        analysis = jax.jit(network.clone(conv="native").apply).lower(one_seed, obs).compile().cost_analysis()
     analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
     row["forward_mflop"] = float(analysis.get("flops", float("nan"))) / 1e6
     if args.phases:
