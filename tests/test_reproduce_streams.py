@@ -174,8 +174,11 @@ def test_ctrl_c_stops_every_stream(tmp_path, monkeypatch):
     from rich.console import Console
 
     def child(plan, spec, fd):  # a stream that says it is up, then sleeps until its SIGINT
-        up = tmp_path / f"{spec.name}.up"
-        return [sys.executable, "-c", f"import pathlib, time; pathlib.Path({str(up)!r}).touch(); time.sleep(120)"]
+        up = tmp_path / f"{spec.name}.up"  # (taking SIGINT as `cell_stream_main` does, even if
+        # this test runs with SIGINT ignored, as under a non-interactive shell's `&`)
+        return [sys.executable, "-c", "import pathlib, signal, time; "
+                "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                f"pathlib.Path({str(up)!r}).touch(); time.sleep(120)"]
 
     def interrupted(self):  # Ctrl-C while this process waits for its streams, both up
         deadline = time.monotonic() + 120

@@ -246,6 +246,10 @@ def cell_stream_main(argv=None) -> int:
     parser.add_argument("--nice", type=int, default=0)
     parser.add_argument("--compile-ahead", action="store_true")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    # The parent stops this stream with SIGINT: take it as a Ctrl-C even when started with
+    # SIGINT ignored (what a non-interactive shell's background job, `jaxnat reproduce ... &`,
+    # hands its children).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     parent_gone = threading.Event()
 
