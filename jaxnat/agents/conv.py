@@ -17,9 +17,8 @@ over its weights into one *grouped* convolution, several times slower than the f
   a multiple of its stride) run `"native"`.
 
 All compute the same function (tests check values and gradients under vmap); `"auto"` picks by
-the backend at trace time: im2col on CPU, s2d elsewhere (on an H100, PPO from 84x84x4 pixels
-learned 1.3x faster with s2d than with native in float32 and 2.5x in bfloat16:
-`bench/results/pixel_ppo.md`).
+the backend at trace time: im2col on CPU, s2d elsewhere (the GPU's pixel-PPO learner is
+fastest in that form; its measurements are in `bench/results/pixel_ppo.md`).
 """
 
 from __future__ import annotations
