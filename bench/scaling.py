@@ -108,6 +108,7 @@ def main() -> None:
                         choices=["Ant", "HalfCheetah", "Hopper", "Swimmer"])
     parser.add_argument("--pixel-floor", default="checker", choices=["checker", "video"])
     parser.add_argument("--envs-per-device", type=int, default=None, help="classify (default: GPU 16384, CPU 256)")
+    parser.add_argument("--localize-envs-per-device", type=int, default=None, help="localize (default: GPU 4096, CPU 32)")
     parser.add_argument("--pixel-envs-per-device", type=int, default=None, help="pixel (default: GPU 1024, CPU 16)")
     parser.add_argument("--ppo-envs-per-device", type=int, default=None, help="ppo (default: GPU 1024, CPU 16)")
     parser.add_argument("--steps", type=int, default=32, help="env steps per timed call (ppo: per update)")
@@ -120,7 +121,7 @@ def main() -> None:
     available = jax.device_count()
     counts = args.devices or [d for d in (2 ** i for i in range(16)) if d <= available]
     per_device = {"classify": args.envs_per_device or (16384 if gpu else 256),
-                  "localize": args.envs_per_device or (4096 if gpu else 32),
+                  "localize": args.localize_envs_per_device or (4096 if gpu else 32),
                   "pixel": args.pixel_envs_per_device or (1024 if gpu else 16),
                   "ppo": args.ppo_envs_per_device or (1024 if gpu else 16)}
     per_device["ppo-pixel"] = per_device["pixel"]
