@@ -53,7 +53,8 @@ def test_pixelmujoco_grid_has_the_papers_observations_and_two_references(paper_c
 def test_state_and_constant_references_train_with_the_pixel_cells_settings(paper_cells, algo):
     """A state-vector env would otherwise take the MuJoCo family defaults (1 env x 2048 steps,
     10 epochs, ...): the reference cells must resolve to the pixel cell's config, but for the
-    trunk and the observation normalisation the vector observation decides."""
+    trunk, the observation normalisation and the computation dtype (float32 for the MLP; the
+    pixel trunk's PPO computes in bfloat16) the vector observation decides."""
     pixels, vector = spaces.Box(0, 255, (84, 84, 4), np.uint8), spaces.Box(-np.inf, np.inf, (17,), np.float32)
     action = spaces.Box(-1.0, 1.0, (6,), np.float32)
     cells = {c.labels["observation"]: c for c in paper_cells
@@ -65,8 +66,9 @@ def test_state_and_constant_references_train_with_the_pixel_cells_settings(paper
     for observation in ("state", "constant"):
         config = resolve_config(algo, vector, action, settings(cells[observation])).config
         differ = {f.name for f in dataclasses.fields(config) if getattr(config, f.name) != getattr(reference, f.name)}
-        assert differ <= {"normalize_observations", "trunk"}, (observation, differ)
-        assert config.normalize_rewards and config.num_envs == 1024
+        assert differ <= {"normalize_observations", "trunk", "dtype"}, (observation, differ)
+        assert config.normalize_rewards and config.num_envs == 1024 and config.dtype == "float32"
+    assert reference.dtype == ("bfloat16" if algo == "ppo" else "float32")
 
 
 def test_stand_in_cells_are_never_named_after_the_papers_dataset(paper_cells):
