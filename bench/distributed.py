@@ -89,7 +89,7 @@ def child(args: argparse.Namespace) -> None:
     import common
 
     import jaxnat
-    from jaxnat.agents import PPOConfig
+    from jaxnat.agents import ALGORITHMS, PPOConfig
     from jaxnat.agents.networks import default_trunk
     from jaxnat.training import parse_env_kwargs
     from jaxnat.training.placement import Placement
@@ -102,7 +102,8 @@ def child(args: argparse.Namespace) -> None:
                        update_epochs=2, num_minibatches=2)
     config = config.replace(trunk=default_trunk(env.observation_space(params)))
     placement = Placement.resolve("ppo", config, 1, devices, "envs")
-    init, chunk = placement.learner_programs("ppo", config, env, params, 1)
+    learner = ALGORITHMS["ppo"].make(config, env, params)  # reads the runner: `policy_of`
+    init, chunk = placement.learner_programs("ppo", config, env, params, 1, learner=learner)
     keys = placement.put(jax.vmap(jax.random.key)(jnp.zeros(1, jnp.uint32)), placement.specs("keys"))
     params = placement.put(params, placement.specs("replicated"))
     start = time.perf_counter()
@@ -113,7 +114,7 @@ def child(args: argparse.Namespace) -> None:
     final, metrics = jax.block_until_ready(compiled(params, runner))  # warm-up, untimed
     seconds = common.median_seconds(lambda: jax.block_until_ready(compiled(params, runner)), args.repeats)
     # Replicated results: this process's copy (the whole array with one process).
-    leaves = [np.asarray(x, np.float64) for x in jax.tree.leaves(jaxnat.sharding.local_copy(final.train_state.params))]
+    leaves = [np.asarray(x, np.float64) for x in jax.tree.leaves(jaxnat.sharding.local_copy(learner.policy_of(final)[0]))]
     returns = np.asarray(jaxnat.sharding.local_copy(metrics)["episode_return"], np.float64)[0]
     index = jax.process_index()
     np.savez(Path(args.out) / f"{args.child}_{index}.npz", *leaves)
