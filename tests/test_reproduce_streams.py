@@ -81,6 +81,42 @@ def test_each_stream_child_sees_its_gpu_and_the_host_stream_allocates_as_it_need
         "host", {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}, cell_stream.HOST_STREAM_NICE, False)
 
 
+def _batch(cell, envs, steps):
+    return dataclasses.replace(cell, overrides={**cell.overrides, "num_envs": envs, "num_steps": steps})
+
+
+def test_small_cells_are_packed_on_gpus_of_their_own(monkeypatch):
+    """`--pack-small N`: cells of at most `SMALL_BATCH` env steps per update (all seeds) train N
+    to a GPU, the others on GPUs of their own; the GPUs are shared by estimated work."""
+    big = [_batch(c, 512, 32) for c in _cells("ab")]  # 512 x 32 x 2 seeds: large
+    few = [_batch(c, 16, 5) for c in _cells("wxyz")]  # 16 x 5 x 2 seeds: small (the authors' A2C)
+    assert not estimates.small(big[0], 2) and estimates.small(few[0], 2)
+    assert not estimates.small(_batch(few[0], 16, 5), estimates.SMALL_BATCH)  # the seeds count
+    seconds = dict.fromkeys("abwxyz", 10.0)
+    streams = estimates.split_streams([*big, *few], overlap=True, gpus=2, seconds=seconds, pack=2, seeds=2)
+    assert {k: [c.name for c in v] for k, v in streams.items()} == {
+        "gpu0": ["a", "b"], "gpu1-0": ["w", "y"], "gpu1-1": ["x", "z"]}
+    assert [estimates.stream_gpu(name) for name in streams] == [0, 1, 1] and estimates.stream_gpu("host") is None
+    # Small work outweighing the large: more GPUs packed (4 GPUs: 1 large, 3 packed).
+    seconds.update(w=100.0, x=100.0, y=100.0, z=100.0)
+    streams = estimates.split_streams([*big, *few], overlap=True, gpus=4, seconds=seconds, pack=2, seeds=2)
+    assert sorted(streams) == ["gpu0", "gpu1-0", "gpu1-1", "gpu2-0", "gpu3-0"]  # a GPU each, then doubled
+    # One GPU: the large cells' stream and the packed ones share it; no small cell: one stream.
+    streams = estimates.split_streams([*big, *few], overlap=True, gpus=1, seconds=seconds, pack=2, seeds=2)
+    assert list(streams) == ["gpu0", "gpu0-0", "gpu0-1"]
+    assert list(estimates.split_streams(big, True, 1, seconds, pack=2, seeds=2)) == ["gpu0"]
+    # Each packed stream preallocates its share of the GPU's memory; a GPU alone, JAX's default.
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    specs = {s.name: s.env for s in cell_stream.child_streams(streams, ("7",), seconds, compile_ahead=False)}
+    assert specs == {name: {"CUDA_VISIBLE_DEVICES": "7", "XLA_PYTHON_CLIENT_MEM_FRACTION": "0.250"}
+                     for name in ("gpu0", "gpu0-0", "gpu0-1")}  # three streams on one GPU: 0.75 / 3
+    streams = estimates.split_streams([*big, *few], overlap=True, gpus=2, seconds=seconds, pack=2, seeds=2)
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.9")
+    specs = {s.name: s.env for s in cell_stream.child_streams(streams, ("3", "5"), seconds, compile_ahead=False)}
+    assert specs["gpu0"] == {"CUDA_VISIBLE_DEVICES": "3"}
+    assert specs["gpu1-0"] == specs["gpu1-1"] == {"CUDA_VISIBLE_DEVICES": "5", "XLA_PYTHON_CLIENT_MEM_FRACTION": "0.450"}
+
+
 def test_the_gpus_are_counted_from_jaxs_probe():
     probe = 'WARNING: a line JAX printed\n{"platform": "gpu", "devices": 2}\n'
     assert gpus.parse_probe(probe, {}) == Devices("gpu", ("0", "1"))
@@ -115,6 +151,8 @@ def test_counting_the_gpus_never_starts_jax_in_this_process(tmp_path):
     (["--gpus", "two"], None, "--gpus takes a number of GPUs (1 or more) or 'all', not 'two'"),
     (["--gpus", "2", "--sequential"], None,
      "--sequential trains every cell in turn on one GPU; it cannot use --gpus 2"),
+    (["--pack-small", "0"], None, "--pack-small takes the number of small cells per GPU (1 or more), not 0"),
+    (["--pack-small", "4", "--sequential"], None, "--sequential trains every cell in turn; it cannot use --pack-small 4"),
 ])
 def test_bad_gpus_get_one_line_and_train_nothing(argv, devices, message, tmp_path, monkeypatch, capsys):
     def found():
@@ -143,6 +181,9 @@ def test_gpus_chosen(monkeypatch):
     assert choose("all", Devices("", problem="no probe")) == (None, ())  # asked in this process, as before
     monkeypatch.setattr(command, "find_devices", lambda: pytest.fail("counted GPUs for one stream"))
     assert choose("1", None) == (None, ()) and choose("all", None, sequential=True) == (None, ())
+    # Packing trains in child processes, so one GPU's id is handed on too.
+    packed = command.choose_gpus(command.ReproduceArgs(gpus="all", pack_small=4), Devices("gpu", ("0",)))
+    assert packed == ("gpu", ("0",))
 
 
 def _smoke_plan(out, only=DEVICE_EXPERIMENTS):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from jaxnat.reproduce.board import Board
 from jaxnat.reproduce.cells import append_jsonl, timing_row, train_cells
-from jaxnat.reproduce.estimates import detect_platform
+from jaxnat.reproduce.estimates import detect_platform, stream_gpu
 from jaxnat.reproduce.grid import ONLY_NAMES, PROFILES, Cell, Plan, build_grid
 
 ENTRY = "jaxnat.reproduce.cellstream"  # the module `python -m` runs in a stream's child
@@ -30,6 +30,7 @@ ENTRY = "jaxnat.reproduce.cellstream"  # the module `python -m` runs in a stream
 # otherwise wait behind ALE's threads on a fully used host. The device cells are the longer
 # stream in `quick`, so they are the ones to keep moving; the host cells only need the cores left.
 HOST_STREAM_NICE = 5
+PREALLOCATED = 0.75  # JAX's default share of a GPU's memory preallocated by a process
 
 
 def stream_log(name: str) -> str:
@@ -53,16 +54,26 @@ class StreamSpec:
 
 def child_streams(streams: dict[str, list[Cell]], gpus: tuple[str, ...], seconds: dict[str, float],
                   compile_ahead: bool) -> list[StreamSpec]:
-    """The streams of `estimates.split_streams` that train in child processes. `gpu<i>` sees only
-    the GPU `gpus[i]` (its `CUDA_VISIBLE_DEVICES` id) and preallocates it as a one-GPU run
-    would. `host` allocates accelerator memory as it needs it (its GPU's memory is mostly
-    preallocated by a device stream: the parent's with one GPU, else that of the device stream
-    with the least estimated work, by `seconds`) and runs at `HOST_STREAM_NICE`."""
-    load = {gpu: sum(seconds[c.name] for c in streams.get(f"gpu{i}", [])) for i, gpu in enumerate(gpus)}
+    """The streams of `estimates.split_streams` that train in child processes. `gpu<i>` (and,
+    packed, `gpu<i>-<j>`) sees only the GPU `gpus[i]` (its `CUDA_VISIBLE_DEVICES` id) and
+    preallocates it as a one-GPU run would, or, with n streams on that GPU, an n-th of that
+    (`XLA_PYTHON_CLIENT_MEM_FRACTION`: `PREALLOCATED`, or the fraction this process was given,
+    over n). `host` allocates accelerator memory as it needs it (its GPU's memory is mostly
+    preallocated by a device stream: the parent's with one GPU, else that of the GPU whose
+    streams have the least estimated work, by `seconds`) and runs at `HOST_STREAM_NICE`."""
+    import os
+
+    on = {i: [name for name in streams if stream_gpu(name) == i] for i in range(len(gpus))}
+    load = {gpu: sum(seconds[c.name] for name in on[i] for c in streams[name]) for i, gpu in enumerate(gpus)}
+    share = float(os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION", PREALLOCATED))
     specs = []
     for name, cells in streams.items():
-        if name.startswith("gpu"):
-            specs.append(StreamSpec(name, cells, {"CUDA_VISIBLE_DEVICES": gpus[int(name[3:])]}, 0, compile_ahead))
+        index = stream_gpu(name)
+        if index is not None:
+            env = {"CUDA_VISIBLE_DEVICES": gpus[index]}
+            if len(on[index]) > 1:
+                env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{share / len(on[index]):.3f}"
+            specs.append(StreamSpec(name, cells, env, 0, compile_ahead))
         elif name == "host":
             env = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
             if gpus:

@@ -62,6 +62,8 @@ class ReproduceArgs:
     """Print the cells each shard (or this run) would train and their estimated GPU-hours and host-hours, then stop."""
     gpus: Annotated[str, tyro.conf.arg(metavar="N|all")] = "all"
     """GPUs to train on: with 2 or more the device cells are shared among one process per GPU, side by side (by their estimated times); 1: all of them in this process, on one GPU."""
+    pack_small: Annotated[int, tyro.conf.arg(metavar="N")] = 1
+    """Train the small device cells (latency-bound: at most 8,192 env steps per update over all seeds, as the authors' A2C and ACKTR batches) N at a time on a GPU, each in a process of its own with an N-th of the GPU's memory, the other cells on GPUs of their own (with one GPU, beside them). 1: one cell per GPU."""
 
 
 def parse_args(argv=None) -> ReproduceArgs:
@@ -100,6 +102,7 @@ def make_plan(args: ReproduceArgs, devices: Devices | None = None) -> Plan:
     if seeds < 1:
         raise ReproduceError("--seeds must be at least 1")
     _gpus_wanted(args)
+    _pack_wanted(args)
     out = Path(args.out) if args.out is not None else Path("runs") / f"reproduce-{profile.name}"
     _check_writable(out)
     cells = [c for c in build_grid(profile, only) if c.labels.get("trunk", trunks[0]) in trunks]
@@ -165,14 +168,24 @@ def _gpus_wanted(args: ReproduceArgs) -> int | None:
     return count
 
 
+def _pack_wanted(args: ReproduceArgs) -> int:
+    """`--pack-small` checked: 1 or more, and not with `--sequential`."""
+    if args.pack_small < 1:
+        raise ReproduceError(f"--pack-small takes the number of small cells per GPU (1 or more), not {args.pack_small}")
+    if args.pack_small > 1 and args.sequential:
+        raise ReproduceError(f"--sequential trains every cell in turn; it cannot use --pack-small {args.pack_small}")
+    return args.pack_small
+
+
 def choose_gpus(args: ReproduceArgs, devices: Devices | None = None) -> tuple[str | None, tuple[str, ...]]:
     """`(platform, gpus)` for `run_cells`: the `CUDA_VISIBLE_DEVICES` ids of the GPUs to train on
-    side by side (none: one stream of device cells here, as with one GPU), and the platform when
-    it had to be found without starting JAX here (None: `run_cells` asks JAX here). `devices`:
-    what `find_devices` finds (None: ask it; it is not asked with `--gpus 1` or
-    `--sequential`). A count the machine lacks is a `ReproduceError`."""
-    wanted = _gpus_wanted(args)
-    if wanted == 1 or args.sequential:
+    side by side (none: one stream of device cells here, as with one GPU; with `--pack-small`
+    2 or more, a single GPU's id too, since packed cells train in child processes), and the
+    platform when it had to be found without starting JAX here (None: `run_cells` asks JAX
+    here). `devices`: what `find_devices` finds (None: ask it; it is not asked with `--gpus 1`
+    or `--sequential`, unless packing). A count the machine lacks is a `ReproduceError`."""
+    wanted, pack = _gpus_wanted(args), _pack_wanted(args)
+    if (wanted == 1 and pack == 1) or args.sequential:
         return None, ()
     devices = find_devices() if devices is None else devices
     found = devices.gpus
@@ -182,7 +195,7 @@ def choose_gpus(args: ReproduceArgs, devices: Devices | None = None) -> tuple[st
                 + (f" (platform {devices.platform})" if not found else ""))
         raise ReproduceError(f"--gpus {wanted}: {have}")
     gpus = found[:wanted] if wanted else found
-    return devices.platform or None, gpus if len(gpus) >= 2 else ()
+    return devices.platform or None, gpus if len(gpus) >= 2 or (pack > 1 and gpus) else ()
 
 
 def _default_overlap(platform: str) -> bool:
@@ -192,7 +205,7 @@ def _default_overlap(platform: str) -> bool:
 
 
 def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap: bool | None = None,
-              platform: str | None = None, gpus: tuple[str, ...] = ()) -> dict:
+              platform: str | None = None, gpus: tuple[str, ...] = (), pack: int = 1) -> dict:
     """Train every runnable, unfinished cell of `plan`; returns `{cell name: outcome}` where an
     outcome is "finished before", "finished", or "failed: <one line>".
 
@@ -203,13 +216,15 @@ def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap
     `gpus`: two or more `CUDA_VISIBLE_DEVICES` ids (`choose_gpus`), one child process each for
     a share of the device cells, and the host cells in one more; this process then trains
     nothing, and its JAX, if it has not started, is kept on the CPU (`platform` is the one found
-    for the children: JAX here would take 75% of every GPU). `platform`: None to ask JAX here.
+    for the children: JAX here would take 75% of every GPU). `pack`: with 2 or more and one GPU
+    or more, the small cells train that many to a GPU (`estimates.split_streams`), always in
+    child processes. `platform`: None to ask JAX here.
     With several streams the estimate and the ETA are the longest stream's, a child's failures
     (a cell's, or its own death) are reported as its cells', and a Ctrl-C stops every stream
     (each checkpoints its cell) before `KeyboardInterrupt` propagates."""
     from jaxnat.training import read_run, run_status
 
-    gpus = tuple(gpus) if len(gpus) >= 2 else ()
+    gpus = tuple(gpus) if len(gpus) >= 2 or (pack > 1 and gpus) else ()
     if gpus:
         keep_jax_off_gpus()
     platform = platform or detect_platform()
@@ -220,14 +235,15 @@ def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap
             _check_same_run(cell, plan, read_run(plan.out / cell.name).config)
     todo = [c for c in runnable if status[c.name] != "finished"]
     estimates = {c.name: estimate_seconds(c, plan.seeds, platform) for c in todo}
-    streams = split_streams(todo, _default_overlap(platform) if overlap is None else overlap, len(gpus), estimates)
+    streams = split_streams(todo, _default_overlap(platform) if overlap is None else overlap, len(gpus), estimates,
+                            pack, plan.seeds)
     total = estimate_total(streams, plan.seeds, platform)
     side = ""
     if len(streams) > 1:
         side = " (" + ", ".join(f"{name if name.startswith('gpu') else name + ' cells'} "
                                 f"{duration(sum(estimates[c.name] for c in cells))}"
                                 for name, cells in streams.items()) + " side by side)"
-    machine = f"{len(gpus)} GPUs" if gpus else f"this {platform.upper()}"
+    machine = f"{len(gpus)} GPU{'s' * (len(gpus) != 1)}" if gpus else f"this {platform.upper()}"
     console.print(f"{PROG}: profile {plan.profile.name} · {len(plan.cells)} cells ({len(runnable) - len(todo)} "
                   f"finished before, {len(plan.cells) - len(runnable)} not runnable here) · {plan.seeds} seeds · "
                   f"estimated {duration(total)} on {machine}{side} · {plan.out}", highlight=False)
@@ -306,7 +322,8 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,
     outcomes = {}
     if not args.report_only:
         platform, gpus = choose_gpus(args, devices)
-        outcomes = run_cells(shard_plan(plan, shard), console, overlap=overlap, platform=platform, gpus=gpus)
+        outcomes = run_cells(shard_plan(plan, shard), console, overlap=overlap, platform=platform, gpus=gpus,
+                             pack=args.pack_small)
     path = write_report(plan, outcomes)
     console.print(f"report: {path}", highlight=False)
     return path

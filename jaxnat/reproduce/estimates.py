@@ -84,13 +84,65 @@ def shard_cells(cells: list[Cell], index: int, count: int, seeds: int) -> list[C
     return balance(cells, count, seconds)[index]
 
 
+# A device cell whose update steps few envs (all its seeds together) leaves a GPU idle between
+# small kernels: latency-bound, as the authors' A2C (16 x 5) and ACKTR (32 x 20) batches are.
+# Several such cells sharing a GPU each keep most of their pace (the paper profile's third
+# sitting: four on one H100 at 0.55-0.67 of their rate alone, `PACK_PACE`), where a cell with a
+# large batch fills the GPU and sharing halves its pace: `--pack-small N` packs only small cells.
+SMALL_BATCH = 8192  # env steps per update, all seeds: at most this many is a small cell
+PACK_PACE = 0.6  # each packed small cell's pace against its pace alone
+
+
+def small(cell: Cell, seeds: int) -> bool:
+    """Whether `cell` is a small (latency-bound) device cell: at most `SMALL_BATCH` env steps
+    per update over its `seeds` seeds."""
+    config = ALGORITHMS[cell.algo].config()
+    envs = cell.overrides.get("num_envs", config.num_envs)
+    steps = cell.overrides.get("num_steps", getattr(config, "num_steps", 1))
+    return not cell.host and envs * steps * seeds <= SMALL_BATCH
+
+
+def stream_gpu(name: str) -> int | None:
+    """The GPU index of a stream named `gpu<i>` or, packed, `gpu<i>-<j>` (None: not a GPU's)."""
+    if not name.startswith("gpu"):
+        return None
+    return int(name[3:].split("-")[0])
+
+
+def _packed_split(device: list[Cell], gpus: int, pack: int, seconds: dict[str, float],
+                  seeds: int) -> dict[str, list[Cell]]:
+    """Device streams with the small cells `pack` to a GPU: the large cells on GPUs of their own
+    (`gpu<i>`), the small ones on the others (`gpu<i>-<j>`), the GPUs shared between the two kinds
+    by estimated work (a packed GPU does `pack x PACK_PACE` cells' work at once). With one GPU both
+    kinds share it."""
+    few = [c for c in device if small(c, seeds)]
+    many = [c for c in device if not small(c, seeds)]
+    if few and many and gpus >= 2:
+        work_few = sum(seconds[c.name] for c in few) / (pack * PACK_PACE)
+        work_many = sum(seconds[c.name] for c in many)
+        packed = min(gpus - 1, max(1, round(gpus * work_few / (work_few + work_many))))
+    else:
+        packed = gpus if few else 0
+    first = gpus - packed if gpus >= 2 or not few else 0  # the first packed GPU
+    streams = {f"gpu{i}": part for i, part in enumerate(balance(many, max(first, 1), seconds)) if part}
+    parts = balance(few, packed * pack, seconds) if few else []
+    # Stream k on GPU first + k % packed: with fewer small cells than places, a GPU each first.
+    streams.update({f"gpu{first + k % packed}-{k // packed}": part for k, part in enumerate(parts) if part})
+    return streams
+
+
 def split_streams(cells: list[Cell], overlap: bool, gpus: int = 1,
-                  seconds: dict[str, float] | None = None) -> dict[str, list[Cell]]:
+                  seconds: dict[str, float] | None = None, pack: int = 1, seeds: int = 1) -> dict[str, list[Cell]]:
     """The cells as the streams that run at the same time, each in grid order. With `gpus` >= 2:
     the device cells as `gpu0` ... (`balance`d by `seconds`; a stream with no cell is left out)
-    and the host cells as `host`. Else `{"device": ..., "host": ...}` when `overlap` and both
-    kinds have cells, or `{"all": cells}` (one after another)."""
+    and the host cells as `host`. With `pack` >= 2 and a GPU or more, the small device cells
+    (`small`, with `seeds` seeds) train `pack` to a GPU in streams `gpu<i>-<j>` (`_packed_split`).
+    Else `{"device": ..., "host": ...}` when `overlap` and both kinds have cells, or
+    `{"all": cells}` (one after another)."""
     device, host = [c for c in cells if not c.host], [c for c in cells if c.host]
+    if pack >= 2 and gpus >= 1:
+        streams = _packed_split(device, gpus, pack, seconds, seeds)
+        return {**streams, "host": host} if host else streams
     if gpus >= 2:
         streams = {f"gpu{i}": part for i, part in enumerate(balance(device, gpus, seconds)) if part}
         return {**streams, "host": host} if host else streams
