@@ -48,7 +48,7 @@ class SweepArgs:
     """A run directory that jaxnat train wrote."""
     param: str
     """The dial's field to sweep, e.g. noise_sigma (Classify, Localize, PixelMuJoCo) or video_alpha,
-    sky_alpha, frame_rate (PixelMuJoCo with floor=video)."""
+    sky_alpha, frame_rate, num_videos (PixelMuJoCo with floor=video)."""
     values: tuple[float, ...]
     """The strengths, e.g. 0 16 32 64."""
     split: Annotated[str, tyro.conf.arg(metavar="{" + ",".join(SPLITS) + "}")] = "test"
@@ -118,9 +118,12 @@ def check_args(args: SweepArgs) -> None:
 def _strengths(policy, param: str, values) -> np.ndarray:
     """`values` as the dial field's kind: whole numbers for an int field (e.g. frame_rate), where
     they are whole (else floats, which the sweep's own check refuses)."""
-    default = getattr(policy.env_params.distraction, param)
+    distraction = policy.env_params.distraction
+    default = getattr(distraction, param)
+    kind = next((str(f.type) for f in dataclasses.fields(distraction) if f.name == param), "")
+    whole = isinstance(default, (int, np.integer)) or kind.startswith("int")  # num_videos: int | None
     array = np.asarray(values, np.float32)
-    if isinstance(default, (int, np.integer)) and np.all(array == np.round(array)):
+    if whole and np.all(array == np.round(array)):
         return array.astype(np.int32)
     return array
 

@@ -329,3 +329,48 @@ def test_noise_floor_sigma(checker):
     assert not black[..., 0][floor].any()
     plain = np.asarray(render(noise_params))
     np.testing.assert_array_equal(black[..., 0][~floor], plain[..., 0][~floor])
+
+
+def test_num_videos_limits_the_videos_in_play(physics, video):
+    """`num_videos=n` draws every reset's and every hand-over's video among the bank's first n:
+    1 plays one video only; the bank's count draws exactly as the default (None); a sweep over
+    it equals separate calls; out-of-range counts are one-line errors."""
+    env, params, reset, step = video
+    count = params.video.num_videos
+    assert count >= 2, "the test bank should hold several videos"
+    keys = jax.random.split(jax.random.key(5), 32)
+    vreset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    vstep = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+
+    def videos(p, steps=4):
+        """Each env's video at reset and after each of `steps` steps (a jump of 16 frames per
+        step, so the 64-frame bank's videos end and hand over)."""
+        p = with_distraction(p, frame_rate=16)
+        _, state = vreset(keys, p)
+        seen = [np.asarray(state.cursor.video)]
+        for t in range(steps):
+            step_keys = jax.vmap(lambda k: jax.random.fold_in(k, t + 1))(keys)
+            _, state, *_ = vstep(step_keys, state, jnp.zeros((keys.shape[0], 6)), p)
+            seen.append(np.asarray(state.cursor.video))
+        return np.stack(seen)
+
+    everything = videos(params)
+    assert len(np.unique(everything)) == count  # the default plays every video
+    np.testing.assert_array_equal(videos(with_distraction(params, num_videos=count)), everything)
+    np.testing.assert_array_equal(videos(with_distraction(params, num_videos=1)), 0)
+    # One program over the count: each element as its own call.
+    swept, axes = params.sweep(num_videos=jnp.array([1, count]), frame_rate=jnp.array([16, 16]))
+    batched = jax.jit(jax.vmap(env.reset, in_axes=(None, axes)))(keys[0], swept)[1].cursor.video
+    for i, n in enumerate((1, count)):
+        assert int(batched[i]) == int(reset(keys[0], with_distraction(params, num_videos=n))[1].cursor.video)
+    assert make_env(physics, **VIDEO, num_videos=1).default_params.distraction.num_videos == 1
+    for kwargs, match in [(dict(num_videos=0, **VIDEO), "num_videos must be >= 1"),
+                          (dict(num_videos=count + 1, **VIDEO), f"exceeds the video bank's {count} videos"),
+                          (dict(num_videos=1.5, **VIDEO), "num_videos must be a whole number"),
+                          (dict(num_videos=1), 'num_videos needs floor="video"')]:
+        with pytest.raises(ValueError, match=match):
+            make_env(physics, **kwargs)
+    with pytest.raises(ValueError, match="exceeds the video bank"):
+        env.check_params(with_distraction(params, num_videos=np.array([1, count + 1])))
+    with pytest.raises(ValueError, match="num_videos must be >= 1"):
+        params.sweep(num_videos=jnp.array([0, 1]))

@@ -118,7 +118,8 @@ def test_a_run_on_an_env_without_a_dial_is_refused(tiny_run, tmp_path, capsys): 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("jaxnat sweep: error: "), err
     assert "trained on MuJoCo/HalfCheetah-v0, which has no distraction dial" in err
-    assert sweep_run._dial_of("PixelMuJoCo/HalfCheetah-v0") == ("video_alpha", "frame_rate", "sky_alpha", "noise_sigma")
+    assert sweep_run._dial_of("PixelMuJoCo/HalfCheetah-v0") == ("video_alpha", "frame_rate", "sky_alpha", "noise_sigma",
+                                                              "num_videos")
 
 
 def test_the_env_refuses_a_strength_it_would_ignore():

@@ -51,6 +51,10 @@ Semantics: `docs/environments.md` section 4.
     the whole image (fixed to the screen, nearest texel: `floor.screen_video`) over the sky
     gradient; 0 is today's sky exactly, 1 the video alone (the same selected endpoints). The
     stretched frame is two small gathers a render, made at every strength.
+  - `num_videos` (int in [1, the bank's videos], or None, the default: all; floor="video"
+    only): the videos in play, the bank's first `num_videos` (the bank's order: by content
+    hash within the split, the same on every machine), each reset and each hand-over drawing among them alone, so 1
+    plays a single video over and over. None is today's draws bit for bit.
   - `noise_sigma` (float >= 0, default the law's scale: 50 for both `NOISE_LAWS`;
     observation="noise" or floor="noise" only): the noise's spread. The values are the law's
     cells drawn as before, each cell's quantile z scaled: `clip(floor(mean + noise_sigma * z),
@@ -59,7 +63,8 @@ Semantics: `docs/environments.md` section 4.
     own scale selects its table: today's draws bit for bit.
   Out-of-range values are one-line `ValueError`s when the env is built and in `check_params`
   (`jaxnat.make` calls it); traced values cannot be checked, and are clipped instead
-  (`video_alpha` and `sky_alpha` to [0, 1], `frame_rate` and `noise_sigma` to >= 0).
+  (`video_alpha` and `sky_alpha` to [0, 1], `frame_rate` and `noise_sigma` to >= 0,
+  `num_videos` to [1, the bank's videos]).
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
   default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
@@ -136,6 +141,7 @@ class Distraction:
     frame_rate: int = 1  # floor="video": video frames per agent step, >= 0 (0: frozen)
     sky_alpha: float = 0.0  # floor="video": the video's weight over the sky, in [0, 1]
     noise_sigma: float = NOISE_SCALE  # observation or floor "noise": the noise's spread, >= 0
+    num_videos: int | None = None  # floor="video": the bank's first videos in play (None: all)
 
 
 @struct.dataclass(kw_only=True)
@@ -168,7 +174,8 @@ class PixelParams(EnvParams):
         if None in lengths.values() or len(set(lengths.values())) != 1:
             raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
         # Ranges now, while the values are concrete (the floor is the env's: `check_params`).
-        _check_distraction(**{k: a for k, a in arrays.items() if is_concrete(a)})
+        _check_distraction(**{k: a for k, a in arrays.items() if is_concrete(a)},
+                           bank_videos=None if self.video is None else self.video.lengths.shape[0])
         axes = jax.tree.map(lambda _: None, self)
         axes = axes.replace(distraction=Distraction(
             **{k: (0 if k in values else None) for k in names}))
@@ -202,6 +209,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             step (1; 0 freezes the episode's first frame).
         sky_alpha: floor="video": the default `Distraction.sky_alpha`, the video's weight over
             the sky in [0, 1] (0: today's sky).
+        num_videos: floor="video": the default `Distraction.num_videos`, how many of the bank's
+            videos are in play (None: all).
         noise_sigma: observation="noise" or floor="noise": the default
             `Distraction.noise_sigma`, the noise's spread (None: the law's scale, today's
             draws).
@@ -239,6 +248,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         frame_rate: int = 1,
         sky_alpha: float = 0.0,
         noise_sigma: float | None = None,
+        num_videos: int | None = None,
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -274,6 +284,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             bank = natural.load_videos(videos, shape=tuple(video_shape), grayscale=grayscale,
                                        split=video_split, max_frames=video_max_frames)
             self._video = bank.to_device()
+        if num_videos is not None:  # its upper bound is the bank's count, known now
+            _check_distraction(floor, num_videos=num_videos,
+                               bank_videos=None if self._video is None else self._video.num_videos)
         self._video_mips = None
         if self._video is not None and self.renderer.floor_filter == "mip":
             from jaxnat.mjx_pixel.floor import pack_mips
@@ -282,7 +295,8 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.video_split = video_split
         self.distraction = Distraction(video_alpha=float(video_alpha), frame_rate=int(frame_rate),
                                        sky_alpha=float(sky_alpha),
-                                       noise_sigma=float(noise_sigma))
+                                       noise_sigma=float(noise_sigma),
+                                       num_videos=None if num_videos is None else int(num_videos))
 
     @property
     def name(self) -> str:
@@ -300,8 +314,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         d = params.distraction
         _check_distraction(self.floor, "noise" in (self.observation, self.floor),
                            self.noise.scale,
+                           bank_videos=None if params.video is None else params.video.lengths.shape[0],
                            **{f.name: getattr(d, f.name) for f in dataclasses.fields(d)
-                              if is_concrete(getattr(d, f.name))})
+                              if getattr(d, f.name) is not None and is_concrete(getattr(d, f.name))})
 
     def action_space(self, params: PixelParams) -> spaces.Space:
         return self.physics.action_space(params.physics)
@@ -365,7 +380,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         if self._video is not None:
             from jaxnat.natural import cursor_reset
 
-            cursor = cursor_reset(key_video, params.video)
+            cursor = cursor_reset(key_video, params.video, params.distraction.num_videos)
         # The frames are placeholders until `observe` renders the first one.
         latest, history = self._placeholders(physics_obs, params)
         state = PixelState(time=jnp.zeros((), jnp.int32), physics=physics_state,
@@ -387,7 +402,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             # hands over as at rate 1.
             rate = jnp.maximum(jnp.asarray(params.distraction.frame_rate, jnp.int32), 0)
             cursor = cursor_step(key_video, cursor.replace(offset=cursor.offset + (rate - 1)),
-                                 params.video)
+                                 params.video, params.distraction.num_videos)
         latest, history = self._placeholders(physics_obs, params)
         if self.observation == "pixels":  # the stack so far, less its oldest frame
             history = self.get_obs(state, params)[..., self.renderer.channels:]
@@ -432,10 +447,22 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
 
 def _check_distraction(floor: str | None = None, noisy: bool | None = None,
                        law_scale: float = NOISE_SCALE, video_alpha=1.0, frame_rate=1,
-                       sky_alpha=0.0, noise_sigma=None) -> None:
+                       sky_alpha=0.0, noise_sigma=None, num_videos=None, bank_videos=None) -> None:
     """One-line `ValueError`s for `Distraction` values out of range (host numbers or arrays).
     `floor` and `noisy` (the env draws noise: observation or floor "noise") also refuse a
-    strength the env would ignore; None (`PixelParams.sweep`, which has no env) skips that."""
+    strength the env would ignore; None (`PixelParams.sweep`, which has no env) skips that.
+    `bank_videos`: the video bank's count, `num_videos`' upper bound (None: unknown here)."""
+    if num_videos is not None:
+        count = np.asarray(num_videos)
+        if not (np.issubdtype(count.dtype, np.integer) or np.all(count == np.round(count))):
+            raise ValueError(f"num_videos must be a whole number of videos, got {num_videos}")
+        if not np.all(count >= 1):
+            raise ValueError(f"num_videos must be >= 1 (None: every video of the bank), got {num_videos}")
+        if bank_videos is not None and np.any(count > bank_videos):
+            raise ValueError(f"num_videos={num_videos} exceeds the video bank's {bank_videos} videos: use at "
+                             f"most {bank_videos}, or load more videos (videos=)")
+        if floor not in (None, "video"):
+            raise ValueError(f'num_videos needs floor="video", got floor={floor!r}')
     alpha, rate = np.asarray(video_alpha, np.float64), np.asarray(frame_rate)
     sky = np.asarray(sky_alpha, np.float64)
     sigma = np.asarray(law_scale if noise_sigma is None else noise_sigma, np.float64)

@@ -34,24 +34,29 @@ class VideoCursor:
     offset: jax.Array
 
 
-def _random_video(key: jax.Array, bank: FrameBank) -> jax.Array:
-    return jax.random.randint(key, (), 0, bank.lengths.shape[0], dtype=jnp.int32)
+def _random_video(key: jax.Array, bank: FrameBank, num_videos=None) -> jax.Array:
+    count = bank.lengths.shape[0]
+    if num_videos is not None:  # the first `num_videos` videos (traced: clipped to [1, count])
+        count = jnp.clip(jnp.asarray(num_videos, jnp.int32), 1, count)
+    return jax.random.randint(key, (), 0, count, dtype=jnp.int32)
 
 
-def cursor_reset(key: jax.Array, bank: FrameBank) -> VideoCursor:
-    """A random video and a random start frame within it."""
+def cursor_reset(key: jax.Array, bank: FrameBank, num_videos=None) -> VideoCursor:
+    """A random video and a random start frame within it; `num_videos`: draw among the bank's
+    first that many videos only (None: all of them)."""
     key_video, key_offset = jax.random.split(key)
-    video = _random_video(key_video, bank)
+    video = _random_video(key_video, bank, num_videos)
     offset = jax.random.randint(key_offset, (), 0, jnp.asarray(bank.lengths)[video],
                                 dtype=jnp.int32)
     return VideoCursor(video=video, offset=offset)
 
 
-def cursor_step(key: jax.Array, cursor: VideoCursor, bank: FrameBank) -> VideoCursor:
-    """The next frame; after the video's last frame, the first frame of a new random video."""
+def cursor_step(key: jax.Array, cursor: VideoCursor, bank: FrameBank, num_videos=None) -> VideoCursor:
+    """The next frame; after the video's last frame, the first frame of a new random video
+    (among the first `num_videos`, as `cursor_reset`)."""
     offset = cursor.offset + 1
     ended = offset >= jnp.asarray(bank.lengths)[cursor.video]
-    video = jnp.where(ended, _random_video(key, bank), cursor.video)
+    video = jnp.where(ended, _random_video(key, bank, num_videos), cursor.video)
     return VideoCursor(video=video, offset=jnp.where(ended, 0, offset).astype(jnp.int32))
 
 
