@@ -25,6 +25,12 @@ GPU_RATES = {"classify": (6.5e5, 770), "localize": (7e4, 600), "atari": (1e4, 0)
 OBSERVATION_SPEEDUP = {"noise": 1.5, "state": 5.0, "constant": 5.0}
 COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
              "gpu": {"classify": 8, "localize": 23, "atari": 106, "mujoco": 35}}
+# Seconds a GPU spends per update besides stepping envs, by algorithm: what the rate model
+# misses at the authors' small batches, fitted to the paper profile's classification cells on
+# H100s (docs/reproduction/paper/SITTINGS.md: A2C 16 x 5 at 4.5e4-5.2e4 env steps/s, ACKTR
+# 32 x 20 at 5.9e4, whose K-FAC step costs most; at 512 envs both stay within the rate model).
+# PPO's authors' batch is already within it. Device cells only; the CPU rates are per env step.
+UPDATE_S = {"a2c": 0.0018, "acktr": 0.026}
 
 
 def _family(cell: Cell) -> str:
@@ -52,9 +58,15 @@ def detect_platform() -> str:
 
 
 def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
-    """A rough wall time of `cell` (compile + training + evaluation), for the ETA."""
+    """A rough wall time of `cell` (compile + training + evaluation), for the ETA; on a GPU a
+    device cell's updates add `UPDATE_S` each."""
     steps = cell.budget.total_timesteps * seeds
-    return COMPILE_S[platform][_family(cell)] + steps / rate(cell, seeds, platform)
+    seconds = COMPILE_S[platform][_family(cell)] + steps / rate(cell, seeds, platform)
+    if platform == "gpu" and not cell.host and cell.algo in UPDATE_S:
+        config = ALGORITHMS[cell.algo].config()
+        batch = cell.overrides.get("num_envs", config.num_envs) * cell.overrides.get("num_steps", config.num_steps)
+        seconds += cell.budget.total_timesteps / batch * UPDATE_S[cell.algo]
+    return seconds
 
 
 def balance(cells: list[Cell], count: int, seconds: dict[str, float]) -> list[list[Cell]]:
