@@ -362,6 +362,43 @@ def test_video_background_one_frame_per_step_and_new_video_at_reset(clips):
     assert any(positions[8, e] != positions[7, e] + 1 for e in range(3))
 
 
+def test_video_background_dial_per_env(clips):
+    """The dial, one value per env in one batch: `video_alpha` scales an env's background to
+    round(alpha * level) of the same draws (1: the plain env's; 0: black), `frame_rate=0`
+    freezes an env's video, `num_videos=1` keeps an env on the bank's first video; a value
+    the background would ignore, or out of range, is a one-line error."""
+    kwargs = dict(background="video", split="all", video_sources=str(clips), max_episode_steps=50, num_threads=1,
+                  seed=0)
+    plain = NaturalAtariVecEnv("Breakout", 3, **kwargs)
+    dialled = NaturalAtariVecEnv("Breakout", 3, video_alpha=[1.0, 0.5, 0.0], **kwargs)
+    frozen = NaturalAtariVecEnv("Breakout", 3, frame_rate=[0, 0, 1], num_videos=1, **kwargs)
+    starts = np.asarray(frozen.background_bank.starts)
+    first_video = set(frozen.background_bank.frames[starts[0]:starts[1], 0, 0, 0].astype(int))
+    a, _ = plain.reset()
+    b, _ = dialled.reset()
+    c, _ = frozen.reset()
+    first = _background_level(c)
+    for _ in range(6):
+        levels, dimmed = _background_level(a), _background_level(b)
+        assert dimmed[0] == levels[0] and dimmed[1] == np.rint(0.5 * levels[1]) and dimmed[2] == 0
+        now = _background_level(c)
+        assert now[0] == first[0] and now[1] == first[1] and set(now.tolist()) <= first_video
+        a, *_ = plain.step(np.zeros(3, np.int64))
+        b, *_ = dialled.step(np.zeros(3, np.int64))
+        c, *_ = frozen.step(np.zeros(3, np.int64))
+    for env in (plain, dialled, frozen):
+        env.close()
+    for bad, match in [(dict(video_alpha=1.5), r"video_alpha must lie in \[0, 1\]"),
+                       (dict(video_alpha=[1.0, 0.5]), r"one number or one per env \(3\)"),
+                       (dict(frame_rate=-1), "frame_rate must be >= 0"),
+                       (dict(num_videos=9), r"num_videos must be in \[1, 4\]"),
+                       (dict(frame_rate=2, background="image"), "frame_rate needs background='video'"),
+                       (dict(video_alpha=0.5, background="noise"), "video_alpha needs background='video' or 'image'"),
+                       (dict(num_videos=1, background="none"), "num_videos needs background='video' or 'image'")]:
+        with pytest.raises(ValueError, match=match):
+            NaturalAtariVecEnv("Breakout", 3, **{**kwargs, **bad})
+
+
 def test_video_split_is_disjoint(clips):
     names = {}
     for split in ("train", "test", "all"):

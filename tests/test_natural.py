@@ -537,6 +537,42 @@ def test_host_sampler_is_reproducible_under_its_seed(small_bank):
         natural.HostVideoSampler(small_bank, 0)
 
 
+def test_host_sampler_dial(small_bank):
+    """`frame_rate` and `num_videos`, one for all or one per env: the defaults (and every
+    video) draw as the plain sampler; rate 0 freezes, rate 3 jumps three frames (a video that
+    ends inside a jump hands over at its first frame); `num_videos=1` plays video 0 only."""
+    plain = natural.HostVideoSampler(small_bank, 16, seed=2)
+    dialled = natural.HostVideoSampler(small_bank, 16, seed=2, frame_rate=1, num_videos=small_bank.num_videos)
+    for _ in range(9):
+        np.testing.assert_array_equal(plain.step(), dialled.step())
+    lengths = small_bank.lengths
+    sampler = natural.HostVideoSampler(small_bank, 3, seed=1, frame_rate=[0, 1, 3])
+    for _ in range(6):
+        video, offset = sampler.video.copy(), sampler.offset.copy()
+        sampler.step()
+        assert (sampler.video[0], sampler.offset[0]) == (video[0], offset[0])
+        for env, rate in ((1, 1), (2, 3)):
+            moved = offset[env] + rate
+            assert sampler.offset[env] == (moved if moved < lengths[video[env]] else 0)
+    one = natural.HostVideoSampler(small_bank, 32, seed=4, num_videos=1, frame_rate=2)
+    mixed = natural.HostVideoSampler(small_bank, 32, seed=4, num_videos=[1] * 16 + [2] * 16, frame_rate=2)
+    seen = set()
+    for _ in range(8):
+        one.step()
+        assert np.all(one.video == 0)
+        mixed.step()
+        assert np.all(mixed.video[:16] == 0)
+        seen |= set(mixed.video[16:].tolist())
+    assert seen == {0, 1}
+    for kwargs, match in [(dict(frame_rate=-1), "frame_rate must be >= 0"),
+                          (dict(frame_rate=1.5), "frame_rate must be a whole number"),
+                          (dict(frame_rate=[1, 2]), r"one number or one per env \(4\)"),
+                          (dict(num_videos=0), r"num_videos must be in \[1, 2\]"),
+                          (dict(num_videos=3), r"num_videos must be in \[1, 2\]")]:
+        with pytest.raises(ValueError, match=match):
+            natural.HostVideoSampler(small_bank, 4, **kwargs)
+
+
 # ----------------------------------------------------------------------------- noise
 
 

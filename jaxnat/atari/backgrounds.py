@@ -103,9 +103,14 @@ class NoiseBackground(NoBackground):
 class BankBackground(NoBackground):
     """Consecutive frames of natural videos, or one still photo per episode (`still`), gray,
     from a `FrameBank` through `jaxnat.natural.HostVideoSampler`; this step's frames are
-    gathered into `buffer` (one `np.take` of the batch) by `advance` and `reset`."""
+    gathered into `buffer` (one `np.take` of the batch) by `advance` and `reset`.
 
-    def __init__(self, bank, num_envs: int, seed: int, still: bool = False):
+    The dial, per env (one number for all, or one per env): `video_alpha` in [0, 1] scales an
+    env's frames to `round(alpha * frame)` (the video over black, ALE's background: 1 is the
+    frames as they are, 0 black); `frame_rate` and `num_videos` are the sampler's."""
+
+    def __init__(self, bank, num_envs: int, seed: int, still: bool = False, *, video_alpha=1.0,
+                 frame_rate=1, num_videos=None):
         from jaxnat.natural import HostVideoSampler
 
         # Gray once, with the compositor's law, so compositing in gray equals compositing in RGB.
@@ -115,16 +120,24 @@ class BankBackground(NoBackground):
         )[..., None]
         self.bank = bank.replace(frames=gray_frames)
         self.still = still  # photos: one per episode, not a new one every step
-        self._sampler = HostVideoSampler(self.bank, num_envs, seed)
-        self.buffer = self._sampler.frames()  # uint8 [B, H, W, 1]
+        self._sampler = HostVideoSampler(self.bank, num_envs, seed, frame_rate=frame_rate, num_videos=num_videos)
+        alpha = np.broadcast_to(check_alpha("video_alpha", video_alpha, num_envs), (num_envs,))
+        self._dimmed = np.flatnonzero(alpha < 1.0)  # the envs whose frames are scaled
+        self._alpha = alpha[self._dimmed].astype(np.float32)[:, None, None, None]
+        self.buffer = self._dim(self._sampler.frames())  # uint8 [B, H, W, 1]
+
+    def _dim(self, frames: np.ndarray) -> np.ndarray:
+        if self._dimmed.size:  # round(alpha * frame); alpha 1 leaves the frames untouched
+            frames[self._dimmed] = np.rint(frames[self._dimmed] * self._alpha).astype(np.uint8)
+        return frames
 
     def advance(self) -> None:
         if not self.still:
-            self._sampler.step(out=self.buffer)
+            self._dim(self._sampler.step(out=self.buffer))
 
     def reset(self, envs=None) -> np.ndarray | None:
         before = None if envs is None else self.buffer[np.asarray(envs, bool), ..., 0]
-        self._sampler.reset(envs, out=self.buffer)
+        self._dim(self._sampler.reset(envs, out=self.buffer))
         return before
 
     def frames(self) -> np.ndarray:
@@ -134,12 +147,25 @@ class BankBackground(NoBackground):
         self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
 
 
+def check_alpha(name: str, value, num_envs: int):
+    """`value` (a number, or one per env) checked to lie in [0, 1]: a float or a float64 array
+    of `num_envs`; a one-line `ValueError` otherwise."""
+    array = np.asarray(value, np.float64)
+    if array.ndim > 1 or (array.ndim == 1 and array.size != num_envs):
+        raise ValueError(f"{name} takes one number or one per env ({num_envs}), got shape {array.shape}")
+    if not np.all((array >= 0.0) & (array <= 1.0)):
+        raise ValueError(f"{name} must lie in [0, 1], got {value}")
+    return float(array) if array.ndim == 0 else array
+
+
 def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: str = "train", sources=None,
-                    seed: int = 0, noise=DEFAULT_NOISE, noise_scale: float | None = None, runner=None):
+                    seed: int = 0, noise=DEFAULT_NOISE, noise_scale: float | None = None, runner=None,
+                    video_alpha=1.0, frame_rate=1, num_videos=None):
     """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
     `noise`: the pixel-noise law of "noise" (a name in `jaxnat.natural.NOISE_LAWS` or a
     `NoiseLaw`), `noise_scale` its scale when not None; `runner`: a `ChunkRunner` whose pool
-    threads draw the noise while ALE emulates."""
+    threads draw the noise while ALE emulates; `video_alpha`, `frame_rate` ("video" only) and
+    `num_videos`: the dial of `BankBackground`, each one number or one per env."""
     if kind == "none":
         return NoBackground()
     if kind == "noise":
@@ -152,5 +178,6 @@ def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: 
 
         load = natural.load_videos if kind == "video" else natural.load_images
         bank = load(sources, shape=shape, grayscale=False, split=split)
-        return BankBackground(bank, num_envs, seed, still=kind == "image")
+        return BankBackground(bank, num_envs, seed, still=kind == "image", video_alpha=video_alpha,
+                              frame_rate=frame_rate, num_videos=num_videos)
     raise ValueError(f"background must be one of {BACKGROUNDS}, got {kind!r}")

@@ -86,6 +86,17 @@ class NaturalAtariVecEnv:
     Videos and photos come from `jaxnat.natural` (`video_sources`: None = opencv-doc's samples),
     split by whole files: `split="train"` and `"test"` never share a file, `"all"` uses both.
 
+    The distraction dial, fixed when the env is built, one value for every env or one per env
+    (a sequence of `num_envs`, so one batch can play a whole difficulty curve); the defaults
+    are the plain env, draw for draw: `video_alpha` in [0, 1] (background "video" or "image",
+    default 1): an env's background frames are `round(alpha * frame)` in gray, the video over
+    ALE's black (0: the black background of "none", composited); `frame_rate` (whole >= 0,
+    "video", default 1): video frames per agent step (0 freezes an episode's first frame; a
+    video that ends inside a jump hands over to a new one at its first frame); `num_videos`
+    (None: all; a count in [1, the bank's videos], "video" or "image"): the bank's first videos
+    an env draws from (the bank's order: by content hash within the split). A value for another
+    background, or out of range, is a one-line `ValueError`.
+
     Autoreset (`autoreset_mode`): "same_step" (default, as jaxnat's `AutoResetWrapper`): the
     step that ends an episode returns the next episode's first observation, and the final one in
     `info["final_observation"]` (every row; equal to `obs` where the episode did not end).
@@ -143,6 +154,9 @@ class NaturalAtariVecEnv:
         noise: str = DEFAULT_NOISE,
         noise_scale: float | None = None,
         seed: int = 0,
+        video_alpha=1.0,
+        frame_rate=1,
+        num_videos=None,
     ):
         for name, value, choices in (("background", background, BACKGROUNDS), ("split", split, ("train", "test", "all")),
                                      ("autoreset_mode", autoreset_mode, tuple(_AUTORESET_MODES)),
@@ -162,6 +176,7 @@ class NaturalAtariVecEnv:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ValueError(f"{name} must be an integer >= 0 (0: one per env, at most one "
                                  f"per CPU), got {value!r}")
+        _check_dial(background, int(num_envs), video_alpha, frame_rate, num_videos)
         rom_path(game)  # clear errors for unknown games and missing ROMs, before ale-py's
         from ale_py.vector_env import AtariVectorEnv  # noqa: PLC0415  (optional dependency)
 
@@ -212,6 +227,8 @@ class NaturalAtariVecEnv:
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
             seed=self._seed, noise=noise, noise_scale=noise_scale, runner=self._runner,
+            **({"video_alpha": video_alpha, "frame_rate": frame_rate, "num_videos": num_videos}
+               if background in ("video", "image") else {}),
         )
         self._stack = FrameStack(stack)
         self.step_timings = {"steps": 0, "ale_s": 0.0, "ahead_s": 0.0, "host_s": 0.0}
@@ -448,3 +465,22 @@ class NaturalAtariVecEnv:
         info["returned_episode"] = done.copy()
         info["returned_episode_returns"] = self._last_returns.copy()
         info["returned_episode_lengths"] = self._last_lengths.copy()
+
+
+def _check_dial(background: str, num_envs: int, video_alpha, frame_rate, num_videos) -> None:
+    """One-line `ValueError`s for the distraction dial: a value the background would ignore, or
+    out of range (the ranges `num_videos` needs the bank for are the sampler's, when it loads)."""
+    from jaxnat.atari.backgrounds import check_alpha
+    from jaxnat.natural.sampler import per_env_counts
+
+    check_alpha("video_alpha", video_alpha, num_envs)
+    per_env_counts("frame_rate", frame_rate, num_envs, low=0)
+    if num_videos is not None:
+        per_env_counts("num_videos", num_videos, num_envs, low=1)
+    plain = {"video_alpha": np.all(np.asarray(video_alpha) == 1.0), "frame_rate": np.all(np.asarray(frame_rate) == 1),
+             "num_videos": num_videos is None}
+    needs = {"video_alpha": ("video", "image"), "frame_rate": ("video",), "num_videos": ("video", "image")}
+    for name, is_plain in plain.items():
+        if not is_plain and background not in needs[name]:
+            wanted = " or ".join(repr(b) for b in needs[name])
+            raise ValueError(f"{name} needs background={wanted}, got background={background!r}")

@@ -71,6 +71,21 @@ def cursor_frame(bank: FrameBank, cursor: VideoCursor) -> jax.Array:
     return jnp.asarray(bank.frames)[cursor_index(bank, cursor)]
 
 
+def per_env_counts(name: str, value, num_envs: int, low: int, high: int | None = None):
+    """`value` (a whole number, or one per env) checked to lie in [low, high]: an int, or an
+    int64 array of `num_envs`; a one-line `ValueError` otherwise."""
+    array = np.asarray(value)
+    if array.ndim > 1 or (array.ndim == 1 and array.size != num_envs):
+        raise ValueError(f"{name} takes one number or one per env ({num_envs}), got shape {array.shape}")
+    if not (np.issubdtype(array.dtype, np.integer) or (np.issubdtype(array.dtype, np.floating)
+                                                      and np.all(array == np.round(array)))):
+        raise ValueError(f"{name} must be a whole number, got {value}")
+    if np.any(array < low) or (high is not None and np.any(array > high)):
+        bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
+        raise ValueError(f"{name} must be {bound}, got {value}")
+    return int(array) if array.ndim == 0 else array.astype(np.int64)
+
+
 class HostVideoSampler:
     """`num_envs` cursors over a host (numpy) bank, advanced together, one frame per env per step.
 
@@ -82,25 +97,42 @@ class HostVideoSampler:
     `frames()` returns the current frames without moving. `out=` (an array of the right shape
     and dtype) avoids allocating a new batch each step. Random draws come from
     `np.random.default_rng(seed)`.
+
+    `frame_rate` (a whole number >= 0, or one per env) is the frames a step moves on (0 freezes
+    the frame; a video that ends inside a jump hands over to a new one at its first frame);
+    `num_videos` (None: every video, or a count in [1, the bank's videos], or one per env) the
+    bank's first videos an env draws from. The defaults are the law above, draw for draw.
     """
 
-    def __init__(self, bank: FrameBank, num_envs: int, seed: int | None = 0):
+    def __init__(self, bank: FrameBank, num_envs: int, seed: int | None = 0, *, frame_rate=1,
+                 num_videos=None):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         bank = bank.to_host()
         self.bank = bank
         self.num_envs = num_envs
+        self.frame_rate = per_env_counts("frame_rate", frame_rate, num_envs, low=0)
+        self.num_videos = None  # every video: today's draws
+        if num_videos is not None:
+            counts = np.broadcast_to(per_env_counts("num_videos", num_videos, num_envs, low=1,
+                                                    high=bank.num_videos), (num_envs,))
+            self.num_videos = None if np.all(counts == bank.num_videos) else counts.astype(np.int64)
         self.rng = np.random.default_rng(seed)
         self.video = np.zeros(num_envs, np.int64)
         self.offset = np.zeros(num_envs, np.int64)
         self.reset()
+
+    def _draw_videos(self, index: np.ndarray) -> np.ndarray:
+        if self.num_videos is None:
+            return self.rng.integers(0, self.bank.num_videos, size=index.size)
+        return self.rng.integers(0, self.num_videos[index])
 
     def reset(self, mask: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Re-draw video and start for the envs where `mask` is True (all when None); return
         every env's current frame."""
         index = (np.arange(self.num_envs) if mask is None
                  else np.flatnonzero(np.asarray(mask, bool).reshape(self.num_envs)))
-        video = self.rng.integers(0, self.bank.num_videos, size=index.size)
+        video = self._draw_videos(index)
         self.video[index] = video
         # floor(u * length) is uniform over [0, length) for each env's own length.
         self.offset[index] = (self.rng.random(index.size) * self.bank.lengths[video]).astype(
@@ -108,12 +140,13 @@ class HostVideoSampler:
         return self.frames(out)
 
     def step(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Advance every env by one frame (a new random video after a video's last frame) and
-        return the frames, uint8 [num_envs, H, W, C]."""
-        self.offset += 1
+        """Advance every env by its `frame_rate` frames, one by default (a new random video,
+        from its first frame, after a video's last frame) and return the frames, uint8
+        [num_envs, H, W, C]."""
+        self.offset += self.frame_rate
         ended = np.flatnonzero(self.offset >= self.bank.lengths[self.video])
         if ended.size:
-            self.video[ended] = self.rng.integers(0, self.bank.num_videos, size=ended.size)
+            self.video[ended] = self._draw_videos(ended)
             self.offset[ended] = 0
         return self.frames(out)
 
