@@ -399,6 +399,29 @@ def test_video_background_dial_per_env(clips):
             NaturalAtariVecEnv("Breakout", 3, **{**kwargs, **bad})
 
 
+def test_noise_spread_per_env():
+    """`noise_scale` one per env: spread 0 is the law's constant floor(mean) (black for the
+    authors' law); each env draws from its own generator, so env 1 is the same as in a batch
+    built with its spread for every env."""
+    kwargs = dict(background="noise", max_episode_steps=50, num_threads=1, seed=3)
+    mixed = NaturalAtariVecEnv("Breakout", 2, noise_scale=[0.0, 50.0], **kwargs)
+    same = NaturalAtariVecEnv("Breakout", 2, noise_scale=50.0, **kwargs)
+    a, _ = mixed.reset()
+    b, _ = same.reset()
+    for _ in range(3):
+        np.testing.assert_array_equal(a[1], b[1])
+        assert _background_level(a)[0] == 0 and _background_level(b)[0] != 0
+        a, *_ = mixed.step(np.zeros(2, np.int64))
+        b, *_ = same.step(np.zeros(2, np.int64))
+    for env in (mixed, same):
+        env.close()
+    for bad, match in [(dict(noise_scale=-1.0), "noise_scale must be a finite number >= 0"),
+                       (dict(noise_scale=[1.0, 2.0, 3.0]), r"one number or one per env \(2\)"),
+                       (dict(noise_scale=10.0, background="none"), "noise_scale needs background='noise'")]:
+        with pytest.raises(ValueError, match=match):
+            NaturalAtariVecEnv("Breakout", 2, **{**kwargs, **bad})
+
+
 def test_video_split_is_disjoint(clips):
     names = {}
     for split in ("train", "test", "all"):

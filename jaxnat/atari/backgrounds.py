@@ -67,10 +67,13 @@ class NoiseBackground(NoBackground):
     without a pool; `frames` waits for them."""
 
     def __init__(self, num_envs: int, shape: tuple[int, int], seed: int, law=DEFAULT_NOISE,
-                 runner=None):
+                 runner=None, scales=None):
         self.buffer = np.empty((num_envs, *shape), np.uint8)
         self.law = noise_law(law)
-        self._sampler = GrayNoiseSampler(scale=self.law.scale, mean=self.law.mean)
+        # `scales`: one spread per env (None: the law's own for all), one sampler per value.
+        scales = np.broadcast_to(self.law.scale if scales is None else scales, (num_envs,))
+        samplers = {float(v): GrayNoiseSampler(scale=float(v), mean=self.law.mean) for v in np.unique(scales)}
+        self._samplers = [samplers[float(v)] for v in scales]
         self._runner = runner
         self._drawing = []  # futures of the draws started by advance()
         self.seed(seed)
@@ -92,7 +95,7 @@ class NoiseBackground(NoBackground):
 
     def _draw(self, lo: int, hi: int) -> None:
         for i in range(lo, hi):
-            self._sampler.sample(self.buffer.shape[1:], self._rngs[i], out=self.buffer[i])
+            self._samplers[i].sample(self.buffer.shape[1:], self._rngs[i], out=self.buffer[i])
 
     def seed(self, seed: int) -> None:
         self.frames()  # never reseed under running draws
@@ -158,21 +161,35 @@ def check_alpha(name: str, value, num_envs: int):
     return float(array) if array.ndim == 0 else array
 
 
+def check_spread(name: str, value, num_envs: int):
+    """`value` (a number, or one per env) checked to be finite and >= 0: a float or a float64
+    array of `num_envs`; a one-line `ValueError` otherwise."""
+    array = np.asarray(value, np.float64)
+    if array.ndim > 1 or (array.ndim == 1 and array.size != num_envs):
+        raise ValueError(f"{name} takes one number or one per env ({num_envs}), got shape {array.shape}")
+    if not np.all(np.isfinite(array) & (array >= 0.0)):
+        raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+    return float(array) if array.ndim == 0 else array
+
+
 def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: str = "train", sources=None,
                     seed: int = 0, noise=DEFAULT_NOISE, noise_scale: float | None = None, runner=None,
                     video_alpha=1.0, frame_rate=1, num_videos=None):
     """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
     `noise`: the pixel-noise law of "noise" (a name in `jaxnat.natural.NOISE_LAWS` or a
-    `NoiseLaw`), `noise_scale` its scale when not None; `runner`: a `ChunkRunner` whose pool
+    `NoiseLaw`), `noise_scale` its scale when not None (one value, or one per env); `runner`: a `ChunkRunner` whose pool
     threads draw the noise while ALE emulates; `video_alpha`, `frame_rate` ("video" only) and
     `num_videos`: the dial of `BankBackground`, each one number or one per env."""
     if kind == "none":
         return NoBackground()
     if kind == "noise":
         law = noise_law(noise)
+        scales = None
         if noise_scale is not None:
-            law = dataclasses.replace(law, scale=float(noise_scale))
-        return NoiseBackground(num_envs, shape, seed, law, runner)
+            scales = check_spread("noise_scale", noise_scale, num_envs)
+            if np.ndim(scales) == 0:
+                law, scales = dataclasses.replace(law, scale=float(scales)), None
+        return NoiseBackground(num_envs, shape, seed, law, runner, scales)
     if kind in ("video", "image"):
         from jaxnat import natural
 

@@ -76,7 +76,7 @@ class NaturalAtariVecEnv:
     three channels are all 0 take this step's background frame (`background`: "none" black,
     "noise" i.i.d. noise per pixel and channel each step from the pixel-noise law `noise`
     (`jaxnat.natural.NOISE_LAWS`; default `clip(N(0,1)*50, 0)`, the authors'; `noise_scale`
-    replaces its scale when not None), "video" consecutive
+    replaces its scale when not None, one value or one per env), "video" consecutive
     frames of a random natural video, one per agent step, a new video at a random offset at every
     reset, "image" a random still photo per episode); then ALE's grayscale, INTER_AREA resize to
     `obs_size`, and a stack of the last `stack` frames, channels-last, oldest first (zeros before
@@ -176,7 +176,7 @@ class NaturalAtariVecEnv:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ValueError(f"{name} must be an integer >= 0 (0: one per env, at most one "
                                  f"per CPU), got {value!r}")
-        _check_dial(background, int(num_envs), video_alpha, frame_rate, num_videos)
+        _check_dial(background, int(num_envs), video_alpha, frame_rate, num_videos, noise_scale)
         rom_path(game)  # clear errors for unknown games and missing ROMs, before ale-py's
         from ale_py.vector_env import AtariVectorEnv  # noqa: PLC0415  (optional dependency)
 
@@ -467,11 +467,16 @@ class NaturalAtariVecEnv:
         info["returned_episode_lengths"] = self._last_lengths.copy()
 
 
-def _check_dial(background: str, num_envs: int, video_alpha, frame_rate, num_videos) -> None:
+def _check_dial(background: str, num_envs: int, video_alpha, frame_rate, num_videos, noise_scale=None) -> None:
     """One-line `ValueError`s for the distraction dial: a value the background would ignore, or
     out of range (the ranges `num_videos` needs the bank for are the sampler's, when it loads)."""
-    from jaxnat.atari.backgrounds import check_alpha
+    from jaxnat.atari.backgrounds import check_alpha, check_spread
     from jaxnat.natural.sampler import per_env_counts
+
+    if noise_scale is not None:
+        check_spread("noise_scale", noise_scale, num_envs)
+        if background != "noise":
+            raise ValueError(f"noise_scale needs background='noise', got background={background!r}")
 
     check_alpha("video_alpha", video_alpha, num_envs)
     per_env_counts("frame_rate", frame_rate, num_envs, low=0)
