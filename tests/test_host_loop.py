@@ -405,3 +405,31 @@ def test_host_backend_builds_parts_and_no_more_test_envs_than_test_games():
             assert backend.test_env.num_envs == test_envs
         finally:
             backend.close()
+
+
+def test_a_run_records_the_videos_it_saw(tmp_path):
+    """`jaxnat train` writes the videos of each split into `config.json` as `data`: per video
+    its file name, the SHA-256 of its bytes and the frames used (`FrameBank.manifest`); the
+    splits are disjoint and together every clip."""
+    pytest.importorskip("ale_py")
+    pytest.importorskip("numba")
+    import hashlib
+    import json
+
+    from test_atari import _write_video
+
+    from jaxnat.train import main
+
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    clips = [_write_video(folder / f"clip{v}.avi", v, 6 + v) for v in range(4)]
+    run_dir = tmp_path / "run"
+    argv = [*ATARI[:-1], "background=video", f"video_sources={folder}", "--algo", "ppo", *ALGO_ARGS["ppo"],
+            "--run-dir", str(run_dir)]
+    assert main(argv, compiler_options=FAST) == 0
+    data = json.loads((run_dir / "config.json").read_text())["data"]
+    (train,), (test,) = data["train"], data["test"]
+    sha = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in clips}
+    assert {m["name"] for m in train}.isdisjoint({m["name"] for m in test})
+    assert sorted(m["name"] for m in train + test) == sorted(sha)
+    assert all(m["sha256"] == sha[m["name"]] and m["frames"] == 6 + int(m["name"][4]) for m in train + test)

@@ -537,6 +537,33 @@ def test_host_sampler_is_reproducible_under_its_seed(small_bank):
         natural.HostVideoSampler(small_bank, 0)
 
 
+def test_a_bank_names_its_data_by_content_hash(videos, monkeypatch, tmp_path):
+    """`FrameBank.manifest()`: per video its file name, the SHA-256 of the file's bytes and the
+    frames held, in bank order, the same from the cache; `bank_manifests` finds the banks in a
+    pytree (env params) or an env's `background_bank`, each once."""
+    import hashlib
+
+    monkeypatch.setenv("JAXNAT_CACHE_DIR", str(tmp_path / "cache"))
+    bank = load(videos[:2])
+    manifest = bank.manifest()
+    by_name = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in videos[:2]}
+    assert [m["name"] for m in manifest] == list(bank.names)
+    assert [m["sha256"] for m in manifest] == [by_name[n] for n in bank.names]
+    assert [m["frames"] for m in manifest] == [int(n) for n in bank.lengths]
+    assert load(videos[:2]).manifest() == manifest  # read back from the cache
+    capped = load(videos[:2], max_frames=4).manifest()
+    assert [m["sha256"] for m in capped] == [m["sha256"] for m in manifest] and sum(m["frames"] for m in capped) <= 4
+    device = bank.to_device()
+    assert natural.bank_manifests({"video": device, "other": 3, "again": device}) == [manifest]
+
+    class Env:
+        background_bank = bank
+
+    assert natural.bank_manifests(Env(), {"x": 1}) == [manifest]
+    merged = natural.FrameBank.concatenate([bank, load(videos[2:3])])
+    assert [m["name"] for m in merged.manifest()] == [*bank.names, videos[2].name]
+
+
 def test_host_sampler_dial(small_bank):
     """`frame_rate` and `num_videos`, one for all or one per env: the defaults (and every
     video) draw as the plain sampler; rate 0 freezes, rate 3 jumps three frames (a video that

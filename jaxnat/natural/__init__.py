@@ -35,6 +35,7 @@ from jaxnat.natural.bank import (
     DEFAULT_SHAPE,
     DEFAULT_TEST_FRACTION,
     FrameBank,
+    bank_manifests,
     load_images,
     load_videos,
 )
@@ -63,6 +64,7 @@ from jaxnat.natural.sources import default_image_paths, default_video_paths
 
 __all__ = [
     "FrameBank",
+    "bank_manifests",
     "load_videos",
     "load_images",
     "default_video_paths",

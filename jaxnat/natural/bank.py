@@ -29,7 +29,7 @@ from jaxnat.datasets import cache as _cache
 from jaxnat.datasets.base import DatasetFormatError
 from jaxnat.natural import decode, sources as _sources
 
-__all__ = ["FrameBank", "load_videos", "load_images", "DEFAULT_SHAPE", "DEFAULT_TEST_FRACTION",
+__all__ = ["FrameBank", "bank_manifests", "load_videos", "load_images", "DEFAULT_SHAPE", "DEFAULT_TEST_FRACTION",
            "FORMAT_VERSION"]
 
 logger = logging.getLogger("jaxnat.natural")
@@ -49,14 +49,24 @@ class FrameBank:
     """Frames of V videos back to back: video v is `frames[starts[v] : starts[v] + lengths[v]]`.
 
     `frames` uint8 [N, H, W, C] (C = 3 RGB or 1 gray), `starts`/`lengths` int32 [V], every video
-    at least one frame long; `names` (static) are the source files' names, in bank order. Numpy
-    on the host (as loaded); `to_device()` gives the same pytree with jax arrays.
+    at least one frame long; `names` (static) are the source files' names, in bank order, and
+    `digests` (static) their contents' SHA-256 (hex; empty for a bank not loaded from files).
+    Numpy on the host (as loaded); `to_device()` gives the same pytree with jax arrays.
+    `manifest()` says exactly which data a bank holds.
     """
 
     frames: np.ndarray | jax.Array
     starts: np.ndarray | jax.Array
     lengths: np.ndarray | jax.Array
     names: tuple[str, ...] = struct.field(pytree_node=False, default=())
+    digests: tuple[str, ...] = struct.field(pytree_node=False, default=())
+
+    def manifest(self) -> list[dict]:
+        """One entry per video (or photo), in bank order: its file `name`, the `sha256` of the
+        file's bytes ("" if unknown) and the `frames` the bank holds of it (after any cap)."""
+        digests = self.digests or ("",) * self.num_videos
+        return [{"name": name, "sha256": digest, "frames": int(length)}
+                for name, digest, length in zip(self.names, digests, np.asarray(self.lengths))]
 
     @property
     def num_videos(self) -> int:
@@ -92,7 +102,8 @@ class FrameBank:
             raise ValueError(f"cannot concatenate banks with different frame shapes: "
                              f"{sorted(shapes)}; load them with the same shape and grayscale")
         clips = [b.frames[s:s + n] for b in banks for s, n in zip(b.starts, b.lengths)]
-        return _from_clips(clips, [name for b in banks for name in b.names])
+        digests = [d for b in banks for d in (b.digests or ("",) * b.num_videos)]
+        return _from_clips(clips, [name for b in banks for name in b.names], digests)
 
     def describe(self) -> str:
         """One line: videos, frames, shape and memory."""
@@ -101,11 +112,25 @@ class FrameBank:
                 f"{self.nbytes / 2**20:.1f} MiB")
 
 
-def _from_clips(clips: list[np.ndarray], names: list[str]) -> FrameBank:
+def bank_manifests(*trees) -> list[list[dict]]:
+    """The `FrameBank.manifest()` of every bank inside `trees` (env params, envs, any pytree or
+    object with a `background_bank`), in order, each bank once (equal manifests count once): what a run records of the
+    videos and photos it saw (`jaxnat train` writes them to `config.json` as `data`)."""
+    manifests = []
+    for tree in trees:
+        found = getattr(tree, "background_bank", None)
+        leaves = [found] if found is not None else jax.tree.leaves(tree, is_leaf=lambda x: isinstance(x, FrameBank))
+        for leaf in leaves:
+            if isinstance(leaf, FrameBank) and leaf.manifest() not in manifests:
+                manifests.append(leaf.manifest())
+    return manifests
+
+
+def _from_clips(clips: list[np.ndarray], names: list[str], digests: list[str] = ()) -> FrameBank:
     lengths = np.array([len(c) for c in clips], dtype=np.int32)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int32)
     return FrameBank(frames=np.ascontiguousarray(np.concatenate(clips)), starts=starts,
-                     lengths=lengths, names=tuple(names))
+                     lengths=lengths, names=tuple(names), digests=tuple(digests))
 
 
 def _per_video_cap(lengths: list[int], max_frames: int) -> int:
@@ -158,7 +183,7 @@ def _read_cached(path: Path, names_by_digest: dict[str, str]) -> FrameBank | Non
         if "" in names:
             raise ValueError("the entry's videos are not the requested files")
         return _check_consistent(FrameBank(frames=frames, starts=starts, lengths=lengths,
-                                           names=names))
+                                           names=names, digests=tuple(str(d) for d in digests)))
 
     return _cache.read_arrays(path, ("frames", "starts", "lengths", "digests"), build)
 
@@ -194,7 +219,7 @@ def _load(kind: str, files: list[Path], split: str, test_fraction: float, shape,
             clips, names, digests = clips[:max_frames], names[:max_frames], digests[:max_frames]
             cap = _per_video_cap([len(c) for c in clips], max_frames)
             clips = [c[:cap] for c in clips]
-        bank = _from_clips(clips, names)
+        bank = _from_clips(clips, names, digests)
         if cache:
             _write_cached(path, bank, digests)
     logger.info("natural %s (%s): %s", kind, split, bank.describe())

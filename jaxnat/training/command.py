@@ -158,6 +158,9 @@ def train(args: TrainArgs, *, console=None, compiler_options: dict | None = None
         "spec": spec.to_json(), "args": args_json(args), "backend": "host" if host else "device",
         "versions": versions(), "created": datetime.datetime.now().isoformat(timespec="seconds"),
         "command": sys.argv}
+    data = getattr(backend, "data_manifest", dict)()
+    if new_run is not None and any(data.values()):  # the videos and photos the run sees, by content hash
+        new_run["data"] = data
     if saved is not None and spec.config.total_timesteps != saved["spec"]["config"]["total_timesteps"]:
         old = RunSpec.from_json(saved["spec"])
         saved = write_extension(run_dir, saved, spec)

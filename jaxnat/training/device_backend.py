@@ -229,6 +229,12 @@ class DeviceBackend:
             scores = jax.device_get(self._program("chance")(self.test_params, self.eval_keys()))
         return {name: float(np.mean(value)) for name, value in scores.items()}
 
+    def data_manifest(self) -> dict:
+        """The videos and photos in the env params (`natural.bank_manifests`), per split."""
+        from jaxnat.natural import bank_manifests
+
+        return {"train": bank_manifests(self.params), "test": bank_manifests(self.test_params)}
+
     def close(self) -> None:
         pass
 

@@ -196,6 +196,14 @@ class HostBackend:
         """Not measured: random play of whole Atari games costs as much as evaluating a seed."""
         return None
 
+    def data_manifest(self) -> dict:
+        """The background's videos or photos (`natural.bank_manifests`), per split (a pipelined
+        env's parts hold the same bank: its first part's)."""
+        from jaxnat.natural import bank_manifests
+
+        return {"train": bank_manifests(getattr(self.env, "parts", [self.env])[0]),
+                "test": bank_manifests(self.test_env)}
+
     def close(self) -> None:
         self.env.close()
         self.test_env.close()
