@@ -264,3 +264,26 @@ def test_greedy_column_is_explained_under_the_table(tmp_path):
     table_end = text.index("| `localize-clutter-cnn-ppo` |")
     assert text.index(report.GREEDY_NOTE) > table_end
     assert "repeats one wrong label" in report.GREEDY_NOTE
+
+
+def test_the_report_names_the_natural_data_the_cells_saw():
+    """`data_section`: one row per split and file the cells' runs recorded (`config.json`'s
+    `data`), with how many cells saw it; nothing when no cell recorded any."""
+    import dataclasses
+
+    import numpy as np
+
+    from jaxnat.reproduce import grid
+    from jaxnat.reproduce.report import CellResult, data_section
+
+    cell = grid.Cell("c", "mujoco", "mujoco", "X/Y-v0", {}, "ppo", None, grid.Budget(10), {}, {})
+    empty = np.zeros((0,))
+    base = CellResult(cell, True, 1, empty, np.zeros((0, 1)), empty, np.zeros((0, 1)), np.zeros((0, 1)), None, 0.0)
+    clip = {"name": "tree.avi", "sha256": "ab" * 32, "frames": 50}
+    data = {"train": [[clip]], "test": [[{"name": "cup.mp4", "sha256": "cd" * 32, "frames": 30}]]}
+    other = dataclasses.replace(base, cell=dataclasses.replace(cell, name="d"), data={"train": [[clip]], "test": []})
+    lines = data_section([dataclasses.replace(base, data=data), other, base])
+    assert lines[0] == "## Natural data the cells saw"
+    assert "| test | cup.mp4 | `cdcdcdcdcdcd` | 30 | 1 |" in lines
+    assert "| train | tree.avi | `abababababab` | 50 | 2 |" in lines
+    assert data_section([base]) == []

@@ -73,6 +73,9 @@ class CellResult:
     chance: float | None  # the uniform random policy's test return
     wall_time_s: float
     seed_values: tuple = ()  # the seeds, in the order of the columns (empty: not recorded)
+    # The natural videos and photos the run saw, per split (`config.json`'s `data`: each bank's
+    # `FrameBank.manifest()`); empty for a run with none, or written before runs recorded them.
+    data: dict = dataclasses.field(default_factory=dict)
 
     @property
     def final_train(self) -> Interval:
@@ -147,7 +150,29 @@ def load_result(cell: Cell, run_dir: Path) -> CellResult:
     summary = record.summary or {}
     chance = (summary.get("chance") or {}).get("return")
     return CellResult(cell, bool(summary.get("complete")), len(seed_values), steps, train, eval_steps, greedy, sampled,
-                      chance, float(summary.get("wall_time_s") or 0.0), tuple(seed_values))
+                      chance, float(summary.get("wall_time_s") or 0.0), tuple(seed_values),
+                      record.config.get("data") or {})
+
+
+def data_section(results: list[CellResult]) -> list[str]:
+    """The natural videos and photos the cells saw (their runs' data manifests): per split and
+    file, its SHA-256 (first 12 hex digits here; whole in each cell's `config.json`), the frames
+    used and how many cells saw it. Empty when no cell recorded any."""
+    seen: dict[tuple, dict] = {}
+    for r in results:
+        for split, banks in r.data.items():
+            for entry in (e for bank in banks for e in bank):
+                key = (split, entry["name"], entry["sha256"], entry["frames"])
+                seen.setdefault(key, set()).add(r.cell.name)
+    if not seen:
+        return []
+    lines = ["## Natural data the cells saw", "",
+             "Every video and photo of the natural backgrounds and floors, as the runs recorded them "
+             "(`config.json`'s `data`, `jaxnat.natural.FrameBank.manifest`); the splits never share a file.", "",
+             "| split | file | SHA-256 | frames used | cells |", "|---|---|---|---|---|"]
+    for (split, name, digest, frames), cells in sorted(seen.items()):
+        lines.append(f"| {split} | {name} | `{digest[:12] or 'unknown'}` | {frames} | {len(cells)} |")
+    return lines + [""]
 
 
 def _dataset_title(cell: Cell) -> str:
@@ -325,6 +350,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         lines += [""]
 
     lines += departures_section(plan.profile, plan.cells)
+    lines += data_section(results)
     lines += _findings_lines(verdicts)
     lines += aggregates_section(aggregates, finished)
 

@@ -66,7 +66,7 @@ def cell_entry(result) -> dict:
         "algo": cell.algo, "trunk": cell.trunk, "overrides": cell.overrides, "note": cell.note,
         "complete": result.complete, "seeds": list(result.seed_values) or result.seeds,
         "env_steps_per_seed": last, "budget_share": result.budget_share, "wall_time_s": result.wall_time_s,
-        "random_policy_test_return": result.chance,
+        "random_policy_test_return": result.chance, "data": result.data,
         "train_final": {"env_steps": last, "per_seed": result.train_per_seed(None),
                         "interval": _interval(result.final_train)},
         "train_checkpoints": checkpoints,
