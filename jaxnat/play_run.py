@@ -26,11 +26,10 @@ from pathlib import Path
 from typing import Annotated
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import tyro
 
-from jaxnat.trained import SPLITS, LoadError, load_policy
+from jaxnat.trained import SPLITS, LoadError, episode_program, load_policy
 from jaxnat.video import FORMATS, VideoWriter, require_av, upscale
 
 __all__ = ["PlayArgs", "play", "record_episodes", "main", "MIN_SIDE", "STEP_FPS"]
@@ -132,31 +131,9 @@ def record_episodes(policy, key, num_episodes: int, *, greedy: bool = False, max
     env, env_params = _without_autoreset(policy.env), policy.env_params
     if max_steps is None:
         max_steps = int(env_params.max_steps_in_episode)
-
-    def episode(params, normalizer, key):
-        key_reset, key_steps = jax.random.split(key)
-        obs, state = env.reset(key_reset, env_params)
-
-        def body(carry, key):
-            obs, state, running, total, length, terminated_any = carry
-            key_act, key_env = jax.random.split(key)
-            action = policy.apply(params, normalizer, obs, key_act, greedy)
-            obs, state, reward, terminated, truncated, _ = env.step(key_env, state, action, env_params)
-            total = total + jnp.where(running, reward, 0.0)
-            length = length + running
-            terminated_any = terminated_any | (running & terminated)
-            carry = (obs, state, running & ~(terminated | truncated), total, length, terminated_any)
-            return carry, (state if reads_state else obs)
-
-        carry = (obs, state, jnp.asarray(True), jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.asarray(False))
-        (_, _, running, total, length, terminated), seen = jax.lax.scan(
-            body, carry, jax.random.split(key_steps, max_steps))
-        seen = jax.tree.map(lambda first, rest: jnp.concatenate([first[None], rest]),
-                            state if reads_state else obs, seen)
-        return seen, {"return": total, "length": length, "terminated": terminated, "unfinished": running}
-
-    run = jax.jit(jax.vmap(episode, in_axes=(None, None, 0)))
-    return jax.device_get(run(policy.params, policy.normalization, jax.random.split(key, num_episodes)))
+    episode = episode_program(policy, max_steps, greedy, env=env, record="state" if reads_state else "obs")
+    run = jax.jit(jax.vmap(episode, in_axes=(None, None, None, 0)))
+    return jax.device_get(run(policy.params, policy.normalization, env_params, jax.random.split(key, num_episodes)))
 
 
 def _frames_of(frames, seen, count: int):

@@ -26,8 +26,8 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 
-__all__ = ["LoadError", "TrainedPolicy", "load_policy", "play_episodes", "sweep_episodes", "sweep_params",
-           "dial_fields", "SPLITS"]
+__all__ = ["LoadError", "TrainedPolicy", "load_policy", "episode_program", "play_episodes", "sweep_episodes",
+           "sweep_params", "dial_fields", "SPLITS"]
 
 SPLITS = ("test", "train")
 
@@ -155,12 +155,15 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
                          apply=apply, _act=jax.jit(apply, static_argnames="greedy"))
 
 
-def _episode(policy: TrainedPolicy, max_steps: int, greedy: bool) -> Callable:
+def episode_program(policy: TrainedPolicy, max_steps: int, greedy: bool, *, env=None,
+                    record: str | None = None) -> Callable:
     """`episode(params, normalizer, env_params, key)`: the first episode of an env reset with
     `key`, played with `policy.apply` for at most `max_steps` steps; its return, length,
     `terminated` and `unfinished` (cut at `max_steps`). `env_params` is an argument so that a
-    sweep can vmap it over a strength axis."""
-    env = policy.env
+    sweep can vmap it over a strength axis. `env`: the env to play (default `policy.env`).
+    `record` "obs" or "state": also what the episode saw, `(seen, results)` with `seen[t]`
+    the observation (or env state) at step `t`, `t = 0` the reset, valid for `t <= length`."""
+    env = policy.env if env is None else env
 
     def episode(params, normalizer, env_params, key):
         key_reset, key_steps = jax.random.split(key)
@@ -174,12 +177,17 @@ def _episode(policy: TrainedPolicy, max_steps: int, greedy: bool) -> Callable:
             total = total + jnp.where(running, reward, 0.0)
             length = length + running
             terminated_any = terminated_any | (running & terminated)
-            return (obs, state, running & ~(terminated | truncated), total, length, terminated_any), None
+            seen = None if record is None else (state if record == "state" else obs)
+            return (obs, state, running & ~(terminated | truncated), total, length, terminated_any), seen
 
         carry = (obs, state, jnp.asarray(True), jnp.zeros(()), jnp.zeros((), jnp.int32), jnp.asarray(False))
-        (_, _, running, total, length, terminated), _ = jax.lax.scan(body, carry,
-                                                                      jax.random.split(key_steps, max_steps))
-        return {"return": total, "length": length, "terminated": terminated, "unfinished": running}
+        (_, _, running, total, length, terminated), seen = jax.lax.scan(body, carry,
+                                                                         jax.random.split(key_steps, max_steps))
+        results = {"return": total, "length": length, "terminated": terminated, "unfinished": running}
+        if record is None:
+            return results
+        first = state if record == "state" else obs
+        return jax.tree.map(lambda a, rest: jnp.concatenate([a[None], rest]), first, seen), results
 
     return episode
 
@@ -192,7 +200,7 @@ def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
     Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy."""
     if max_steps is None:
         max_steps = int(policy.env_params.max_steps_in_episode)
-    play = jax.jit(jax.vmap(_episode(policy, max_steps, greedy), in_axes=(None, None, None, 0)))
+    play = jax.jit(jax.vmap(episode_program(policy, max_steps, greedy), in_axes=(None, None, None, 0)))
     return jax.device_get(play(policy.params, policy.normalization, policy.env_params,
                                jax.random.split(key, num_episodes)))
 
@@ -245,6 +253,6 @@ def sweep_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: boo
     swept, axes = sweep_params(policy, **values)
     if max_steps is None:
         max_steps = int(policy.env_params.max_steps_in_episode)
-    per_strength = jax.vmap(_episode(policy, max_steps, greedy), in_axes=(None, None, None, 0))
+    per_strength = jax.vmap(episode_program(policy, max_steps, greedy), in_axes=(None, None, None, 0))
     play = jax.jit(jax.vmap(per_strength, in_axes=(None, None, axes, None)))
     return jax.device_get(play(policy.params, policy.normalization, swept, jax.random.split(key, num_episodes)))
