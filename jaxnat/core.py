@@ -27,7 +27,8 @@ object for both kinds: a `VmapWrapper` (this contract, batched) or a `HostBatche
 
 from __future__ import annotations
 
-from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
+import dataclasses
+from typing import Any, Callable, Generic, Protocol, TypeVar, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -35,12 +36,34 @@ from flax import struct
 
 from jaxnat import spaces
 
-__all__ = ["Environment", "EnvState", "EnvParams", "HostBatchedEnv", "is_concrete"]
+__all__ = ["Environment", "EnvState", "EnvParams", "HostBatchedEnv", "is_concrete", "sweep_distraction"]
 
 
 def is_concrete(value) -> bool:
     """Whether `value` is known now (a number or an array), not a tracer inside jit or vmap."""
     return not isinstance(value, jax.core.Tracer)
+
+
+def sweep_distraction(params, values: dict, check: Callable[[dict], None]):
+    """`(params, in_axes)` for `jax.vmap` over a strength axis: `params` (with a `distraction`
+    group, a dataclass of traced strengths) with the named fields of that group replaced by
+    arrays of one leading length, and the `in_axes` prefix that is 0 on those fields and None
+    everywhere else (the data stays shared, not copied per strength). `check(arrays)` refuses
+    concrete values out of range. Unknown names, none, or arrays of other lengths are one-line
+    `ValueError`s. The envs' `params.sweep(**values)`."""
+    group = type(params.distraction)
+    names = [f.name for f in dataclasses.fields(group)]
+    unknown = sorted(set(values) - set(names))
+    if unknown or not values:
+        raise ValueError(f"sweep takes Distraction fields {names}, got {sorted(values)}")
+    arrays = {k: jnp.asarray(v) for k, v in values.items()}
+    lengths = {k: (a.shape[0] if a.ndim else None) for k, a in arrays.items()}
+    if None in lengths.values() or len(set(lengths.values())) != 1:
+        raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
+    check(arrays)
+    axes = jax.tree.map(lambda _: None, params)
+    axes = axes.replace(distraction=group(**{k: (0 if k in values else None) for k in names}))
+    return params.replace(distraction=params.distraction.replace(**arrays)), axes
 
 
 @struct.dataclass

@@ -102,7 +102,7 @@ import numpy as np
 from flax import struct
 
 from jaxnat import spaces
-from jaxnat.core import Environment, EnvParams, EnvState, is_concrete
+from jaxnat.core import Environment, EnvParams, EnvState, is_concrete, sweep_distraction
 from jaxnat.mjx_pixel.camera import TrackingCamera
 from jaxnat.mjx_pixel.floor import FLOOR_MODES, blend_video, floor_rgb, screen_video
 from jaxnat.mjx_pixel.render import GeomTable, Renderer
@@ -165,21 +165,10 @@ class PixelParams(EnvParams):
             swept, axes = params.sweep(video_alpha=jnp.linspace(0, 1, 5))
             jax.vmap(env.step, in_axes=(0, 0, 0, axes))(keys, states, actions, swept)
         """
-        names = [f.name for f in dataclasses.fields(Distraction)]
-        unknown = sorted(set(values) - set(names))
-        if unknown or not values:
-            raise ValueError(f"sweep takes Distraction fields {names}, got {sorted(values)}")
-        arrays = {k: jnp.asarray(v) for k, v in values.items()}
-        lengths = {k: (a.shape[0] if a.ndim else None) for k, a in arrays.items()}
-        if None in lengths.values() or len(set(lengths.values())) != 1:
-            raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
         # Ranges now, while the values are concrete (the floor is the env's: `check_params`).
-        _check_distraction(**{k: a for k, a in arrays.items() if is_concrete(a)},
-                           bank_videos=None if self.video is None else self.video.lengths.shape[0])
-        axes = jax.tree.map(lambda _: None, self)
-        axes = axes.replace(distraction=Distraction(
-            **{k: (0 if k in values else None) for k in names}))
-        return self.replace(distraction=self.distraction.replace(**arrays)), axes
+        bank_videos = None if self.video is None else self.video.lengths.shape[0]
+        return sweep_distraction(self, values, lambda arrays: _check_distraction(
+            **{k: a for k, a in arrays.items() if is_concrete(a)}, bank_videos=bank_videos))
 
 
 class PixelMuJoCo(Environment[PixelState, PixelParams]):

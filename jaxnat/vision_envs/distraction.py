@@ -27,7 +27,6 @@ the same splits as before the dial.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import jax
@@ -35,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxnat.core import is_concrete
+from jaxnat.core import is_concrete, sweep_distraction
 
 __all__ = ["Distraction", "DistractionSweep", "NOISE_STREAM", "noisy_image", "noise_key_data",
            "observe_with_noise", "check_distraction"]
@@ -65,19 +64,7 @@ class DistractionSweep:
             swept, axes = params.sweep(noise_sigma=jnp.linspace(0, 64, 5))
             jax.vmap(env.reset, in_axes=(0, axes))(keys, swept)
         """
-        names = [f.name for f in dataclasses.fields(Distraction)]
-        unknown = sorted(set(values) - set(names))
-        if unknown or not values:
-            raise ValueError(f"sweep takes Distraction fields {names}, got {sorted(values)}")
-        arrays = {k: jnp.asarray(v) for k, v in values.items()}
-        lengths = {k: (a.shape[0] if a.ndim else None) for k, a in arrays.items()}
-        if None in lengths.values() or len(set(lengths.values())) != 1:
-            raise ValueError(f"sweep needs arrays of one leading length, got lengths {lengths}")
-        check_distraction(Distraction(**arrays))
-        axes = jax.tree.map(lambda _: None, self)
-        axes = axes.replace(distraction=Distraction(
-            **{k: (0 if k in values else None) for k in names}))
-        return self.replace(distraction=self.distraction.replace(**arrays)), axes
+        return sweep_distraction(self, values, lambda arrays: check_distraction(Distraction(**arrays)))
 
 
 def check_distraction(distraction: Distraction) -> None:
