@@ -374,3 +374,16 @@ def test_num_videos_limits_the_videos_in_play(physics, video):
         env.check_params(with_distraction(params, num_videos=np.array([1, count + 1])))
     with pytest.raises(ValueError, match="num_videos must be >= 1"):
         params.sweep(num_videos=jnp.array([0, 1]))
+
+
+def test_the_papers_setting_is_a_named_point(physics):
+    """`distraction="paper"`: the authors' video floor advanced 4 frames per agent step; on the
+    other floors nothing changes; a field it sets given beside it, or an unknown name, is a
+    one-line error."""
+    assert make_env(physics, **VIDEO, distraction="paper").default_params.distraction == Distraction(frame_rate=4)
+    assert make_env(physics, distraction="paper").default_params.distraction == Distraction()
+    assert make_env(physics, **VIDEO).default_params.distraction.frame_rate == 1
+    with pytest.raises(ValueError, match="sets frame_rate=4; leave frame_rate out"):
+        make_env(physics, **VIDEO, distraction="paper", frame_rate=1)
+    with pytest.raises(ValueError, match="distraction must be one of"):
+        make_env(physics, distraction="authors")

@@ -108,7 +108,7 @@ from jaxnat.mjx_pixel.floor import FLOOR_MODES, blend_video, floor_rgb, screen_v
 from jaxnat.mjx_pixel.render import GeomTable, Renderer
 from jaxnat.natural.noise import DEFAULT_NOISE, NOISE_SCALE, NoiseLaw, noise_law
 
-__all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "Distraction", "PHYSICS", "OBSERVATIONS"]
+__all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "Distraction", "PHYSICS", "OBSERVATIONS", "NAMED_POINTS"]
 
 # Robot name -> its MJX physics env ("module:class").
 PHYSICS = {
@@ -118,6 +118,10 @@ PHYSICS = {
     "swimmer": "jaxnat.mjx_pixel.swimmer:Swimmer",
 }
 OBSERVATIONS = ("pixels", "noise", "state", "constant")
+# The named points of the distraction dial (`distraction=`): name -> floor -> the `Distraction`
+# fields it sets (the others keep the plain env's). "paper": the authors' MuJoCo code advanced 4
+# video frames per agent step; their noise is the default law at its own scale.
+NAMED_POINTS = {None: {}, "paper": {"video": {"frame_rate": 4}}}
 
 
 @struct.dataclass
@@ -194,6 +198,10 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             a directory or a glob; see `jaxnat.natural.load_videos`).
         video_alpha: floor="video": the default `Distraction.video_alpha`, the video's weight
             over the checker in [0, 1] (1: the video floor; 0: the checker's frames).
+        distraction: a named point of the dial: None (the plain env) or "paper" (the authors'
+            settings: their MuJoCo code advanced 4 video frames per agent step, so
+            `frame_rate=4` on the video floor; the other fields are the plain env's). A dial
+            field given beside "paper" that it sets is a one-line error.
         frame_rate: floor="video": the default `Distraction.frame_rate`, video frames per agent
             step (1; 0 freezes the episode's first frame).
         sky_alpha: floor="video": the default `Distraction.sky_alpha`, the video's weight over
@@ -234,10 +242,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         noise: str | NoiseLaw = DEFAULT_NOISE,
         floor_filter: str = "mip",
         video_alpha: float = 1.0,
-        frame_rate: int = 1,
+        frame_rate: int | None = None,
         sky_alpha: float = 0.0,
         noise_sigma: float | None = None,
         num_videos: int | None = None,
+        distraction: str | None = None,
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -247,6 +256,12 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             raise ValueError(f"frame_skip and frame_stack must be >= 1, got {frame_skip}, {frame_stack}")
         law = noise_law(noise)
         noise_sigma = law.scale if noise_sigma is None else noise_sigma
+        if distraction not in NAMED_POINTS:
+            raise ValueError(f"distraction must be one of {sorted(NAMED_POINTS, key=str)}, got {distraction!r}")
+        point = NAMED_POINTS[distraction].get(floor, {})
+        if "frame_rate" in point and frame_rate is not None:
+            raise ValueError(f"distraction={distraction!r} sets frame_rate={point['frame_rate']}; leave frame_rate out")
+        frame_rate = point.get("frame_rate", 1) if frame_rate is None else frame_rate
         _check_distraction(floor, "noise" in (observation, floor), law.scale,
                            video_alpha=video_alpha, frame_rate=frame_rate, sky_alpha=sky_alpha,
                            noise_sigma=noise_sigma)
