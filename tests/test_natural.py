@@ -564,6 +564,39 @@ def test_a_bank_names_its_data_by_content_hash(videos, monkeypatch, tmp_path):
     assert [m["name"] for m in merged.manifest()] == [*bank.names, videos[2].name]
 
 
+def test_a_set_with_a_manifest_is_read_as_it_says(videos):
+    """`write_manifest(folder)` lists a Kinetics-style folder's files (path, bytes, SHA-256);
+    from then on the folder is exactly those files: a file added later is not read, one
+    changed or missing is a one-line error, and a damaged manifest says how to rewrite it."""
+    import json
+
+    from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
+    from jaxnat.natural import sources
+
+    folder = videos[0].parent
+    kinetics = folder / "driving car"
+    kinetics.mkdir()
+    moved = kinetics / videos[4].name
+    videos[4].rename(moved)
+    path = natural.write_manifest(folder, sources.VIDEO_EXTENSIONS)
+    listed = json.loads(path.read_text())["files"]
+    assert [e["path"] for e in listed] == sorted([*(v.name for v in videos[:4]), f"driving car/{moved.name}"])
+    assert all(e["sha256"] == hashlib.sha256((folder / e["path"]).read_bytes()).hexdigest() for e in listed)
+    (folder / "extra.avi").write_bytes(videos[0].read_bytes() + b"x")
+    files = sources.resolve(folder, sources.VIDEO_EXTENSIONS)
+    assert [f.relative_to(folder).as_posix() for f in files] == [e["path"] for e in listed]
+    assert load(folder).num_videos == 5  # decoded through the manifest
+    videos[1].write_bytes(videos[1].read_bytes() + b"changed")
+    with pytest.raises(DatasetFormatError, match="changed since .*manifest.json was written"):
+        sources.resolve(folder, sources.VIDEO_EXTENSIONS)
+    videos[1].unlink()
+    with pytest.raises(DatasetNotFoundError, match="is listed in .* but missing"):
+        sources.resolve(folder, sources.VIDEO_EXTENSIONS)
+    path.write_text("{not json")
+    with pytest.raises(DatasetFormatError, match="is not a jaxnat manifest .*write_manifest"):
+        sources.resolve(folder, sources.VIDEO_EXTENSIONS)
+
+
 def test_host_sampler_dial(small_bank):
     """`frame_rate` and `num_videos`, one for all or one per env: the defaults (and every
     video) draw as the plain sampler; rate 0 freezes, rate 3 jumps three frames (a video that

@@ -60,7 +60,7 @@ from jaxnat.natural.sampler import (
     cursor_reset,
     cursor_step,
 )
-from jaxnat.natural.sources import default_image_paths, default_video_paths
+from jaxnat.natural.sources import default_image_paths, default_video_paths, write_manifest
 
 __all__ = [
     "FrameBank",
@@ -69,6 +69,7 @@ __all__ = [
     "load_images",
     "default_video_paths",
     "default_image_paths",
+    "write_manifest",
     "DEFAULT_SHAPE",
     "DEFAULT_TEST_FRACTION",
     "VideoDecodeWarning",

@@ -22,17 +22,18 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import json
 import os
 import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from jaxnat.datasets.base import DatasetNotFoundError
+from jaxnat.datasets.base import DatasetFormatError, DatasetNotFoundError
 from jaxnat.natural.near_duplicates import NearDuplicateWarning, near_duplicate_groups
 
 __all__ = ["VIDEO_EXTENSIONS", "IMAGE_EXTENSIONS", "SPLITS", "OPENCV_DOC_DIRS",
            "DEFAULT_VIDEOS", "DEFAULT_IMAGES", "default_video_paths", "default_image_paths",
-           "resolve", "content_digest", "split_files"]
+           "resolve", "content_digest", "split_files", "MANIFEST_NAME", "write_manifest"]
 
 VIDEO_EXTENSIONS = (".avi", ".mp4", ".m4v", ".mkv", ".mov", ".webm", ".mpg", ".mpeg", ".wmv",
                     ".flv", ".ogv")
@@ -93,6 +94,56 @@ def _has_extension(path: Path, extensions: Sequence[str]) -> bool:
     return name.endswith(tuple(extensions)) and not path.name.startswith(".")
 
 
+# A video or photo set's manifest, at the top of its folder: the files that are the set and
+# their contents' SHA-256 (`write_manifest`). A folder with one is read as the manifest says.
+MANIFEST_NAME = "manifest.json"
+MANIFEST_FORMAT = 1
+
+
+def write_manifest(folder: str | os.PathLike, extensions: Sequence[str] = ()) -> Path:
+    """Describe the set of files under `folder` (a Kinetics-style folder: class folders of
+    clips; recursive; with `extensions`, only those) in `folder/manifest.json`: each file's path
+    relative to the folder, its size and the SHA-256 of its bytes, sorted by path. From then
+    on `resolve` reads that folder as exactly those files, and refuses one that changed.
+    Returns the manifest's path."""
+    folder = Path(folder).expanduser()
+    files = sorted(p for p in folder.rglob("*") if p.is_file() and p.name != MANIFEST_NAME
+                   and (not extensions or _has_extension(p, extensions)))
+    if not files:
+        raise DatasetNotFoundError(f"no files to describe in {folder}")
+    entries = [{"path": p.relative_to(folder).as_posix(), "bytes": p.stat().st_size, "sha256": content_digest(p)}
+               for p in files]
+    path = folder / MANIFEST_NAME
+    partial = path.with_name(MANIFEST_NAME + ".partial")
+    partial.write_text(json.dumps({"format": MANIFEST_FORMAT, "files": entries}, indent=1) + "\n")
+    partial.replace(path)
+    return path
+
+
+def _manifest_files(folder: Path) -> list[Path]:
+    """The files `folder/manifest.json` lists, each checked against its SHA-256."""
+    path = folder / MANIFEST_NAME
+    try:
+        document = json.loads(path.read_text())
+        entries = [(str(e["path"]), str(e["sha256"])) for e in document["files"]]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise DatasetFormatError(f"{path} is not a jaxnat manifest ({type(err).__name__}: {err}); rewrite it "
+                                 "with jaxnat.natural.write_manifest") from None
+    files = []
+    for name, digest in entries:
+        file = folder / name
+        if not file.is_file():
+            raise DatasetNotFoundError(f"{file} is listed in {path} but missing: restore it, or rewrite the "
+                                       "manifest with jaxnat.natural.write_manifest")
+        if content_digest(file) != digest:
+            raise DatasetFormatError(f"{file} changed since {path} was written (its SHA-256 is not the "
+                                     "manifest's): restore it, or rewrite the manifest")
+        files.append(file)
+    if not files:
+        raise DatasetNotFoundError(f"{path} lists no files")
+    return files
+
+
 def _is_glob(text: str) -> bool:
     return any(c in text for c in "*?[")
 
@@ -102,7 +153,8 @@ def resolve(sources: str | os.PathLike | Iterable[str | os.PathLike],
     """The files named by `sources` (files, directories, glob patterns), in a stable order.
 
     A directory contributes its files with one of `extensions` (optionally gzipped), searched
-    recursively; a glob contributes every file it matches. A named file that does not exist, a
+    recursively, or, when it holds a `manifest.json` (`write_manifest`), exactly the files that
+    lists, each checked against its SHA-256; a glob contributes every file it matches. A named file that does not exist, a
     directory without such files, or a glob matching nothing raises `DatasetNotFoundError`
     naming it.
     """
@@ -112,7 +164,9 @@ def resolve(sources: str | os.PathLike | Iterable[str | os.PathLike],
     for source in sources:
         text = os.fspath(source)
         path = Path(text).expanduser()
-        if path.is_dir():
+        if path.is_dir() and (path / MANIFEST_NAME).is_file():
+            found = _manifest_files(path)
+        elif path.is_dir():
             found = sorted(p for p in path.rglob("*") if p.is_file()
                            and _has_extension(p, extensions))
             if not found:
