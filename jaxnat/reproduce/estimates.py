@@ -26,10 +26,10 @@ OBSERVATION_SPEEDUP = {"noise": 1.5, "state": 5.0, "constant": 5.0}
 COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
              "gpu": {"classify": 8, "localize": 23, "atari": 106, "mujoco": 35}}
 # Seconds a GPU spends per update besides stepping envs, by algorithm: what the rate model
-# misses at the authors' small batches, fitted to the paper profile's classification cells on
-# H100s (docs/reproduction/paper/SITTINGS.md: A2C 16 x 5 at 4.5e4-5.2e4 env steps/s, ACKTR
-# 32 x 20 at 5.9e4, whose K-FAC step costs most; at 512 envs both stay within the rate model).
-# PPO's authors' batch is already within it. Device cells only; the CPU rates are per env step.
+# misses at the authors' small batches, where a cell is bound by its per-update launches (and
+# ACKTR by its K-FAC step) rather than by env steps. Fitted to the paper profile's classification
+# cells at the authors' batch (their times: bench/results/reproduce_cost.md); at 512 envs and for
+# PPO the rate model alone holds. Device cells only; the CPU rates are per env step.
 UPDATE_S = {"a2c": 0.0018, "acktr": 0.026}
 
 
@@ -98,9 +98,10 @@ def shard_cells(cells: list[Cell], index: int, count: int, seeds: int) -> list[C
 
 # A device cell whose update steps few envs (all its seeds together) leaves a GPU idle between
 # small kernels: latency-bound, as the authors' A2C (16 x 5) and ACKTR (32 x 20) batches are.
-# Several such cells sharing a GPU each keep most of their pace (the paper profile's third
-# sitting: four on one H100 at 0.55-0.67 of their rate alone, `PACK_PACE`), where a cell with a
-# large batch fills the GPU and sharing halves its pace: `--pack-small N` packs only small cells.
+# Several such cells sharing a GPU fill each other's idle time and each keep most of their pace
+# (`PACK_PACE`, measured in the paper profile's third sitting: bench/results/reproduce_cost.md),
+# where a cell with a large batch already fills the GPU and sharing slows it: `--pack-small N`
+# packs only small cells.
 SMALL_BATCH = 8192  # env steps per update, all seeds: at most this many is a small cell
 PACK_PACE = 0.6  # each packed small cell's pace against its pace alone
 
