@@ -28,6 +28,7 @@ import numpy as np
 
 from jaxnat.atari.compositor import GrayNoiseSampler, grayscale
 from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
+from jaxnat.natural.sampler import per_env_values
 
 __all__ = ["BACKGROUNDS", "make_background"]
 
@@ -124,7 +125,8 @@ class BankBackground(NoBackground):
         self.bank = bank.replace(frames=gray_frames)
         self.still = still  # photos: one per episode, not a new one every step
         self._sampler = HostVideoSampler(self.bank, num_envs, seed, frame_rate=frame_rate, num_videos=num_videos)
-        alpha = np.broadcast_to(check_alpha("video_alpha", video_alpha, num_envs), (num_envs,))
+        alpha = np.broadcast_to(per_env_values("video_alpha", video_alpha, num_envs, low=0.0, high=1.0),
+                                (num_envs,))
         self._dimmed = np.flatnonzero(alpha < 1.0)  # the envs whose frames are scaled
         self._alpha = alpha[self._dimmed].astype(np.float32)[:, None, None, None]
         self.buffer = self._dim(self._sampler.frames())  # uint8 [B, H, W, 1]
@@ -150,28 +152,6 @@ class BankBackground(NoBackground):
         self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
 
 
-def check_alpha(name: str, value, num_envs: int):
-    """`value` (a number, or one per env) checked to lie in [0, 1]: a float or a float64 array
-    of `num_envs`; a one-line `ValueError` otherwise."""
-    array = np.asarray(value, np.float64)
-    if array.ndim > 1 or (array.ndim == 1 and array.size != num_envs):
-        raise ValueError(f"{name} takes one number or one per env ({num_envs}), got shape {array.shape}")
-    if not np.all((array >= 0.0) & (array <= 1.0)):
-        raise ValueError(f"{name} must lie in [0, 1], got {value}")
-    return float(array) if array.ndim == 0 else array
-
-
-def check_spread(name: str, value, num_envs: int):
-    """`value` (a number, or one per env) checked to be finite and >= 0: a float or a float64
-    array of `num_envs`; a one-line `ValueError` otherwise."""
-    array = np.asarray(value, np.float64)
-    if array.ndim > 1 or (array.ndim == 1 and array.size != num_envs):
-        raise ValueError(f"{name} takes one number or one per env ({num_envs}), got shape {array.shape}")
-    if not np.all(np.isfinite(array) & (array >= 0.0)):
-        raise ValueError(f"{name} must be a finite number >= 0, got {value}")
-    return float(array) if array.ndim == 0 else array
-
-
 def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: str = "train", sources=None,
                     seed: int = 0, noise=DEFAULT_NOISE, noise_scale: float | None = None, runner=None,
                     video_alpha=1.0, frame_rate=1, num_videos=None):
@@ -186,7 +166,7 @@ def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: 
         law = noise_law(noise)
         scales = None
         if noise_scale is not None:
-            scales = check_spread("noise_scale", noise_scale, num_envs)
+            scales = per_env_values("noise_scale", noise_scale, num_envs, low=0.0)
             if np.ndim(scales) == 0:
                 law, scales = dataclasses.replace(law, scale=float(scales)), None
         return NoiseBackground(num_envs, shape, seed, law, runner, scales)

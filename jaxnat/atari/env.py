@@ -470,18 +470,17 @@ class NaturalAtariVecEnv:
 def _check_dial(background: str, num_envs: int, video_alpha, frame_rate, num_videos, noise_scale=None) -> None:
     """One-line `ValueError`s for the distraction dial: a value the background would ignore, or
     out of range (the ranges `num_videos` needs the bank for are the sampler's, when it loads)."""
-    from jaxnat.atari.backgrounds import check_alpha, check_spread
-    from jaxnat.natural.sampler import per_env_counts
+    from jaxnat.natural.sampler import per_env_values
 
     if noise_scale is not None:
-        check_spread("noise_scale", noise_scale, num_envs)
+        per_env_values("noise_scale", noise_scale, num_envs, low=0.0)
         if background != "noise":
             raise ValueError(f"noise_scale needs background='noise', got background={background!r}")
 
-    check_alpha("video_alpha", video_alpha, num_envs)
-    per_env_counts("frame_rate", frame_rate, num_envs, low=0)
+    per_env_values("video_alpha", video_alpha, num_envs, low=0.0, high=1.0)
+    per_env_values("frame_rate", frame_rate, num_envs, low=0, whole=True)
     if num_videos is not None:
-        per_env_counts("num_videos", num_videos, num_envs, low=1)
+        per_env_values("num_videos", num_videos, num_envs, low=1, whole=True)
     plain = {"video_alpha": np.all(np.asarray(video_alpha) == 1.0), "frame_rate": np.all(np.asarray(frame_rate) == 1),
              "num_videos": num_videos is None}
     needs = {"video_alpha": ("video", "image"), "frame_rate": ("video",), "num_videos": ("video", "image")}

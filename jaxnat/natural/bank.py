@@ -120,9 +120,9 @@ def bank_manifests(*trees) -> list[list[dict]]:
     for tree in trees:
         found = getattr(tree, "background_bank", None)
         leaves = [found] if found is not None else jax.tree.leaves(tree, is_leaf=lambda x: isinstance(x, FrameBank))
-        for leaf in leaves:
-            if isinstance(leaf, FrameBank) and leaf.manifest() not in manifests:
-                manifests.append(leaf.manifest())
+        for manifest in (leaf.manifest() for leaf in leaves if isinstance(leaf, FrameBank)):
+            if manifest not in manifests:
+                manifests.append(manifest)
     return manifests
 
 

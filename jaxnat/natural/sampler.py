@@ -23,7 +23,7 @@ from flax import struct
 from jaxnat.natural.bank import FrameBank
 
 __all__ = ["VideoCursor", "cursor_reset", "cursor_step", "cursor_frame", "cursor_index",
-           "HostVideoSampler"]
+           "HostVideoSampler", "per_env_values"]
 
 
 @struct.dataclass
@@ -71,19 +71,24 @@ def cursor_frame(bank: FrameBank, cursor: VideoCursor) -> jax.Array:
     return jnp.asarray(bank.frames)[cursor_index(bank, cursor)]
 
 
-def per_env_counts(name: str, value, num_envs: int, low: int, high: int | None = None):
-    """`value` (a whole number, or one per env) checked to lie in [low, high]: an int, or an
-    int64 array of `num_envs`; a one-line `ValueError` otherwise."""
+def per_env_values(name: str, value, num_envs: int, *, low: float, high: float | None = None,
+                   whole: bool = False):
+    """`value` (one number, or one per env) checked to be finite and in [low, high] (and a whole
+    number when `whole`): a Python number, or an array of `num_envs` (int64 when `whole`, else
+    float64); a one-line `ValueError` otherwise. The per-env dials of the host envs share it."""
     array = np.asarray(value)
     if array.ndim > 1 or (array.ndim == 1 and array.size != num_envs):
         raise ValueError(f"{name} takes one number or one per env ({num_envs}), got shape {array.shape}")
-    if not (np.issubdtype(array.dtype, np.integer) or (np.issubdtype(array.dtype, np.floating)
-                                                      and np.all(array == np.round(array)))):
+    if not np.issubdtype(array.dtype, np.number):
+        raise ValueError(f"{name} must be a number, got {value}")
+    if whole and not np.all(array == np.round(array)):
         raise ValueError(f"{name} must be a whole number, got {value}")
-    if np.any(array < low) or (high is not None and np.any(array > high)):
-        bound = f"in [{low}, {high}]" if high is not None else f">= {low}"
-        raise ValueError(f"{name} must be {bound}, got {value}")
-    return int(array) if array.ndim == 0 else array.astype(np.int64)
+    if not np.all(np.isfinite(array) & (array >= low) & (array <= (np.inf if high is None else high))):
+        bound = (f"be in [{low:g}, {high:g}]" if whole else f"lie in [{low:g}, {high:g}]") if high is not None \
+            else (f"be >= {low:g}" if whole else f"be a finite number >= {low:g}")
+        raise ValueError(f"{name} must {bound}, got {value}")
+    kind = np.int64 if whole else np.float64
+    return (int(array) if whole else float(array)) if array.ndim == 0 else array.astype(kind)
 
 
 class HostVideoSampler:
@@ -111,11 +116,11 @@ class HostVideoSampler:
         bank = bank.to_host()
         self.bank = bank
         self.num_envs = num_envs
-        self.frame_rate = per_env_counts("frame_rate", frame_rate, num_envs, low=0)
+        self.frame_rate = per_env_values("frame_rate", frame_rate, num_envs, low=0, whole=True)
         self.num_videos = None  # every video: today's draws
         if num_videos is not None:
-            counts = np.broadcast_to(per_env_counts("num_videos", num_videos, num_envs, low=1,
-                                                    high=bank.num_videos), (num_envs,))
+            counts = np.broadcast_to(per_env_values("num_videos", num_videos, num_envs, low=1,
+                                                    high=bank.num_videos, whole=True), (num_envs,))
             self.num_videos = None if np.all(counts == bank.num_videos) else counts.astype(np.int64)
         self.rng = np.random.default_rng(seed)
         self.video = np.zeros(num_envs, np.int64)
