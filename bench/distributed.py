@@ -13,6 +13,11 @@ PPO (one seed, `--updates` updates of `--num-steps` steps, 2 epochs x 2 minibatc
   `JAX_NUM_PROCESSES=2`, `JAX_PROCESS_ID`), the same program and global batch as (b), as two
   hosts would run it.
 
+On a host-emulated env (`--env-id NaturalAtari/Breakout-v0`) the learner is the host loop's
+(`jaxnat.training.host_backend.make_learner`, the Atari trunk): each process steps its share of
+the ALE batch on its own cores, as one host of several would, and times whole training runs
+from the same key (the first, compiling, untimed).
+
 Each child compiles (timed), runs the program once untimed, then times `--repeats` runs of
 it from the same initial state (median): global env steps/s. The final parameters of (b) and
 (c) must match (the largest difference is printed); both processes of (c) must hold the same
@@ -22,6 +27,7 @@ On a host with 2 GPUs (the first two of `CUDA_VISIBLE_DEVICES` if set, else GPUs
 
     python bench/distributed.py
     python bench/distributed.py --env-id PixelMuJoCo/HalfCheetah-v0 --env-kwargs physics=fast
+    python bench/distributed.py --env-id NaturalAtari/Breakout-v0 --envs-per-process 64 --num-steps 128 --updates 4
 
 On a CPU (`JAX_PLATFORMS=cpu`, or no GPU) the children use CPU devices instead ((b): 2
 simulated ones, `--xla_force_host_platform_device_count=2`; (c): gloo collectives) that share
@@ -96,6 +102,8 @@ def child(args: argparse.Namespace) -> None:
 
     processes, devices, _ = SETTINGS[args.child]
     assert jax.process_count() == processes and jax.device_count() == devices, (jax.process_count(), jax.devices())
+    if jaxnat.spec(args.env_id).batched:
+        return host_child(args)
     env, params = jaxnat.make(args.env_id, **parse_env_kwargs(args.env_kwargs, args.env_id))
     steps = args.num_envs * args.num_steps * args.updates
     config = PPOConfig(num_envs=args.num_envs, num_steps=args.num_steps, total_timesteps=steps,
@@ -116,14 +124,63 @@ def child(args: argparse.Namespace) -> None:
     # Replicated results: this process's copy (the whole array with one process).
     leaves = [np.asarray(x, np.float64) for x in jax.tree.leaves(jaxnat.sharding.local_copy(learner.policy_of(final)[0]))]
     returns = np.asarray(jaxnat.sharding.local_copy(metrics)["episode_return"], np.float64)[0]
-    index = jax.process_index()
+    _write_child(args, jax.process_index(), jax.process_count(), jax.device_count(), steps, seconds, compile_s,
+                 leaves, float(returns[-1]) if np.isfinite(returns[-1]) else None, common)
+
+
+def host_child(args: argparse.Namespace) -> None:
+    """A child of a setting on a host-emulated env (Natural Atari): the data-parallel host PPO
+    (`jaxnat.training.host_backend.make_learner(..., devices=)`; (a) the default learner), this
+    process stepping its share of the ALE batch on its own cores. Each timed run trains from the
+    same key: the same games, the same result, every time."""
+    import jax
+    import numpy as np
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import common
+
+    import jaxnat
+    from jaxnat.agents import PPOConfig
+    from jaxnat.training import parse_env_kwargs
+    from jaxnat.training.host_backend import make_learner, make_train_env
+
+    steps = args.num_envs * args.num_steps * args.updates
+    config = PPOConfig(num_envs=args.num_envs, num_steps=args.num_steps, total_timesteps=steps,
+                       update_epochs=2, num_minibatches=2, trunk="atari")
+    devices = None if args.child == "a" else "all"
+    env = make_train_env(args.env_id, args.num_envs, parse_env_kwargs(args.env_kwargs, args.env_id), devices=devices)
+    try:
+        learner = make_learner("ppo", config, env, devices=devices)
+        start = time.perf_counter()
+        learner.train(jax.random.key(0), 1)  # compiles the policy and update programs
+        compile_s = time.perf_counter() - start
+        final = [None]
+
+        def run():
+            final[0] = learner.train(jax.random.key(0))
+
+        seconds = common.median_seconds(run, args.repeats)
+        state, history = final[0]
+        leaves = [np.asarray(x, np.float64) for x in jax.tree.leaves(jaxnat.sharding.local_copy(learner.params(state)))]
+    finally:
+        env.close()
+    returns = [row.get("episode_return") for row in history]
+    last = next((float(r) for r in reversed(returns) if r is not None and np.isfinite(r)), None)
+    _write_child(args, jax.process_index(), jax.process_count(), jax.device_count(), steps, seconds, compile_s,
+                 leaves, last, common)
+
+
+def _write_child(args, index: int, processes: int, devices: int, steps: int, seconds: float, compile_s: float,
+                 leaves: list, final_return, common) -> None:
+    """Save a child's parameters (`<setting>_<process>.npz`) and its line (`.json`); print it."""
+    import numpy as np
+
     np.savez(Path(args.out) / f"{args.child}_{index}.npz", *leaves)
-    line = {"setting": args.child, "process": index, "processes": jax.process_count(), "devices": jax.device_count(),
+    line = {"setting": args.child, "process": index, "processes": processes, "devices": devices,
             "num_envs": args.num_envs, "steps_per_s": steps / seconds, "seconds": seconds, "compile_s": compile_s,
             "param_abs_sum": float(sum(np.abs(x).sum() for x in leaves)),
             "param_first": [float(v) for v in np.concatenate([x.ravel() for x in leaves])[:4]],
-            "final_return": float(returns[-1]) if np.isfinite(returns[-1]) else None,
-            "machine": common.machine() if args.child == "b" else None}
+            "final_return": final_return, "machine": common.machine() if args.child == "b" else None}
     with open(Path(args.out) / f"{args.child}_{index}.json", "w") as f:
         f.write(json.dumps(line) + "\n")
     print(f"({args.child}) process {index}: {line['steps_per_s']:,.0f} env steps/s, compile {compile_s:.1f} s",

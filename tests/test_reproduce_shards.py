@@ -28,3 +28,32 @@ def test_dry_run_prints_each_share_and_trains_nothing(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "1/3" in text and "GPU-hours" in text and "host-hours" in text and "0/3" not in text
     assert not any(p.is_dir() for p in tmp_path.iterdir())  # no cell folder
+
+
+def test_cells_patterns_pick_the_cells_a_run_trains(tmp_path, capsys):
+    """`--cells` keeps the matching cells (shell patterns, any of several) and nothing else."""
+    args = command.parse_args(["--profile", "paper", "--only", "classify,mujoco", "--trunks", "cnn", "--out",
+                               str(tmp_path), "--cells", "mujoco-*-state-ppo, classify-sweep-w7-*"])
+    plan = command.make_plan(args)
+    picked = command.pick_plan(plan, command.cell_patterns(args, plan))
+    assert [c.name for c in picked.cells] == ["classify-sweep-w7-M20", "mujoco-swimmer-state-ppo",
+                                              "mujoco-ant-state-ppo", "mujoco-halfcheetah-state-ppo",
+                                              "mujoco-hopper-state-ppo"]
+    assert len(plan.cells) > len(picked.cells)  # the report still covers the whole grid
+    assert command.main(["--profile", "paper", "--only", "classify", "--out", str(tmp_path), "--dry-run",
+                         "--cells", "classify-sweep-*"]) == 0
+    text = capsys.readouterr().out
+    assert "classify-sweep-w5-M40" in text and "classify-digits-cnn-ppo" not in text
+
+
+@pytest.mark.parametrize("cells, expected", [
+    ("mujoco-*", "--cells pattern 'mujoco-*' matches no cell of --only classify; --dry-run lists the cells"),
+    ("classify-digits-cnn-pp", "--cells pattern 'classify-digits-cnn-pp' matches no cell of --only classify "
+                               "(did you mean 'classify-digits-cnn-ppo'?)"),
+    (" , ", "--cells names no pattern"),
+])
+def test_cells_pattern_matching_nothing_is_a_one_line_error(cells, expected, tmp_path, capsys):
+    assert command.main(["--profile", "paper", "--only", "classify", "--out", str(tmp_path), "--cells", cells]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and err.count("\n") == 1
+    assert not any(p.is_dir() for p in tmp_path.iterdir())  # nothing trained

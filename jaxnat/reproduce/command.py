@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import fnmatch
 import inspect
 import sys
 from pathlib import Path
@@ -64,6 +65,8 @@ class ReproduceArgs:
     """GPUs to train on: with 2 or more the device cells are shared among one process per GPU, side by side (by their estimated times); 1: all of them in this process, on one GPU."""
     pack_small: Annotated[int, tyro.conf.arg(metavar="N")] = 1
     """Train the small device cells (latency-bound: at most 8,192 env steps per update over all seeds, as the authors' A2C and ACKTR batches) N at a time on a GPU, each in a process of its own with an N-th of the GPU's memory, the other cells on GPUs of their own (with one GPU, beside them). 1: one cell per GPU."""
+    cells: Annotated[Optional[str], tyro.conf.arg(metavar="PATTERNS", help_behavior_hint="")] = None
+    """Comma-separated shell-style patterns of cell names (`mujoco-*-state-*`, `classify-sweep-*`): train only the matching cells of --only (`--dry-run` lists them); the report still covers every cell there. Unset: every cell."""
 
 
 def parse_args(argv=None) -> ReproduceArgs:
@@ -117,6 +120,31 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
     if not (index.strip().isdigit() and count.strip().isdigit()) or int(count) < 1 or int(index) >= int(count):
         raise ReproduceError(f"--shard takes I/N with 0 <= I < N (the I-th of N shares, 0-based), not {text!r}")
     return int(index), int(count)
+
+
+def cell_patterns(args: ReproduceArgs, plan: Plan) -> tuple[str, ...] | None:
+    """`--cells` as patterns, each matching a cell of `plan` (None: every cell)."""
+    if args.cells is None:
+        return None
+    patterns = tuple(p.strip() for p in args.cells.split(",") if p.strip())
+    if not patterns:
+        raise ReproduceError("--cells names no pattern; give cell names or patterns such as 'mujoco-*-state-*'")
+    names = [c.name for c in plan.cells]
+    for pattern in patterns:
+        if not fnmatch.filter(names, pattern):
+            close = difflib.get_close_matches(pattern, names, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ReproduceError(f"--cells pattern {pattern!r} matches no cell of --only {','.join(plan.only)}{hint}; "
+                                 "--dry-run lists the cells")
+    return patterns
+
+
+def pick_plan(plan: Plan, patterns: tuple[str, ...] | None) -> Plan:
+    """The plan whose cells match one of `patterns` (`cell_patterns`; None: `plan`)."""
+    if patterns is None:
+        return plan
+    return dataclasses.replace(plan, cells=[c for c in plan.cells if any(fnmatch.fnmatchcase(c.name, p)
+                                                                           for p in patterns)])
 
 
 def shard_plan(plan: Plan, shard: tuple[int, int] | None) -> Plan:
@@ -316,13 +344,14 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,
     if args.sequential:
         overlap = False
     shard = parse_shard(args.shard)
+    picked = pick_plan(plan, cell_patterns(args, plan))
     if args.dry_run:
-        dry_run(plan, shard, console)
+        dry_run(picked, shard, console)
         return plan.out / "report.md"
     outcomes = {}
     if not args.report_only:
         platform, gpus = choose_gpus(args, devices)
-        outcomes = run_cells(shard_plan(plan, shard), console, overlap=overlap, platform=platform, gpus=gpus,
+        outcomes = run_cells(shard_plan(picked, shard), console, overlap=overlap, platform=platform, gpus=gpus,
                              pack=args.pack_small)
     path = write_report(plan, outcomes)
     console.print(f"report: {path}", highlight=False)
