@@ -47,8 +47,9 @@ def final_returns(out: Path) -> dict[tuple[str, int], float]:
     return result
 
 
-def run_reproduce(args, gpus: int, out: Path) -> dict:
-    """One `jaxnat reproduce` into the fresh folder `out`; its row."""
+def run_reproduce(args, gpus: int, out: Path, gpu_ids: list[str]) -> dict:
+    """One `jaxnat reproduce` into the fresh folder `out`, seeing the first `gpus` of `gpu_ids`
+    (none: as this process does); its row."""
     argv = [sys.executable, "-m", "jaxnat.cli", "reproduce", "--profile", args.profile, "--only", args.only,
             "--trunks", args.trunks, "--out", str(out), "--gpus", str(gpus)]
     if args.seeds:
@@ -57,6 +58,8 @@ def run_reproduce(args, gpus: int, out: Path) -> dict:
         argv += ["--pack-small", str(args.pack_small)]
     env = {**os.environ, "COLUMNS": "160"}
     env.pop("XLA_PYTHON_CLIENT_PREALLOCATE", None)  # the children run as a user's would
+    if gpu_ids:  # a 1-GPU run must not take the others' memory, as JAX in one process would
+        env["CUDA_VISIBLE_DEVICES"] = ",".join(gpu_ids[:gpus])
     start = time.perf_counter()
     proc = subprocess.run(argv, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - start
@@ -90,6 +93,12 @@ def main(argv=None) -> int:
         parser.error(f"--gpus takes GPU counts of 1 or more, not {args.gpus}")
 
     info = machine()
+    gpu_ids = []
+    if info["backend"] == "gpu":
+        visible = [v.strip() for v in os.environ.get("CUDA_VISIBLE_DEVICES", "").split(",") if v.strip()]
+        gpu_ids = visible or [str(i) for i in range(info["num_devices"])]
+        if max(args.gpus) > len(gpu_ids):
+            parser.error(f"--gpus {max(args.gpus)}: only {len(gpu_ids)} GPUs are visible here ({','.join(gpu_ids)})")
     root = Path(args.keep or tempfile.mkdtemp(prefix="reproduce-scaling-"))
     outs = [root / f"{i}-gpus-{gpus}" for i, gpus in enumerate(args.gpus)]
     for out in outs:
@@ -98,7 +107,7 @@ def main(argv=None) -> int:
     rows, base_returns = [], None
     for gpus, out in zip(args.gpus, outs):
         out.mkdir(parents=True, exist_ok=True)
-        row = run_reproduce(args, gpus, out)
+        row = run_reproduce(args, gpus, out, gpu_ids)
         returns = final_returns(out)
         if base_returns is None:
             base_returns = returns
