@@ -186,6 +186,55 @@ def test_gpus_chosen(monkeypatch):
     assert packed == ("gpu", ("0",))
 
 
+def test_gpu_streams_of_one_kind_share_their_cells_from_the_far_end():
+    a, b, c, d, e, f, g, h, i = _cells("abcdefghi")
+    streams = {"gpu0": [a, b, c], "gpu1": [d, e], "gpu2": [f], "gpu3-0": [g], "gpu3-1": [h], "host": [i]}
+    assert cell_stream.pool_streams(streams) == {
+        "gpu0": [e, f, d], "gpu1": [c, f, b, a], "gpu2": [c, e, b, d, a],  # the others' last cells first, in turn
+        "gpu3-0": [h], "gpu3-1": [g]}  # packed small cells pool among themselves; the host stream does not
+    assert cell_stream.pool_streams({"gpu0": [a], "gpu1-0": [b], "host": [c]}) == {}  # one of a kind: no pool
+    specs = cell_stream.child_streams(streams, ("0", "1", "2", "3"), dict.fromkeys("abcdefghi", 1.0), False,
+                                      Path("claims"))
+    assert {s.name: (s.then, s.claims) for s in specs}["gpu1"] == ([c, f, b, a], "claims")
+    assert {s.name: (s.then, s.claims) for s in specs}["host"] == ([], None)
+    assert all(not s.then and s.claims is None for s in cell_stream.child_streams(streams, ("0", "1", "2", "3"),
+                                                                                 dict.fromkeys("abcdefghi", 1.0), False))
+
+
+def test_a_cell_is_claimed_once_and_a_claimed_cell_is_skipped(tmp_path, monkeypatch):
+    from jaxnat.reproduce import cells as cells_module
+
+    plan = _smoke_plan(tmp_path / "out", "classify")
+    first, second, third = plan.cells[:3]
+    claims = tmp_path / "claims"
+    claims.mkdir()
+    assert cells_module.Claims(claims, "gpu1").take(second)
+    assert not cells_module.Claims(claims, "gpu0").take(second)  # one winner
+    assert cells_module.Claims.holder(claims, second.name) == "gpu1"
+    assert cells_module.Claims.holder(claims, first.name) is None
+    trained = []
+    monkeypatch.setattr("jaxnat.training.train", lambda args, **_: trained.append(Path(args.run_dir).name))
+
+    class Events:
+        def __init__(self):
+            self.seen = []
+
+        def start(self, cell, resumed):
+            self.seen.append(("start", cell.name))
+
+        def done(self, cell, outcome, seconds):
+            self.seen.append((outcome, cell.name))
+
+    events = Events()
+    cells_module.train_cells([first, second, third], plan, dict.fromkeys([c.name for c in plan.cells], False),
+                             events, platform="cpu", compile_ahead=False, overlapped=True,
+                             claim=cells_module.Claims(claims, "gpu0").take)
+    assert trained == [first.name, third.name]
+    assert events.seen == [("start", first.name), ("finished", first.name), ("start", third.name),
+                           ("finished", third.name)]
+    assert cells_module.Claims.holder(claims, third.name) == "gpu0"
+
+
 def _smoke_plan(out, only=DEVICE_EXPERIMENTS):
     return command.make_plan(command.ReproduceArgs(profile="smoke", only=only, out=out))
 
@@ -288,11 +337,14 @@ def test_smoke_device_cells_train_in_two_streams_and_report(tmp_path):
     seconds = {c.name: estimates.estimate_seconds(c, plan.seeds, "cpu") for c in plan.cells}
     streams = estimates.split_streams(plan.cells, overlap=True, gpus=2, seconds=seconds)
     assert list(streams) == ["gpu0", "gpu1"]
+    then = cell_stream.pool_streams(streams)  # each GPU may take the other's cells it has not started
     for name, cells in streams.items():
         header = (out / "logs" / cell_stream.stream_log(name)).read_text().splitlines()[0]
-        assert header.endswith(f"CUDA_VISIBLE_DEVICES={name[3:]} {', '.join(c.name for c in cells)}")
+        assert header.endswith(f"CUDA_VISIBLE_DEVICES={name[3:]} {', '.join(c.name for c in cells)} | then, unless "
+                               f"started: {', '.join(c.name for c in then[name])}")
     rows = [json.loads(line) for line in (out / "timings.jsonl").read_text().splitlines()]
-    assert sorted(r["cell"] for r in rows) == sorted(c.name for c in plan.cells)
+    assert sorted(r["cell"] for r in rows) == sorted(c.name for c in plan.cells)  # each cell trained once
+    assert not any((out / "logs" / "claims").iterdir())  # the run's claims go with it
     assert all(r["outcome"] == "finished" and r["overlapped"] for r in rows)
     assert [r["resumed"] for r in rows if r["cell"] == first.name] == [True]
     assert _eval_rows(out, first.name) == _eval_rows(alone, first.name)

@@ -22,7 +22,8 @@ class Board:
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
         self.console, self.estimates, self.lock = console, estimates, threading.Lock()
-        self.stream_of = {c.name: stream for stream, cells in streams.items() for c in cells}
+        self.stream_of = {c.name: stream for stream, cells in streams.items() for c in cells}  # as planned
+        self.trained_on: dict[str, str] = {}  # where a cell started, when told
         self.cells = {c.name: c for cells in streams.values() for c in cells}
         self.left = {stream: sum(estimates[c.name] for c in cells) for stream, cells in streams.items()}
         self.total = max(self.left.values(), default=0.0)
@@ -39,7 +40,7 @@ class Board:
         self.task = self.progress.add_task("cells", total=max(self.total, 1e-9), cells=f"0/{self.count}")
 
     def _label(self, name: str) -> str:
-        stream = self.stream_of[name]
+        stream = self.trained_on.get(name, self.stream_of[name])
         tags = [tag for tag, on in (("resumed", self.resumed.get(name)), ("alongside", stream == "host"),
                                     (stream, stream.startswith("gpu"))) if on]
         return f"{name} ({', '.join(tags)})" if tags else name
@@ -47,8 +48,12 @@ class Board:
     def _running(self) -> str:
         return ", ".join(map(self._label, self.running)) or "cells"
 
-    def start(self, cell: Cell, resumed: bool) -> None:
+    def start(self, cell: Cell, resumed: bool, stream: str | None = None) -> None:
+        """`cell` started, on `stream` (None: the stream planned for it; a pooled GPU stream
+        may take another's cell)."""
         with self.lock:
+            if stream is not None:
+                self.trained_on[cell.name] = stream
             self.started += 1
             self.number[cell.name] = self.started
             self.running[cell.name] = time.time()

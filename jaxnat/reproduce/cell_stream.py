@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from jaxnat.reproduce.board import Board
-from jaxnat.reproduce.cells import append_jsonl, timing_row, train_cells
+from jaxnat.reproduce.cells import Claims, append_jsonl, timing_row, train_cells
 from jaxnat.reproduce.estimates import detect_platform, stream_gpu
 from jaxnat.reproduce.grid import ONLY_NAMES, PROFILES, Cell, Plan, build_grid
 
@@ -50,15 +50,40 @@ class StreamSpec:
     env: dict[str, str]
     nice: int = 0
     compile_ahead: bool = False
+    # Pooled streams (several on GPUs of one kind, `pool_streams`): the pool's other cells, which
+    # this stream takes once its own are done and another has not started them (`cells.Claims`
+    # in the folder `claims`), so that no GPU idles while another still has cells to start.
+    then: list[Cell] = dataclasses.field(default_factory=list)
+    claims: str | None = None
+
+
+def pool_streams(streams: dict[str, list[Cell]]) -> dict[str, list[Cell]]:
+    """For each GPU stream that shares a pool with others (the `gpu<i>` streams of large cells,
+    or the packed `gpu<i>-<j>` streams of small ones, two or more of a kind), the pool's cells
+    it may take after its own: the others' cells, each stream's from its end (the cells its own
+    stream would start last), taken in turn from each."""
+    pools: dict[bool, list[str]] = {}
+    for name in streams:
+        if stream_gpu(name) is not None:
+            pools.setdefault("-" in name, []).append(name)
+    then = {}
+    for names in pools.values():
+        if len(names) < 2:
+            continue
+        for name in names:
+            tails = [list(reversed(streams[other])) for other in names if other != name]
+            then[name] = [tail[i] for i in range(max(map(len, tails))) for tail in tails if i < len(tail)]
+    return then
 
 
 def child_streams(streams: dict[str, list[Cell]], gpus: tuple[str, ...], seconds: dict[str, float],
-                  compile_ahead: bool) -> list[StreamSpec]:
+                  compile_ahead: bool, claims: Path | None = None) -> list[StreamSpec]:
     """The streams of `estimates.split_streams` that train in child processes. `gpu<i>` (and,
     packed, `gpu<i>-<j>`) sees only the GPU `gpus[i]` (its `CUDA_VISIBLE_DEVICES` id) and
     preallocates it as a one-GPU run would, or, with n streams on that GPU, an n-th of that
     (`XLA_PYTHON_CLIENT_MEM_FRACTION`: `PREALLOCATED`, or the fraction this process was given,
-    over n). `host` allocates accelerator memory as it needs it (its GPU's memory is mostly
+    over n); with a `claims` folder, pooled GPU streams (`pool_streams`) also take their pool's
+    other cells when their own are done. `host` allocates accelerator memory as it needs it (its GPU's memory is mostly
     preallocated by a device stream: the parent's with one GPU, else that of the GPU whose
     streams have the least estimated work, by `seconds`) and runs at `HOST_STREAM_NICE`."""
     import os
@@ -66,6 +91,7 @@ def child_streams(streams: dict[str, list[Cell]], gpus: tuple[str, ...], seconds
     on = {i: [name for name in streams if stream_gpu(name) == i] for i in range(len(gpus))}
     load = {gpu: sum(seconds[c.name] for name in on[i] for c in streams[name]) for i, gpu in enumerate(gpus)}
     share = float(os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION", PREALLOCATED))
+    then = pool_streams(streams) if claims is not None else {}
     specs = []
     for name, cells in streams.items():
         index = stream_gpu(name)
@@ -73,7 +99,9 @@ def child_streams(streams: dict[str, list[Cell]], gpus: tuple[str, ...], seconds
             env = {"CUDA_VISIBLE_DEVICES": gpus[index]}
             if len(on[index]) > 1:
                 env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{share / len(on[index]):.3f}"
-            specs.append(StreamSpec(name, cells, env, 0, compile_ahead))
+            pooled = name in then
+            specs.append(StreamSpec(name, cells, env, 0, compile_ahead, then.get(name, []),
+                                    str(claims) if pooled else None))
         elif name == "host":
             env = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
             if gpus:
@@ -87,7 +115,8 @@ def child_argv(plan: Plan, spec: StreamSpec, events_fd: int) -> list[str]:
     the pipe for its events."""
     return [sys.executable, "-m", ENTRY, "--name", spec.name, "--profile", plan.profile.name,
             "--seeds", str(plan.seeds), "--out", str(plan.out), "--cells", ",".join(c.name for c in spec.cells),
-            "--events-fd", str(events_fd), "--nice", str(spec.nice), *(["--compile-ahead"] * spec.compile_ahead)]
+            "--events-fd", str(events_fd), "--nice", str(spec.nice), *(["--compile-ahead"] * spec.compile_ahead),
+            *(["--then", ",".join(c.name for c in spec.then), "--claims", spec.claims] if spec.claims else [])]
 
 
 def child_env(spec: StreamSpec) -> dict[str, str]:
@@ -117,7 +146,8 @@ class CellStream:
         import threading
 
         self.spec, self.plan, self.board, self.platform = spec, plan, board, platform
-        self.by_name = {c.name: c for c in spec.cells}
+        self.by_name = {c.name: c for c in [*spec.cells, *spec.then]}
+        self.started: set[str] = set()  # the cells this stream started
         self.stopped = False  # by `interrupt`: its end is not a failure
         self.log = plan.out / "logs" / stream_log(spec.name)
         self.log.parent.mkdir(exist_ok=True)
@@ -125,7 +155,9 @@ class CellStream:
         try:
             with self.log.open("a") as log:
                 log.write(f"--- {datetime.datetime.now().isoformat(timespec='seconds')}: "
-                          f"{' '.join(f'{k}={v}' for k, v in spec.env.items())} {', '.join(self.by_name)}\n")
+                          f"{' '.join(f'{k}={v}' for k, v in spec.env.items())} {', '.join(c.name for c in spec.cells)}"
+                          + (f" | then, unless started: {', '.join(c.name for c in spec.then)}" if spec.then else "")
+                          + "\n")
                 log.flush()
                 self.proc = subprocess.Popen(child_argv(plan, spec, write_end), stdin=subprocess.PIPE, stdout=log,
                                              stderr=subprocess.STDOUT, pass_fds=(write_end,), env=child_env(spec),
@@ -147,23 +179,23 @@ class CellStream:
                 except (ValueError, KeyError, TypeError):
                     continue
                 if event.get("event") == "start":
-                    self.board.start(cell, bool(event.get("resumed")))
+                    self.started.add(cell.name)
+                    self.board.start(cell, bool(event.get("resumed")), self.spec.name)
                 elif event.get("event") == "done":
                     self.board.done(cell, str(event.get("outcome")), float(event.get("seconds", 0.0)))
         self._ended(self.proc.wait())  # the pipe closes when the child ends
 
     def _ended(self, status: int) -> None:
         """Unless stopped from here, report every cell the child did not finish as failed (the
-        one it was in also gets its timing line, which the child had no time to write)."""
-        import signal
+        one it was in also gets its timing line, which the child had no time to write); a pooled
+        stream only the cell it was in (another stream may still take the others:
+        `command.run_cells` reports those no stream took)."""
 
         if self.stopped:
             return
-        ended = "was interrupted" if status in (130, -signal.SIGINT) else f"exited with status {status}"
-        why = f"the {self.spec.name} stream ({sys.executable} -m {ENTRY}) {ended} before this cell finished; " \
-              f"its output: {self.log}"
+        why = self.failure(status)
         for cell in self.spec.cells:
-            if cell.name in self.board.outcomes:
+            if cell.name in self.board.outcomes or (self.spec.claims and cell.name not in self.started):
                 continue
             started = self.board.running.get(cell.name)
             seconds = 0.0 if started is None else time.time() - started
@@ -172,6 +204,14 @@ class CellStream:
                              timing_row(cell, self.plan, seconds, self.board.resumed.get(cell.name, False),
                                         f"failed: {why}", self.platform, started, True))
             self.board.done(cell, f"failed: {why}", seconds)
+
+    def failure(self, status: int) -> str:
+        """Why a cell of this stream did not finish when the child ended with `status`."""
+        import signal
+
+        ended = "was interrupted" if status in (130, -signal.SIGINT) else f"exited with status {status}"
+        return f"the {self.spec.name} stream ({sys.executable} -m {ENTRY}) {ended} before this cell finished; " \
+               f"its output: {self.log}"
 
     def wait(self) -> int:
         """Wait for the child to end and its cells to be reported; returns its exit status."""
@@ -256,6 +296,8 @@ def cell_stream_main(argv=None) -> int:
     parser.add_argument("--events-fd", required=True, type=int)
     parser.add_argument("--nice", type=int, default=0)
     parser.add_argument("--compile-ahead", action="store_true")
+    parser.add_argument("--then", default="", help="the pool's other cells, taken when claimed (with --claims)")
+    parser.add_argument("--claims", type=Path, default=None, help="the pool's claims folder (cells.Claims)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     # The parent stops this stream with SIGINT: take it as a Ctrl-C even when started with
     # SIGINT ignored (what a non-interactive shell's background job, `jaxnat reproduce ... &`,
@@ -280,7 +322,7 @@ def cell_stream_main(argv=None) -> int:
             os.nice(args.nice)
         profile = PROFILES[args.profile]
         grid = {c.name: c for c in build_grid(profile, ONLY_NAMES)}
-        names = args.cells.split(",")
+        names = [name for name in [*args.cells.split(","), *args.then.split(",")] if name]
         unknown = [name for name in names if name not in grid]
         if unknown:
             parser.error(f"no cell {unknown[0]!r} in the {args.profile} grid")
@@ -289,8 +331,9 @@ def cell_stream_main(argv=None) -> int:
         from jaxnat.training import run_status
 
         resumed = {c.name: run_status(args.out / c.name) == "partial" for c in cells}
+        claim = None if args.claims is None else Claims(args.claims, args.name).take
         train_cells(cells, plan, resumed, Events(args.events_fd, console), platform=detect_platform(),
-                    compile_ahead=args.compile_ahead, overlapped=True)
+                    compile_ahead=args.compile_ahead, overlapped=True, claim=claim)
     except KeyboardInterrupt:
         console.print("interrupted (checkpointed)")
         return 130

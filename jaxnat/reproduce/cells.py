@@ -66,6 +66,35 @@ def one_line(err: Exception) -> str:
     return text
 
 
+class Claims:
+    """Which stream trains a cell when several streams share a pool of cells (`train_cells`'s
+    `claim`): the first to create `<folder>/<cell name>`, an exclusive create (one winner on a
+    local file system, and on NFS v3 or later), so that a GPU that runs out of its own cells
+    takes one another GPU has not started. `folder` is new for each `jaxnat reproduce`, so that
+    a cell claimed by a run that was stopped is free again."""
+
+    def __init__(self, folder: Path, stream: str):
+        self.folder, self.stream = Path(folder), stream
+
+    def take(self, cell: Cell) -> bool:
+        """Claim `cell` for this stream: True once, for the first stream to ask."""
+        import os
+
+        try:
+            fd = os.open(self.folder / cell.name, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            return False
+        with os.fdopen(fd, "w") as f:
+            f.write(self.stream)
+        return True
+
+    @staticmethod
+    def holder(folder: Path, name: str) -> str | None:
+        """The stream that claimed the cell `name` in `folder` (None: none has)."""
+        path = Path(folder) / name
+        return path.read_text() or None if path.exists() else None
+
+
 class CompileAhead:
     """Compiles the next cell's programs on a worker thread while the current cell trains: XLA
     compiles on the host's cores while the run keeps the accelerator busy, so a grid of short
@@ -106,11 +135,13 @@ class CompileAhead:
 
 
 def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, *, platform: str,
-                compile_ahead: bool, overlapped: bool) -> None:
+                compile_ahead: bool, overlapped: bool, claim=None) -> None:
     """Train `cells` one after another (compiling each one's programs while the one before
     trains when `compile_ahead`), each logged to `<out>/logs/<cell>.log` and timed in
     `<out>/timings.jsonl`; `board` (`board.Board`, or a child stream's `Events`) is told of
-    each start and outcome. A `TrainError` fails its cell and the next one starts, and so does
+    each start and outcome. `claim` (a cell -> bool, `Claims.take`; None: every cell is
+    this stream's) is asked for each cell just before its programs are first compiled, so that
+    streams sharing a pool of cells train each once: a cell it refuses is skipped. A `TrainError` fails its cell and the next one starts, and so does
     an error of XLA's runtime (out of GPU memory, in a compile's autotuning or a step): one cell
     too big for the device must not take the stream's other cells down with it. Anything else
     (Ctrl-C included) propagates."""
@@ -124,18 +155,28 @@ def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, 
     logs = plan.out / "logs"
     logs.mkdir(exist_ok=True)
     ahead = CompileAhead(compile_ahead, compiler_options)
-    runs = [c.train_args(plan.seeds, plan.out / c.name, resume=resumed[c.name]) for c in cells]
+    mine = (c for c in cells if claim is None or claim(c))  # claimed one at a time, when reached
+
+    runs = {}  # cell name -> its run's arguments, made once (the compile ahead and the training share them)
+
+    def run_of(cell):
+        if cell is not None and cell.name not in runs:
+            runs[cell.name] = cell.train_args(plan.seeds, plan.out / cell.name, resume=resumed[cell.name])
+        return None if cell is None else runs[cell.name]
+
     try:
-        ahead.start(runs[0] if runs else None)
-        for index, cell in enumerate(cells):
+        cell = next(mine, None)
+        ahead.start(run_of(cell))
+        while cell is not None:
             board.start(cell, resumed[cell.name])
             started, start = time.time(), time.perf_counter()
             ahead.wait()  # this cell's programs (their compile time is counted in this cell)
-            ahead.start(runs[index + 1] if index + 1 < len(cells) else None)
+            following = next(mine, None)
+            ahead.start(run_of(following))
             with (logs / f"{cell.name}.log").open("a") as log:
                 log_console = Console(file=log, width=120, force_terminal=False)
                 try:
-                    train(runs[index], console=log_console, compiler_options=compiler_options)
+                    train(run_of(cell), console=log_console, compiler_options=compiler_options)
                     outcome = "finished"
                 except failures as err:
                     outcome = f"failed: {one_line(err)}"
@@ -143,5 +184,6 @@ def train_cells(cells: list[Cell], plan: Plan, resumed: dict[str, bool], board, 
             append_jsonl(plan.out / "timings.jsonl", timing_row(cell, plan, seconds, resumed[cell.name], outcome,
                                                                 platform, started, overlapped))
             board.done(cell, outcome, seconds)
+            cell = following
     finally:
         ahead.close()

@@ -15,7 +15,10 @@ import dataclasses
 import difflib
 import fnmatch
 import inspect
+import os
+import shutil
 import sys
+import time
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -23,7 +26,7 @@ import tyro
 
 from jaxnat.cli import exit_status, unwritable
 from jaxnat.reproduce.board import Board
-from jaxnat.reproduce.cells import train_cells
+from jaxnat.reproduce.cells import Claims, train_cells
 from jaxnat.reproduce.cell_stream import CellStream, child_streams, stop_streams
 from jaxnat.reproduce.estimates import (SHARD_PLATFORM, detect_platform, duration, estimate_seconds, estimate_total,
                                         shard_cells, split_streams)
@@ -280,9 +283,14 @@ def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap
     resumed = {c.name: status[c.name] == "partial" for c in todo}
     ahead = platform != "cpu" if compile_ahead is None else compile_ahead
     children: list[CellStream] = []
+    # GPU streams of one kind share their cells (`cell_stream.pool_streams`) through claims in a
+    # folder of this run's own: a claim left by an earlier, stopped run frees its cell again.
+    claims = plan.out / "logs" / "claims" / f"{os.getpid()}-{time.time_ns()}" if gpus else None
     try:
+        if claims is not None:
+            claims.mkdir(parents=True)
         with board.progress:
-            for spec in child_streams(streams, gpus, estimates, ahead):
+            for spec in child_streams(streams, gpus, estimates, ahead, claims):
                 children.append(CellStream(spec, plan, board, platform))
             here = streams.get("device", streams.get("all"))
             if here is not None:
@@ -290,12 +298,22 @@ def run_cells(plan: Plan, console, *, compile_ahead: bool | None = None, overlap
                             overlapped=bool(children))
             for child in children:
                 child.wait()
+            by_name = {child.spec.name: child for child in children}
+            for cell in todo:  # a pooled stream's cell no stream finished: the claimer's (or planned one's) end
+                if cell.name not in board.outcomes:
+                    holder = (claims and Claims.holder(claims, cell.name)) or board.stream_of[cell.name]
+                    child = by_name.get(holder)
+                    why = child.failure(child.proc.returncode) if child else f"the {holder} stream did not train it"
+                    board.done(cell, f"failed: {why}", 0.0)
     except BaseException as err:
         stop_streams(children)
         if isinstance(err, KeyboardInterrupt):
             where = " and ".join(board.running) or "between cells"
             console.print(f"interrupted in {where} (checkpointed); rerun the same command to continue")
         raise
+    finally:
+        if claims is not None:
+            shutil.rmtree(claims, ignore_errors=True)
     return board.outcomes
 
 
