@@ -20,7 +20,7 @@ from typing import Annotated
 import jax
 import tyro
 
-from jaxnat.trained import SPLITS, LoadError, load_policy, play_episodes
+from jaxnat.trained import SPLITS, LoadError, episode_limit, load_policy, play_episodes
 
 __all__ = ["EvalArgs", "evaluate", "main"]
 
@@ -88,7 +88,7 @@ def evaluate(args: EvalArgs, *, console=None, compiler_options: dict | None = No
     unfinished = int(episodes["unfinished"].sum())
     if unfinished:
         console.print(f"[dim]{unfinished} of {args.episodes} episodes reached no end within "
-                      f"{int(policy.env_params.max_steps_in_episode)} steps; their return is what they earned[/dim]")
+                      f"{episode_limit(policy)} steps; their return is what they earned[/dim]")
     return result
 
 

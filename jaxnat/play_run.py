@@ -12,8 +12,12 @@ shorter). They are laid one after another, each from its first observation to it
 window and Localize's footprint in red on the image, the newest frame of a PixelMuJoCo stack, the
 chase camera for a robot seen from its state), each pixel a `--scale`-square block.
 
-Everything the command line can get wrong (the run folder, the format, an unwritable `--out`,
-a Natural Atari run) is refused in one line before the policy is loaded and compiled.
+A Natural Atari run plays whole games on its host emulator, one after another
+(`trained.host_episodes`: the games `jaxnat eval --episodes N --key K` scores), each frame the
+newest of the observation's stack, at 15 agent steps a second (4 emulator frames each).
+
+Everything the command line can get wrong (the run folder, the format, an unwritable `--out`)
+is refused in one line before the policy is loaded and compiled.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import jax
 import numpy as np
 import tyro
 
-from jaxnat.trained import SPLITS, LoadError, episode_program, load_policy
+from jaxnat.trained import SPLITS, LoadError, episode_program, host_episodes, load_policy
 from jaxnat.video import FORMATS, VideoWriter, require_av, upscale
 
 __all__ = ["PlayArgs", "play", "record_episodes", "main", "MIN_SIDE", "STEP_FPS"]
@@ -38,6 +42,7 @@ PROG = "jaxnat play"
 MIN_SIDE = 256  # the default --scale makes a frame's short side at least this many pixels
 STEP_FPS = 5  # the default --fps of envs without a physical time step (a Classify step is a glance)
 CHUNK = 64  # frames drawn at once by the chase camera (one compiled batch size)
+ATARI_FPS = 15  # a Natural Atari agent step is 4 emulator frames at 60 per second
 
 
 @dataclasses.dataclass
@@ -85,7 +90,6 @@ def check_args(args: PlayArgs) -> str:
     """Refuse, in one line (`LoadError`), what can be known wrong before loading: returns the format."""
     from jaxnat.cli import unwritable
     from jaxnat.trained import _read_spec
-    from jaxnat.training.host_backend import is_host_env
 
     if args.out is not None and args.out.is_dir():
         example = args.out / f"episodes.{args.format or 'mp4'}"
@@ -97,10 +101,7 @@ def check_args(args: PlayArgs) -> str:
             raise LoadError(f"--{name.replace('_', '-')} must be at least 1 (got {value})")
     if args.split not in SPLITS:
         raise LoadError(f"split {args.split!r} is not one of {', '.join(SPLITS)}")
-    spec = _read_spec(Path(args.run_dir))
-    if is_host_env(spec.env_id):
-        raise LoadError(f"{args.run_dir} trained on {spec.env_id}, emulated on the host: jaxnat play "
-                        "supports runs on JAX envs only, not yet Natural Atari")
+    _read_spec(Path(args.run_dir))  # a folder without a run: one line
     folder = args.out.parent if args.out is not None else Path(args.run_dir) / "videos"
     why = unwritable(folder)
     if why:
@@ -134,6 +135,18 @@ def record_episodes(policy, key, num_episodes: int, *, greedy: bool = False, max
     episode = episode_program(policy, max_steps, greedy, env=env, record="state" if reads_state else "obs")
     run = jax.jit(jax.vmap(episode, in_axes=(None, None, None, 0)))
     return jax.device_get(run(policy.params, policy.normalization, env_params, jax.random.split(key, num_episodes)))
+
+
+class HostFrames:
+    """What `_frames_of` draws for a host (Natural Atari) game: the newest grey frame of each
+    observation's stack (`[..., h, w, stack]`, oldest first), as RGB."""
+
+    reads_state = False
+    timed = True
+    fps = ATARI_FPS
+
+    def __call__(self, obs, _state):
+        return np.repeat(np.asarray(obs)[..., -1:], 3, axis=-1)
 
 
 def _frames_of(frames, seen, count: int):
@@ -171,15 +184,24 @@ def play(args: PlayArgs, *, console=None, compiler_options: dict | None = None) 
     fmt = check_args(args)
     console.print(f"loading seed index {args.seed_index} of {args.run_dir} ...")
     policy = load_policy(args.run_dir, seed=args.seed_index, split=args.split, compiler_options=compiler_options)
-    env = _without_autoreset(policy.env)
-    try:
-        frames = Frames(env, policy.env_params, batched=True)
-    except RenderError as err:
-        raise LoadError(f"jaxnat play cannot show {policy.env_id}: {err}") from None
     mode = "greedy" if args.greedy else "sampled"
-    with console.status(f"compiling and playing {args.episodes} episodes ({mode} actions)..."):
-        seen, episodes = record_episodes(policy, jax.random.key(args.key), args.episodes, greedy=args.greedy,
-                                         max_steps=args.max_steps, reads_state=frames.reads_state)
+    if policy.env_params is None:  # host-emulated (Natural Atari): whole games, one after another
+        frames = HostFrames()
+        with console.status(f"playing {args.episodes} games ({mode} actions)..."):
+            games, episodes = host_episodes(policy, jax.random.key(args.key), args.episodes, greedy=args.greedy,
+                                            max_steps=args.max_steps, record=True)
+        policy.env.close()
+        longest = max(len(game) for game in games)  # one array, as record_episodes': padded past each end
+        seen = np.stack([np.concatenate([game, np.repeat(game[-1:], longest - len(game), axis=0)]) for game in games])
+    else:
+        env = _without_autoreset(policy.env)
+        try:
+            frames = Frames(env, policy.env_params, batched=True)
+        except RenderError as err:
+            raise LoadError(f"jaxnat play cannot show {policy.env_id}: {err}") from None
+        with console.status(f"compiling and playing {args.episodes} episodes ({mode} actions)..."):
+            seen, episodes = record_episodes(policy, jax.random.key(args.key), args.episodes, greedy=args.greedy,
+                                             max_steps=args.max_steps, reads_state=frames.reads_state)
     lengths = [int(n) for n in episodes["length"]]
     first = next(_frames_of(frames, jax.tree.map(lambda x: x[0], seen), 1))[0]
     scale = args.scale or default_scale(*first.shape[:2], fmt)

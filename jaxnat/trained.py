@@ -26,8 +26,8 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 
-__all__ = ["LoadError", "TrainedPolicy", "load_policy", "episode_program", "play_episodes", "sweep_episodes",
-           "sweep_params", "dial_fields", "SPLITS"]
+__all__ = ["LoadError", "TrainedPolicy", "load_policy", "episode_program", "play_episodes", "host_episodes",
+           "sweep_episodes", "sweep_params", "dial_fields", "episode_limit", "SPLITS"]
 
 SPLITS = ("test", "train")
 
@@ -112,9 +112,10 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
     """Seed `seed` (an index among the run's seeds, 0 .. seeds - 1) of the run in `run_dir`, from
     its latest checkpoint (or `step`'s), with the run's env on `split` ("test" or "train").
 
-    Runs on JAX envs only: a Natural Atari run (host-emulated) is refused. Raises `LoadError`
-    (one line) for a folder that holds no run, a run without a checkpoint, a seed index out of
-    range, and a recurrent policy (`memory > 0`), whose `act` would need its memory.
+    A Natural Atari run (host-emulated) loads as `_load_host_policy` says: its `env` a batch of
+    one game (numpy in and out), `env_params` None. Raises `LoadError` (one line) for a folder
+    that holds no run, a run without a checkpoint, a seed index out of range, and a recurrent
+    policy (`memory > 0`), whose `act` would need its memory.
     `compiler_options`: XLA options for the init program the checkpoint is restored into.
     """
     from jaxnat.training import TrainError, load_checkpoint
@@ -123,14 +124,13 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
 
     run_dir = Path(run_dir)
     spec = _read_spec(run_dir)
-    if is_host_env(spec.env_id):
-        raise LoadError(f"{run_dir} trained on {spec.env_id}, emulated on the host: load_policy and jaxnat eval "
-                        "support runs on JAX envs only, not yet Natural Atari")
     if not 0 <= seed < spec.seeds:
         raise LoadError(f"seed index {seed} is out of range: {run_dir} trained {spec.seeds} seed"
                         f"{'s' * (spec.seeds != 1)}, indices 0 to {spec.seeds - 1}")
     if split not in SPLITS:
         raise LoadError(f"split {split!r} is not one of {', '.join(SPLITS)}")
+    if is_host_env(spec.env_id):
+        return _load_host_policy(run_dir, spec, seed, split, step, compiler_options)
     if getattr(spec.config, "memory", 0):
         raise LoadError(f"{run_dir} trained a recurrent policy (memory={spec.config.memory}): load_policy "
                         "supports feed-forward policies only, for now")
@@ -153,6 +153,89 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
                          env=env, env_params=env_params, seed_index=seed, seed_value=spec.seed_values[seed],
                          update=int(meta["update"]), network=learner.network, params=params, normalization=normalizer,
                          apply=apply, _act=jax.jit(apply, static_argnames="greedy"))
+
+
+def _load_host_policy(run_dir: Path, spec, seed: int, split: str, step: int | None,
+                      compiler_options: dict | None) -> TrainedPolicy:
+    """Seed index `seed` of a host-emulated (Natural Atari) run: the run's learner rebuilt on
+    its own batch (the checkpoint `checkpoints/seed_<s>/` holds the learner's `HostState`, whose
+    shapes follow the batch), restored, its emulators closed again; the policy then acts on
+    `env`, a batch of one game of `split` (`jaxnat.make_vec(env_id, 1, split=...)`: numpy
+    observations `[1, ...]` out, actions `[1]` in; rewards unclipped, as evaluation scores
+    them). `act(obs, key)` takes one observation (`obs[0]`) and returns one action `[1]` (the
+    learner's one factor, which is the env's action: `env.step(action)`); `apply` is the
+    learner's jitted greedy or sampled policy on a batch of one."""
+    import jaxnat
+    from jaxnat.training import TrainError
+    from jaxnat.training.checkpoints import Checkpoints
+    from jaxnat.training.host_backend import host_errors, make_learner, make_train_env
+
+    value = spec.seed_values[seed]
+    folder = run_dir / "checkpoints" / f"seed_{value}"
+    missing = LoadError(f"{run_dir} has no checkpoint of seed {value} (index {seed}) yet: {folder.relative_to(run_dir)} "
+                        "holds none (a host run trains its seeds one after another)")
+    if not folder.is_dir():
+        raise missing
+    with host_errors(spec.env_id):
+        batch = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts)
+    try:
+        learner = make_learner(spec.algo, spec.config, batch, compiler_options)
+        checkpoints = Checkpoints(folder)
+        try:
+            if checkpoints.latest_step() is None:
+                raise missing
+            state, meta = checkpoints.restore(learner.init(jax.random.key(value)), step)
+        except TrainError as err:
+            raise LoadError(str(err)) from None
+        finally:
+            checkpoints.close()
+    finally:
+        batch.close()
+    with host_errors(spec.env_id):
+        env = jaxnat.make_vec(spec.env_id, 1, split=split, **spec.env_kwargs)
+
+    def apply(params, normalizer, obs, key, greedy: bool = False):
+        return (learner.greedy if greedy else learner.sample)(params, jnp.asarray(obs)[None], key)[0]
+
+    return TrainedPolicy(run_dir=run_dir, env_id=spec.env_id, env_kwargs=spec.env_kwargs, algo=spec.algo,
+                         config=spec.config, split=split, env=env, env_params=None, seed_index=seed, seed_value=value,
+                         update=int(meta["update"]), network=learner.network, params=learner.params(state),
+                         normalization=None, apply=apply, _act=apply)
+
+
+def host_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
+                  max_steps: int | None = None, record: bool = False):
+    """`play_episodes` for a host-emulated policy (`env_params` None): its one-game batch plays
+    `num_episodes` whole games one after another, each reset with a seed drawn from `key` (the
+    same key, the same games), for at most `max_steps` agent steps (default the env's
+    `max_episode_steps`). Returns the same per-episode arrays; with `record`, `(seen, results)`
+    where `seen[i]` is game `i`'s observations `[length + 1, ...]`, the reset's first."""
+    import numpy as np
+
+    env = policy.env
+    limit = int(max_steps or episode_limit(policy))
+    key_seeds, key = jax.random.split(key)
+    seeds = np.asarray(jax.random.randint(key_seeds, (num_episodes,), 0, 2 ** 30))
+    results = {name: [] for name in ("return", "length", "terminated", "unfinished")}
+    seen = []
+    for index in range(num_episodes):
+        obs, _ = env.reset(seed=int(seeds[index]))
+        frames, total, length, ended, terminated = [obs[0]], 0.0, 0, False, False
+        while length < limit and not ended:
+            key, key_act = jax.random.split(key)
+            action = np.asarray(policy.act(obs[0], key_act, greedy=greedy))
+            obs, reward, term, trunc, _ = env.step(action.reshape(1))  # one env, one factor
+            total, length = total + float(reward[0]), length + 1
+            terminated, ended = bool(term[0]), bool(term[0] or trunc[0])
+            frames.append(obs[0])
+        for name, value in (("return", total), ("length", length), ("terminated", terminated),
+                            ("unfinished", not ended)):
+            results[name].append(value)
+        if record:
+            seen.append(np.stack(frames))
+    dtypes = {"return": np.float32, "length": np.int32, "terminated": bool, "unfinished": bool}
+    results = {name: np.asarray(values, dtypes[name]) for name, values in results.items()}
+    return (seen, results) if record else results
 
 
 def episode_program(policy: TrainedPolicy, max_steps: int, greedy: bool, *, env=None,
@@ -197,12 +280,22 @@ def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
     """Each of `num_episodes` envs plays its first episode with `policy` (at most `max_steps`
     steps, default the env's time limit), in one jitted program vmapped over the episodes:
     per-episode arrays `return`, `length`, `terminated` (for Classify: classified right;
-    Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy."""
+    Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy. A host
+    (Natural Atari) policy plays its games one after another on the host (`host_episodes`)."""
+    if policy.env_params is None:
+        return host_episodes(policy, key, num_episodes, greedy=greedy, max_steps=max_steps)
     if max_steps is None:
         max_steps = int(policy.env_params.max_steps_in_episode)
     play = jax.jit(jax.vmap(episode_program(policy, max_steps, greedy), in_axes=(None, None, None, 0)))
     return jax.device_get(play(policy.params, policy.normalization, policy.env_params,
                                jax.random.split(key, num_episodes)))
+
+
+def episode_limit(policy: TrainedPolicy) -> int:
+    """The policy's env's time limit in agent steps (a host env's `max_episode_steps`)."""
+    if policy.env_params is None:
+        return int(policy.env.max_episode_steps)
+    return int(policy.env_params.max_steps_in_episode)
 
 
 def dial_fields(env_params) -> tuple[str, ...]:

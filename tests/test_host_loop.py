@@ -433,3 +433,53 @@ def test_a_run_records_the_videos_it_saw(tmp_path):
     assert {m["name"] for m in train}.isdisjoint({m["name"] for m in test})
     assert sorted(m["name"] for m in train + test) == sorted(sha)
     assert all(m["sha256"] == sha[m["name"]] and m["frames"] == 6 + int(m["name"][4]) for m in train + test)
+
+
+def test_a_natural_atari_run_loads_acts_greedily_and_evaluates(tmp_path, capsys):
+    """`load_policy` on a host run: seed 0's checkpoint (seed 1 never trained: one line), its
+    greedy action the network's most likely one, `host_episodes` the same games under one key
+    (whole games within the 10-step limit), and `jaxnat eval` scores them."""
+    pytest.importorskip("ale_py")
+    import re
+
+    from jaxnat import eval_run
+    from jaxnat.train import main
+    from jaxnat.trained import LoadError, host_episodes, load_policy
+
+    run_dir = tmp_path / "run"
+    assert main([*ATARI, "--algo", "ppo", *ALGO_ARGS["ppo"], "--run-dir", str(run_dir)], compiler_options=FAST,
+                stop_after_chunks=2) == 0  # seed 0 done (2 updates), seed 1 not started
+    with pytest.raises(LoadError, match=r"has no checkpoint of seed 1 \(index 1\) yet: checkpoints/seed_1 holds none"):
+        load_policy(run_dir, seed=1, compiler_options=FAST)
+    policy = load_policy(run_dir, compiler_options=FAST)
+    assert (policy.update, policy.seed_value, policy.env_params, policy.split) == (2, 0, None, "test")
+    obs, _ = policy.env.reset(seed=3)
+    logits, _ = policy.network.apply(policy.params, jnp.asarray(obs))
+    action = np.asarray(policy.act(obs[0], jax.random.key(0), greedy=True))  # one factor: Discrete's
+    (factor,) = logits  # the logits of the one factor, [1, actions]
+    assert action.shape == (1,) and action[0] == int(jnp.argmax(factor[0]))
+    first = host_episodes(policy, jax.random.key(5), 2, greedy=False)
+    again = host_episodes(policy, jax.random.key(5), 2, greedy=False)
+    assert all(np.array_equal(first[k], again[k]) for k in first)
+    assert first["length"].tolist() == [10, 10] and not first["unfinished"].any()  # the time limit ends them
+    seen, results = host_episodes(policy, jax.random.key(5), 2, record=True)
+    assert [len(s) for s in seen] == [11, 11] and seen[0].shape[1:] == obs.shape[1:]
+    assert all(np.array_equal(results[k], first[k]) for k in first)
+    assert eval_run.main([str(run_dir), "--episodes", "2", "--greedy"], compiler_options=FAST) == 0
+    out = capsys.readouterr().out
+    assert "ppo on NaturalAtari/Breakout-v0 · seed 0 · checkpoint at update 2 · test split" in out
+    assert re.search(r"2 episodes, greedy actions .*\n  return +[-+]\d+\.\d{4}", out), out
+    policy.env.close()
+    # jaxnat play: the same games as a GIF, each 10 steps + its reset, the newest frame of each stack.
+    av = pytest.importorskip("av")
+    from jaxnat import play_run
+
+    path = tmp_path / "games.gif"
+    assert play_run.main([str(run_dir), "--episodes", "2", "--key", "5", "--out", str(path), "--scale", "2"],
+                         compiler_options=FAST) == 0
+    with av.open(str(path)) as container:
+        frames = np.stack([f.to_ndarray(format="rgb24") for f in container.decode(container.streams.video[0])])
+    assert frames.shape == (22, 72, 72, 3)  # 36x36 observations at scale 2
+    newest = np.repeat(np.repeat(seen[1][-1][..., -1], 2, axis=0), 2, axis=1)
+    # The GIF's palette dithers each pixel (a noise background most): the frame's mean is kept.
+    assert abs(frames[-1][..., 0].mean() - newest.mean()) < 2

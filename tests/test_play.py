@@ -13,8 +13,6 @@ loading an MJX run takes minutes on a small CPU, and loading is test_trained's c
 is play's own (the chase camera from the recorded states, drawn in chunks) is all exercised.
 """
 
-import json
-import shutil
 import types
 
 import jax
@@ -132,7 +130,7 @@ def test_bad_command_lines_are_refused_in_one_line_before_loading(tmp_path, caps
 
 
 @needs_digits
-def test_unwritable_out_and_atari_runs_are_refused_before_loading(tiny_run, tmp_path, capsys, monkeypatch):  # noqa: F811
+def test_an_unwritable_out_is_refused_before_loading(tiny_run, tmp_path, capsys, monkeypatch):  # noqa: F811
     def no_loading(*args, **kwargs):
         raise AssertionError("loaded a policy for a bad command line")
 
@@ -143,10 +141,3 @@ def test_unwritable_out_and_atari_runs_are_refused_before_loading(tiny_run, tmp_
     err = _refused([str(run_dir), "--out", str(blocker / "v.mp4")], capsys)
     assert "cannot write the video in" in err and "pass --out with a writable path" in err
     assert "is a folder: name a file in it" in _refused([str(run_dir), "--out", str(tmp_path)], capsys)
-    atari = tmp_path / "atari"
-    atari.mkdir()
-    config = json.loads((run_dir / "config.json").read_text())
-    config["spec"]["env_id"] = "NaturalAtari/Pong-v0"
-    (atari / "config.json").write_text(json.dumps(config))
-    shutil.copytree(run_dir / "checkpoints", atari / "checkpoints")
-    assert "supports runs on JAX envs only, not yet Natural Atari" in _refused([str(atari)], capsys)

@@ -194,7 +194,7 @@ class CellStream:
         if self.stopped:
             return
         why = self.failure(status)
-        for cell in self.spec.cells:
+        for cell in [*self.spec.cells, *self.spec.then]:  # (`then` is empty unless pooled)
             if cell.name in self.board.outcomes or (self.spec.claims and cell.name not in self.started):
                 continue
             started = self.board.running.get(cell.name)
