@@ -18,6 +18,7 @@ from jaxnat.training.command import TrainResult, main, prepare_programs, train
 from jaxnat.training.placement import make_sharded_train
 from jaxnat.training.rundir import RunRecord, read_run, run_status
 from jaxnat.training.spec import RunSpec
+from jaxnat.training.strengths import make_strength_train
 
 __all__ = ["TrainArgs", "ConfigOverrides", "RunSpec", "TrainResult", "TrainError", "train",
-           "load_checkpoint", "main", "prepare_programs", "make_sharded_train", "parse_args", "parse_env_kwargs", "RunRecord", "read_run", "run_status"]
+           "load_checkpoint", "main", "prepare_programs", "make_sharded_train", "make_strength_train", "parse_args", "parse_env_kwargs", "RunRecord", "read_run", "run_status"]
