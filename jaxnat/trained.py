@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 
 __all__ = ["LoadError", "TrainedPolicy", "load_policy", "episode_program", "play_episodes", "host_episodes",
-           "sweep_episodes", "sweep_params", "dial_fields", "episode_limit", "SPLITS"]
+           "sweep_episodes", "sweep_params", "dial_fields", "episode_limit", "policy_step", "SPLITS"]
 
 SPLITS = ("test", "train")
 
@@ -76,9 +76,11 @@ class TrainedPolicy:
                 f"update {self.update}, {self.split} split, run_dir={str(self.run_dir)!r})")
 
 
-def _policy_step(network, action_space) -> Callable:
+def policy_step(network, action_space) -> Callable:
     """`apply(params, normalizer, obs, key, greedy=False) -> action`: the trainer's evaluation
-    step (`rollout.evaluate.make_evaluate`) for one observation, as a batch of one."""
+    step (`rollout.evaluate.make_evaluate`) for one observation, as a batch of one, for a
+    learner's `network` on an env with `action_space` (`TrainedPolicy.apply`; build one from a
+    runner you trained yourself with `Learner.policy_of`)."""
     from jaxnat.agents import normalize
     from jaxnat.agents.rollout import act, choose, env_action
 
@@ -148,7 +150,7 @@ def load_policy(run_dir, *, seed: int = 0, split: str = "test", step: int | None
         raise LoadError(str(err)) from None
     env, env_params = envs[2:] if split == "test" else envs[:2]
     params, normalizer = jax.tree.map(lambda x: x[seed], learner.policy_of(runner))
-    apply = _policy_step(learner.network, env.action_space(env_params))
+    apply = policy_step(learner.network, env.action_space(env_params))
     return TrainedPolicy(run_dir=run_dir, env_id=spec.env_id, env_kwargs=spec.env_kwargs, algo=spec.algo, config=spec.config, split=split,
                          env=env, env_params=env_params, seed_index=seed, seed_value=spec.seed_values[seed],
                          update=int(meta["update"]), network=learner.network, params=params, normalization=normalizer,
