@@ -19,10 +19,12 @@ from jaxnat.reproduce.grid import CALIBRATION, Cell
 # and of the paper profile's first sitting (docs/reproduction/paper/SITTINGS.md: Clutter's A2C
 # at 512 envs x 5 seeds).
 # Natural Atari is bound by the host's cores: one rate. A calibration cell counts as its group's
-# experiment; PixelMuJoCo's observations without rendering are faster by `OBSERVATION_SPEEDUP`.
+# experiment; PixelMuJoCo's observations without rendering are faster by `OBSERVATION_SPEEDUP`
+# (the state and constant cells: MJX's physics, not the renderer, bounds them; fitted to the
+# paper profile's fourth sitting).
 RATES = {"cpu": {"classify": 2e3, "localize": 3e2, "atari": 1e3, "mujoco": 2e2}}
 GPU_RATES = {"classify": (6.5e5, 770), "localize": (7e4, 600), "atari": (1e4, 0), "mujoco": (1.05e5, 2048)}
-OBSERVATION_SPEEDUP = {"noise": 1.5, "state": 5.0, "constant": 5.0}
+OBSERVATION_SPEEDUP = {"noise": 1.5, "state": 2.0, "constant": 2.0}
 COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
              "gpu": {"classify": 8, "localize": 23, "atari": 106, "mujoco": 35}}
 # Seconds a GPU spends per update besides stepping envs, by algorithm: what the rate model
@@ -31,6 +33,10 @@ COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
 # cells at the authors' batch (their times: bench/results/reproduce_cost.md); at 512 envs and for
 # PPO the rate model alone holds. Device cells only; the CPU rates are per env step.
 UPDATE_S = {"a2c": 0.0018, "acktr": 0.026}
+# Seconds a GPU spends per PPO optimizer step (updates x epochs x minibatches), beyond the rate
+# model: the paper profile's classification PPO at 512 x 32 took about twice as long with the
+# authors' 64 minibatches as with 4 at 10M env steps per seed (bench/results/reproduce_cost.md).
+MINIBATCH_S = {"ppo": 0.00106}
 
 
 def _family(cell: Cell) -> str:
@@ -59,13 +65,18 @@ def detect_platform() -> str:
 
 def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
     """A rough wall time of `cell` (compile + training + evaluation), for the ETA; on a GPU a
-    device cell's updates add `UPDATE_S` each."""
+    device cell's updates add `UPDATE_S` each, and PPO's optimizer steps `MINIBATCH_S` each."""
     steps = cell.budget.total_timesteps * seeds
     seconds = COMPILE_S[platform][_family(cell)] + steps / rate(cell, seeds, platform)
-    if platform == "gpu" and not cell.host and cell.algo in UPDATE_S:
+    if platform == "gpu" and not cell.host and (cell.algo in UPDATE_S or cell.algo in MINIBATCH_S):
         config = ALGORITHMS[cell.algo].config()
         batch = cell.overrides.get("num_envs", config.num_envs) * cell.overrides.get("num_steps", config.num_steps)
-        seconds += cell.budget.total_timesteps / batch * UPDATE_S[cell.algo]
+        updates = cell.budget.total_timesteps / batch
+        seconds += updates * UPDATE_S.get(cell.algo, 0.0)
+        if cell.algo in MINIBATCH_S:
+            steps = cell.overrides.get("update_epochs", config.update_epochs) * cell.overrides.get(
+                "num_minibatches", config.num_minibatches)
+            seconds += updates * steps * MINIBATCH_S[cell.algo]
     return seconds
 
 
