@@ -87,7 +87,8 @@ def with_sigma(params, sigma):
 
 
 def test_default_is_the_plain_env(case):
-    assert case.params.distraction == Distraction(noise_sigma=None)  # off: no noise in the program
+    assert case.params.distraction == type(case.params.distraction)()  # off: no noise in the program
+    assert case.params.distraction.noise_sigma is None and Distraction().noise_sigma is None
     observations, states = case.rollout(case.params)
     for obs, state in zip(observations, states):
         np.testing.assert_array_equal(obs, case.plain(state, case.params))
@@ -173,7 +174,7 @@ def test_out_of_range_values_are_clear_errors(toy_dataset, dataset):
                 build(noise_sigma=sigma)
         env = build(noise_sigma=12.0)
         params = env.default_params
-        assert params.distraction == Distraction(noise_sigma=12.0)
+        assert params.distraction == type(params.distraction)(noise_sigma=12.0)
         with pytest.raises(ValueError, match="noise_sigma must be"):
             env.check_params(with_sigma(params, np.array([0.0, -2.0])))
         with pytest.raises(ValueError, match="noise_sigma must be"):
@@ -182,3 +183,120 @@ def test_out_of_range_values_are_clear_errors(toy_dataset, dataset):
             params.sweep(video_alpha=jnp.ones(2))
         with pytest.raises(ValueError, match="one leading length"):
             params.sweep(noise_sigma=jnp.float32(1.0))
+
+
+# Classify's background dial (`ClassifyDistraction.background_alpha`). The frames are a
+# stand-in: seeded random 12x10 grey frames (a `FrameBank` given as `backgrounds=`), so the
+# tests need no photos; the real frames (opencv-doc's) are loaded in the last test.
+def _stand_in_frames(count=4):
+    from jaxnat.natural import FrameBank
+
+    frames = np.random.default_rng(7).integers(0, 256, (count, 12, 10, 1), dtype=np.uint8)
+    return FrameBank(frames, np.arange(count, dtype=np.int32), np.ones(count, np.int32))
+
+
+def _with_alpha(params, alpha):
+    return params.replace(distraction=params.distraction.replace(background_alpha=alpha))
+
+
+@pytest.fixture
+def behind(toy_dataset):
+    if "behind" not in _BUILT:  # the env and its compiled jits, once for the module
+        env = Classify(toy_dataset, w=3, M=5, background_alpha=0.0, backgrounds=_stand_in_frames())
+        _BUILT["behind"] = env, jax.jit(env.reset), jax.jit(env.step)
+    return _BUILT["behind"]
+
+
+def _classify_rollout(reset, step, params, steps=3):
+    obs, state = reset(jax.random.key(3), params)
+    observations, states = [np.asarray(obs)], [state]
+    for t in range(steps):
+        obs, state, *_ = step(jax.random.key(4 + t), state, jnp.array([(RIGHT, DOWN)[t % 2], 2], jnp.int32), params)
+        observations.append(np.asarray(obs))
+        states.append(state)
+    return np.stack(observations), states
+
+
+def test_background_at_zero_is_the_plain_env_and_off_adds_nothing(toy_dataset, behind):
+    env, reset, step = behind
+    plain = Classify(toy_dataset, w=3, M=5)
+    assert plain.default_params.background is None
+    plain_obs, plain_states = _classify_rollout(jax.jit(plain.reset), jax.jit(plain.step), plain.default_params)
+    assert plain_states[0].background_index is None  # no leaf: the plain state (and checkpoints) unchanged
+    obs, states = _classify_rollout(reset, step, env.default_params)
+    np.testing.assert_array_equal(obs, plain_obs)  # same draws: the frame's key is folded apart
+    assert [int(s.image_index) for s in states] == [int(s.image_index) for s in plain_states]
+
+
+def test_background_is_the_stated_composite_on_revealed_pixels(behind):
+    env, reset, step = behind
+    params = _with_alpha(env.default_params, jnp.float32(0.7))
+    obs, states = _classify_rollout(reset, step, params)
+    for o, state in zip(obs, states):
+        image = np.asarray(params.images[int(state.image_index)], np.float64)
+        frame = np.asarray(params.background[int(state.background_index)], np.float64)
+        want = np.clip(np.round(image + (1 - image / 255) * np.float32(0.7) * frame), 0, 255)
+        revealed = np.asarray(unpack_mask(state.revealed, 10))
+        np.testing.assert_array_equal(o[..., 0][revealed], want[..., 0][revealed])
+        assert not o[..., 0][~revealed].any()  # hidden pixels stay 0: the photo shows through the window only
+    assert len({int(s.background_index) for s in states}) == 1  # one frame per episode
+
+
+def test_background_effect_grows_with_alpha_and_a_sweep_equals_separate_calls(behind):
+    env, reset, _ = behind
+    params = env.default_params
+    alphas = jnp.array([0.0, 0.25, 0.5, 1.0], jnp.float32)
+    separate = [np.asarray(reset(jax.random.key(11), _with_alpha(params, a))[0], np.int32) for a in alphas]
+    distance = [np.abs(o - separate[0]).sum() for o in separate]
+    assert distance[0] == 0 and all(a <= b for a, b in zip(distance, distance[1:])) and distance[-1] > 0
+    swept, axes = params.sweep(background_alpha=alphas)
+    traces = []
+
+    def traced_reset(key, p):
+        traces.append(1)
+        return env.reset(key, p)
+
+    together, _ = jax.jit(jax.vmap(traced_reset, in_axes=(None, axes)))(jax.random.key(11), swept)
+    np.testing.assert_array_equal(np.asarray(together, np.int32), np.stack(separate))
+    assert len(traces) == 1
+
+
+def test_background_errors_are_one_line(toy_dataset):
+    for alpha in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match=r"background_alpha must be in \[0, 1\]"):
+            Classify(toy_dataset, background_alpha=alpha, backgrounds=_stand_in_frames())
+    with pytest.raises(ValueError, match="backgrounds= is used by the background dial: pass background_alpha="):
+        Classify(toy_dataset, backgrounds=_stand_in_frames())
+    from jaxnat.natural import FrameBank
+
+    wrong = FrameBank(np.zeros((2, 28, 28, 1), np.uint8), np.arange(2, dtype=np.int32), np.ones(2, np.int32))
+    with pytest.raises(ValueError, match=r"background frames of shape \(28, 28, 1\) for images of \(12, 10, 1\)"):
+        Classify(toy_dataset, background_alpha=0.5, backgrounds=wrong)
+    plain = Classify(toy_dataset)
+    swept, _ = plain.default_params.sweep(background_alpha=jnp.array([0.0, 1.0]))
+    with pytest.raises(ValueError, match="background_alpha needs the env's background frames"):
+        plain.check_params(swept)
+    env = Classify(toy_dataset, background_alpha=0.5, backgrounds=_stand_in_frames())
+    with pytest.raises(ValueError, match=r"background_alpha must be in \[0, 1\]"):
+        env.default_params.sweep(background_alpha=jnp.array([0.5, 2.0]))
+
+
+def test_digits_behind_the_splits_own_photos_and_video_frames():
+    """The embedded data: the train and test envs' frames come from disjoint files (opencv-doc's
+    photos and video frames, split by whole file), grey at the digits' 28x28."""
+    from jaxnat.natural.clutter import background_files
+
+    if not background_files():
+        pytest.skip("opencv-doc's photos and videos are not installed")
+    import jaxnat
+
+    try:
+        train, train_params = jaxnat.make("Classify/Digits-v0", background_alpha=0.5)
+        _, test_params = jaxnat.make("Classify/Digits-v0", split="test", background_alpha=0.5)
+    except jaxnat.datasets.DatasetNotFoundError as err:
+        pytest.skip(str(err))
+    assert train_params.background.shape[1:] == (28, 28, 1) and train_params.background.dtype == jnp.uint8
+    train_frames = {np.asarray(f).tobytes() for f in train_params.background}
+    assert not train_frames & {np.asarray(f).tobytes() for f in test_params.background}
+    obs, state = train.reset(jax.random.key(0), train_params)
+    assert obs.shape == (28, 28, 3) and 0 <= int(state.background_index) < train_params.background.shape[0]

@@ -15,7 +15,6 @@ import jaxnat
 from jaxnat.agents import PPOConfig
 from jaxnat.training import TrainError, make_sharded_train
 from jaxnat.training.strengths import make_strength_train
-from jaxnat.vision_envs.distraction import Distraction
 
 from test_train import needs_digits
 
@@ -32,7 +31,7 @@ def test_each_strength_trains_what_it_trains_alone():
     assert all(leaf.shape[:2] == (2, 2) for leaf in leaves)  # [strengths, seeds]
     assert metrics["episode_return"].shape[:2] == (2, 2)
     for index, sigma in enumerate(STRENGTHS):
-        alone_params = params.replace(distraction=Distraction(noise_sigma=sigma))
+        alone_params = params.replace(distraction=params.distraction.replace(noise_sigma=sigma))
         alone, alone_metrics = make_sharded_train("ppo", CONFIG, env, alone_params, seeds=2)(keys)
         for got, want in zip(leaves, jax.tree.leaves(alone.train_state.params)):
             np.testing.assert_allclose(got[index], want, rtol=1e-5, atol=1e-6)

@@ -57,7 +57,7 @@ def test_one_trace_and_each_strength_is_its_own_evaluation(policy, monkeypatch):
 
 @needs_digits
 def test_bad_sweeps_are_one_line_value_errors(policy):
-    with pytest.raises(ValueError, match=r"dial has no 'video_alpha'; its fields: noise_sigma$"):
+    with pytest.raises(ValueError, match=r"dial has no 'video_alpha'; its fields: noise_sigma, background_alpha$"):
         sweep_episodes(policy, jax.random.key(0), 2, video_alpha=np.array([0.5]))
     with pytest.raises(ValueError, match=r"noise_sigma must be a finite number >= 0"):
         sweep_episodes(policy, jax.random.key(0), 2, noise_sigma=np.array([0.0, -1.0]))
@@ -95,7 +95,7 @@ def test_bad_command_lines_are_refused_in_one_line(tiny_run, tmp_path, monkeypat
     cases = [
         ([str(tmp_path / "missing"), "--param", "noise_sigma", "--values", "0"], r"is not a run directory: no such folder", 0),
         ([run_dir, "--param", "video_alpha", "--values", "0"],
-         r"Classify/Digits-v0's distraction dial has no 'video_alpha'; its fields: noise_sigma$", 0),
+         r"Classify/Digits-v0's distraction dial has no 'video_alpha'; its fields: noise_sigma, background_alpha$", 0),
         ([run_dir, "--param", "noise_sigma", "--values", "0", "nan"], r"--values must be finite numbers", 0),
         ([run_dir, "--param", "noise_sigma", "--values", "0", "-4"],
          r"--values: noise_sigma must be a finite number >= 0, got \[ 0. -4.\]$", 1),

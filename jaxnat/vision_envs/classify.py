@@ -27,6 +27,10 @@ class. Semantics: `docs/environments.md` section 1.
   pixel noise `noise_sigma` (default None: off, the plain env bit for bit; 0 draws noise at
   zero strength, the same observations) on the revealed image,
   fresh every step, as a traced param; `params.sweep(noise_sigma=...)` vmaps a difficulty curve.
+  `background_alpha` (default None: off, no photos loaded) puts a natural frame behind the
+  image: `clip(round(v + (1 - v / 255) * alpha * frame), 0, 255)` per image value `v`, one frame
+  per episode from the split's own photos and video frames (`backgrounds=`), drawn at reset
+  with the key folded apart (`distraction.BACKGROUND_STREAM`); 0 is the plain env bit for bit.
 
 Example::
 
@@ -50,7 +54,8 @@ from flax import struct
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState, is_concrete
 from jaxnat.vision_envs.distraction import (
-    Distraction, DistractionSweep, check_distraction, noise_key_data, observe_with_noise,
+    BACKGROUND_STREAM, ClassifyDistraction, DistractionSweep, background_image, check_distraction, noise_key_data,
+    observe_with_noise,
 )
 from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
@@ -76,6 +81,9 @@ class ClassifyState(EnvState):
     revealed: jax.Array  # uint32[H, ceil(W / 32)]
     # uint32 data of the key of this observation's noise (`distraction.noise_key_data`).
     noise_key: jax.Array = struct.field(default_factory=lambda: jnp.zeros(2, jnp.uint32))
+    # int32: the episode's background frame (`params.background`), or None with the background
+    # dial off (no leaf: the plain env's state, and its checkpoints, are unchanged).
+    background_index: jax.Array | None = None
 
 
 @struct.dataclass(kw_only=True)
@@ -86,7 +94,10 @@ class ClassifyParams(DistractionSweep, EnvParams):
     max_steps_in_episode: int = 20
     correct_reward: float = 1.0
     wrong_reward: float = -0.1
-    distraction: Distraction = struct.field(default_factory=Distraction)
+    distraction: ClassifyDistraction = struct.field(default_factory=ClassifyDistraction)
+    # uint8 [F, H, W, C] natural frames behind the image (`ClassifyDistraction.background_alpha`),
+    # or None with that dial off.
+    background: jax.Array | None = None
 
 
 class Classify(Environment[ClassifyState, ClassifyParams]):
@@ -108,6 +119,13 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
             speed differs (`bench/classify_throughput.py` compares them).
         noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (None: the dial
             off, no noise in the program; a number, 0 included: on, sweepable).
+        background_alpha: the default `ClassifyDistraction.background_alpha`, a natural photo
+            behind the image, in [0, 1] (None: off, no photos loaded; a number, 0 included: on,
+            sweepable, the split's photos and video frames loaded).
+        backgrounds: where those frames come from: None for Debian's opencv-doc photos and
+            video frames (the Clutter scenes' backgrounds, split by whole file: the test split's
+            never appear in training), a folder, glob or list of photos and videos, or a
+            `jaxnat.natural.FrameBank` of frames already at the image's size.
     """
 
     params_type = ClassifyParams
@@ -123,8 +141,12 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         M: int | None = None,
         observation_writer: str = "auto",
         noise_sigma: float | None = None,
+        background_alpha: float | None = None,
+        backgrounds=None,
     ):
-        check_distraction(Distraction(noise_sigma=noise_sigma))
+        check_distraction(ClassifyDistraction(noise_sigma=noise_sigma, background_alpha=background_alpha))
+        if backgrounds is not None and background_alpha is None:
+            raise ValueError("backgrounds= is used by the background dial: pass background_alpha= (0 to 1) too")
         if start not in _STARTS:
             raise ValueError(f"start must be one of {_STARTS}, got {start!r}")
         if observation_writer not in WRITERS:
@@ -157,7 +179,11 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         # Device-resident once; params hand the same buffers to every trace.
         self._images = jnp.asarray(images)
         self._labels = jnp.asarray(labels)
-        self._distraction = Distraction(noise_sigma=None if noise_sigma is None else float(noise_sigma))
+        self._distraction = ClassifyDistraction(noise_sigma=None if noise_sigma is None else float(noise_sigma),
+                                                background_alpha=None if background_alpha is None
+                                                else float(background_alpha))
+        self._background = None if background_alpha is None else jnp.asarray(
+            _background_frames(backgrounds, self.split, self.image_shape))
 
     @property
     def name(self) -> str:
@@ -168,6 +194,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         if is_concrete(params.window):
             _check_window(int(params.window), self.image_shape)
         check_distraction(params.distraction)
+        _check_background(params)
 
     @property
     def default_params(self) -> ClassifyParams:
@@ -177,6 +204,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
             window=self._window,
             max_steps_in_episode=self._max_steps,
             distraction=self._distraction,
+            background=self._background,
         )
 
     def observation_space(self, params: ClassifyParams) -> spaces.Box:
@@ -203,6 +231,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
             top_left=top_left,
             revealed=self._window_bits(top_left, side),
             noise_key=noise_key_data(key),
+            background_index=_draw_background(key, params),
         )
         return self.get_obs(state, params), state
 
@@ -225,10 +254,16 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         h, w = self.image_shape[:2]
         revealed = unpack_mask(state.revealed, w)
         window = window_mask(state.top_left, params.window, h, w)
+        images, index = params.images, state.image_index
+        if params.distraction.background_alpha is not None:  # the image over its natural frame
+            _check_background(params)
+            images = background_image(images[index], params.background[state.background_index],
+                                      params.distraction.background_alpha)[None]
+            index = 0
         return observe_with_noise(
             lambda images, index: masked_image_observation(
                 images, index, revealed, [revealed, window], writer=self.observation_writer),
-            params.images, state.image_index, state.noise_key, params.distraction.noise_sigma)
+            images, index, state.noise_key, params.distraction.noise_sigma)
 
     def _window_bits(self, top_left, side) -> jax.Array:
         """`pack_mask(window_mask(...))`, computed word by word without a reduction."""
@@ -240,6 +275,46 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         rows = jnp.arange(h)
         in_rows = (rows >= top_left[0]) & (rows < top_left[0] + side)
         return jnp.where(in_rows[:, None], columns[None, :], jnp.uint32(0))
+
+
+def _draw_background(key, params: ClassifyParams):
+    """The episode's background frame index, from the reset key folded with `BACKGROUND_STREAM`
+    (the plain env's draws are untouched), or None with the dial off."""
+    if params.distraction.background_alpha is None:
+        return None
+    _check_background(params)
+    return jax.random.randint(jax.random.fold_in(key, BACKGROUND_STREAM), (), 0, params.background.shape[0])
+
+
+def _check_background(params: ClassifyParams) -> None:
+    if params.distraction.background_alpha is not None and params.background is None:
+        raise ValueError("background_alpha needs the env's background frames: make the env with "
+                         "background_alpha=<0 to 1> (it loads them), then sweep it")
+
+
+def _background_frames(backgrounds, split: str, image_shape) -> np.ndarray:
+    """uint8 [F, H, W, C]: the natural frames behind a split's images, at the images' size and
+    channels (grey from RGB by ITU-R 601 luma)."""
+    from jaxnat.natural import FrameBank
+
+    h, w, c = image_shape
+    if isinstance(backgrounds, FrameBank):
+        frames = np.asarray(backgrounds.frames)
+    else:
+        from jaxnat.natural.clutter import background_frames
+
+        frames = np.asarray(background_frames(split, (h, w), backgrounds).frames)
+    if frames.shape[1:3] != (h, w) or frames.shape[3] not in (1, 3):
+        raise ValueError(f"background frames of shape {frames.shape[1:]} for images of {image_shape}: "
+                         "give frames at the images' height and width")
+    if c == 1 and frames.shape[3] == 3:
+        luma = frames.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+        frames = np.clip(np.round(luma), 0, 255).astype(np.uint8)[..., None]
+    elif c == 3 and frames.shape[3] == 1:
+        frames = np.repeat(frames, 3, axis=3)
+    elif frames.shape[3] != c:
+        raise ValueError(f"background frames have {frames.shape[3]} channels, the images {c}")
+    return frames
 
 
 def _low_bits(n):

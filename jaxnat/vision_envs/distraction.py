@@ -36,10 +36,11 @@ from flax import struct
 
 from jaxnat.core import is_concrete, sweep_distraction
 
-__all__ = ["Distraction", "DistractionSweep", "NOISE_STREAM", "noisy_image", "noise_key_data",
-           "observe_with_noise", "check_distraction"]
+__all__ = ["Distraction", "ClassifyDistraction", "DistractionSweep", "NOISE_STREAM", "BACKGROUND_STREAM",
+           "noisy_image", "noise_key_data", "observe_with_noise", "check_distraction", "background_image"]
 
 NOISE_STREAM = 0x6E6F6973  # "nois": the fold-in that makes the noise's key
+BACKGROUND_STREAM = 0x62616B67  # "bakg": the fold-in of the reset key that draws Classify's background
 
 
 @struct.dataclass
@@ -53,6 +54,22 @@ class Distraction:
     noise_sigma: float | None = None
 
 
+@struct.dataclass
+class ClassifyDistraction(Distraction):
+    """Classify's strengths: the vision envs' noise, and a natural photo behind the image.
+
+    `background_alpha` (in [0, 1], or None, the default: off): the image is composited over a
+    natural background frame as foreground with opacity `value / 255`, the frame scaled by
+    alpha: `clip(round(value + (1 - value / 255) * alpha * frame), 0, 255)` per pixel and
+    channel (`background_image`). A digit's bright strokes stay; its black surround shows the
+    photo. At 0 the observation is the plain env's bit for bit; the effect grows with alpha.
+    The frame (one per episode, drawn at reset from the split's own photos and video frames:
+    `Classify(background_alpha=...)` loads them) is revealed with the image, through the window.
+    """
+
+    background_alpha: float | None = None
+
+
 class DistractionSweep:
     """`sweep` for params with a `distraction: Distraction` field."""
 
@@ -64,7 +81,7 @@ class DistractionSweep:
             swept, axes = params.sweep(noise_sigma=jnp.linspace(0, 64, 5))
             jax.vmap(env.reset, in_axes=(0, axes))(keys, swept)
         """
-        return sweep_distraction(self, values, lambda arrays: check_distraction(Distraction(**arrays)))
+        return sweep_distraction(self, values, lambda arrays: check_distraction(type(self.distraction)(**arrays)))
 
 
 def check_distraction(distraction: Distraction) -> None:
@@ -74,6 +91,21 @@ def check_distraction(distraction: Distraction) -> None:
         value = np.asarray(sigma, np.float64)
         if not np.all(np.isfinite(value) & (value >= 0.0)):
             raise ValueError(f"noise_sigma must be a finite number >= 0, got {sigma}")
+    alpha = getattr(distraction, "background_alpha", None)
+    if alpha is not None and is_concrete(alpha):
+        value = np.asarray(alpha, np.float64)
+        if not np.all(np.isfinite(value) & (value >= 0.0) & (value <= 1.0)):
+            raise ValueError(f"background_alpha must be in [0, 1], got {alpha}")
+
+
+def background_image(image: jax.Array, frame: jax.Array, alpha) -> jax.Array:
+    """uint8 `clip(round(image + (1 - image / 255) * alpha * frame), 0, 255)`: `image` over the
+    natural `frame` (same shape), its values as opacity; `alpha` may be traced (clipped to
+    [0, 1]); at 0, `image` exactly."""
+    value = image.astype(jnp.float32)
+    alpha = jnp.clip(jnp.asarray(alpha, jnp.float32), 0.0, 1.0)
+    blended = value + (1.0 - value / 255.0) * alpha * frame.astype(jnp.float32)
+    return jnp.clip(jnp.round(blended), 0.0, 255.0).astype(jnp.uint8)
 
 
 def noise_key_data(key: jax.Array) -> jax.Array:
