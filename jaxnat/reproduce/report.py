@@ -351,6 +351,10 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
 
     lines += departures_section(plan.profile, plan.cells)
     lines += data_section(results)
+    if plan.profile.name != "smoke":  # (a smoke report is the tests' and the CPU's: no rendering)
+        from jaxnat.reproduce.strips import strips_section
+
+        lines += strips_section(plan.cells, plan.only, out)
     lines += _findings_lines(verdicts)
     lines += aggregates_section(aggregates, finished)
 
