@@ -150,9 +150,30 @@ def test_wrappers_of_single_env_gymnasium_work(toy):
     assert len(frames.render()) == 2
 
 
-def test_batched_ids_are_refused_with_the_vector_adapter_named():
-    with pytest.raises(ValueError, match="make_gymnasium_vec"):
-        make_gymnasium("NaturalAtari/Pong-v0")
+def test_a_natural_atari_game_passes_check_env_and_renders_its_newest_frame():
+    pytest.importorskip("ale_py")
+    env = make_gymnasium("NaturalAtari/Breakout-v0", render_mode="rgb_array", obs_size=36, num_threads=1,
+                         max_episode_steps=20, background="noise")
+    checked(env)
+    obs, _ = env.reset(seed=3)
+    again, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(obs, again)
+    assert obs.shape == (36, 36, 4) and obs.dtype == np.uint8
+    obs, reward, terminated, truncated, info = env.step(1)
+    assert isinstance(reward, float) and isinstance(terminated, bool) and isinstance(truncated, bool)
+    np.testing.assert_array_equal(env.render(), np.repeat(obs[..., -1:], 3, axis=-1))
+    stats = gymnasium.wrappers.RecordEpisodeStatistics(env)
+    stats.reset(seed=0)
+    done, steps = False, 0
+    while not done:
+        *_, terminated, truncated, info = stats.step(stats.action_space.sample())
+        done, steps = terminated or truncated, steps + 1
+    assert steps <= 20 and info["episode"]["l"] == steps  # the env's own limit truncates
+    with pytest.raises(ValueError, match="is not in Discrete"):
+        env.step(99)
+    with pytest.raises(ValueError, match=r"use jaxnat.compat.make_gymnasium\('NaturalAtari/Pong-v0'\) for one game"):
+        GymnasiumEnv("NaturalAtari/Pong-v0")
+    env.close()
 
 
 @pytest.mark.skipif(not has_dataset("digits"), reason="Classify/Digits-v0 data not installed")

@@ -88,8 +88,9 @@ class GymnasiumEnv(gymnasium.Env):
                  **kwargs: Any):
         if isinstance(env, str):
             if spec(env).batched:
-                raise ValueError(f"{env} is emulated in batches on the host: use "
-                                 f"jaxnat.compat.make_gymnasium_vec({env!r}, num_envs)")
+                raise ValueError(f"{env} is emulated on the host, not a JAX env: use "
+                                 f"jaxnat.compat.make_gymnasium({env!r}) for one game or "
+                                 f"make_gymnasium_vec({env!r}, num_envs) for a batch")
             env, made = make(env, autoreset=False, **kwargs)
             params = made if params is None else params
         elif kwargs:
@@ -163,9 +164,15 @@ class GymnasiumEnv(gymnasium.Env):
         return (key, *self.jax_env.step(sub, state, action, params))
 
 
-def make_gymnasium(env_id: str, *, render_mode: str | None = None, **kwargs: Any) -> GymnasiumEnv:
+def make_gymnasium(env_id: str, *, render_mode: str | None = None, **kwargs: Any) -> gymnasium.Env:
     """`GymnasiumEnv` of `jaxnat.make(env_id, autoreset=False, **kwargs)`: one env for
-    single-env Gymnasium code (without the checker and order wrappers `gymnasium.make` adds)."""
+    single-env Gymnasium code (without the checker and order wrappers `gymnasium.make` adds);
+    a host-batched id (`NaturalAtari/*`) gives `jaxnat.atari.gymnasium.AtariGymnasiumEnv`, one
+    game."""
+    if spec(env_id).batched:
+        from jaxnat.atari.gymnasium import AtariGymnasiumEnv
+
+        return AtariGymnasiumEnv(render_mode=render_mode, **{**spec(env_id).kwargs, **kwargs})
     return GymnasiumEnv(env_id, render_mode=render_mode, **kwargs)
 
 
@@ -179,7 +186,8 @@ def gymnasium_id(env_id: str) -> str:
 def register_gymnasium_envs() -> tuple[str, ...]:
     """Register every pure-JAX jaxnat id with Gymnasium (`gymnasium_id`), entry point
     `GymnasiumEnv`; ids already there are left alone. Host-batched ids (`NaturalAtari/*`) are
-    not registered: they exist only as batches (`make_gymnasium_vec`). Returns the ids.
+    not registered: `make_gymnasium` (one game) and `make_gymnasium_vec` build them. Returns
+    the ids.
 
     `gymnasium.make(id, **kwargs)` passes `kwargs` (and `render_mode`) to `jaxnat.make`; its
     `PassiveEnvChecker` and `OrderEnforcing` wrappers come with it, and no `TimeLimit`: the env
