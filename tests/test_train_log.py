@@ -145,3 +145,34 @@ def test_a_missing_sink_package_is_refused_before_compiling(tmp_path, capsys, mo
     assert train.main([*TINY, "--run-dir", str(tmp_path / "run"), "--log", "mlflow"]) == 2
     assert "unknown sink" in _error(capsys)
     assert not (tmp_path / "run").exists()
+
+
+@needs_digits
+def test_the_real_wandb_package_takes_the_records_offline(tmp_path, monkeypatch):
+    """The sink against W&B itself (skipped where the `wandb` extra is not installed, as in CI):
+    an offline run (`WANDB_MODE=offline`) under `<run_dir>/wandb/`, its id the one jaxnat keeps,
+    every record row logged through the real `Run.log` with `env_steps` as its x-axis."""
+    wandb = pytest.importorskip("wandb")
+    from wandb.sdk.wandb_run import Run
+
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    monkeypatch.delenv("WANDB_PROJECT", raising=False)
+    logged, real_log = [], Run.log
+
+    def log(self, data, *args, **kwargs):
+        logged.append(dict(data))
+        return real_log(self, data, *args, **kwargs)
+
+    monkeypatch.setattr(Run, "log", log)
+    run = tmp_path / "run"
+    assert train.main([*TINY, "--run-dir", str(run), "--log", "wandb"], compiler_options=FAST) == 0
+    run_id = (run / "wandb_run_id").read_text().strip()
+    (offline,) = (run / "wandb").glob("offline-run-*")
+    assert offline.name.endswith(run_id) and (offline / f"run-{run_id}.wandb").stat().st_size > 0
+    metrics, evals = _lines(run / "metrics.jsonl"), _lines(run / "eval.jsonl")
+    assert sorted({v["env_steps"] for v in logged}) == sorted({r["env_steps"] for r in [*metrics, *evals]})
+    last = next(r for r in reversed(metrics) if r["seed"] == 1)
+    row = next(v for v in logged if v["env_steps"] == last["env_steps"] and "seed_1/train/episode_return" in v)
+    assert row["seed_1/train/episode_return"] == pytest.approx(last["episode_return"], rel=1e-6)
+    assert wandb.run is None  # finished
