@@ -242,11 +242,10 @@ def test_background_is_the_stated_composite_on_revealed_pixels(behind):
     assert len({int(s.background_index) for s in states}) == 1  # one frame per episode
 
 
-def test_background_effect_grows_with_alpha_and_a_sweep_equals_separate_calls(behind):
-    env, reset, _ = behind
-    params = env.default_params
-    alphas = jnp.array([0.0, 0.25, 0.5, 1.0], jnp.float32)
-    separate = [np.asarray(reset(jax.random.key(11), _with_alpha(params, a))[0], np.int32) for a in alphas]
+def _grows_and_sweeps_in_one_trace(env, params, alphas, separate, key, pixels):
+    """`separate[i]` (int32 observations at `alphas[i]`, the first the plain one) move away
+    from the first as `i` grows, and `params.sweep(background_alpha=alphas)` vmapped over the
+    reset gives them all in one trace (`pixels`: the image part of an observation)."""
     distance = [np.abs(o - separate[0]).sum() for o in separate]
     assert distance[0] == 0 and all(a <= b for a, b in zip(distance, distance[1:])) and distance[-1] > 0
     swept, axes = params.sweep(background_alpha=alphas)
@@ -256,9 +255,17 @@ def test_background_effect_grows_with_alpha_and_a_sweep_equals_separate_calls(be
         traces.append(1)
         return env.reset(key, p)
 
-    together, _ = jax.jit(jax.vmap(traced_reset, in_axes=(None, axes)))(jax.random.key(11), swept)
-    np.testing.assert_array_equal(np.asarray(together, np.int32), np.stack(separate))
+    together, _ = jax.jit(jax.vmap(traced_reset, in_axes=(None, axes)))(jax.random.key(key), swept)
+    np.testing.assert_array_equal(np.asarray(pixels(together), np.int32), np.stack(separate))
     assert len(traces) == 1
+
+
+def test_background_effect_grows_with_alpha_and_a_sweep_equals_separate_calls(behind):
+    env, reset, _ = behind
+    params = env.default_params
+    alphas = jnp.array([0.0, 0.25, 0.5, 1.0], jnp.float32)
+    separate = [np.asarray(reset(jax.random.key(11), _with_alpha(params, a))[0], np.int32) for a in alphas]
+    _grows_and_sweeps_in_one_trace(env, params, alphas, separate, 11, lambda obs: obs)
 
 
 def test_background_errors_are_one_line(toy_dataset):
@@ -300,3 +307,41 @@ def test_digits_behind_the_splits_own_photos_and_video_frames():
     assert not train_frames & {np.asarray(f).tobytes() for f in test_params.background}
     obs, state = train.reset(jax.random.key(0), train_params)
     assert obs.shape == (28, 28, 3) and 0 <= int(state.background_index) < train_params.background.shape[0]
+
+
+# Localize's background dial (`LocalizeDistraction.background_alpha`): the scene's void pixels
+# (test_localize's toy scenes: everything outside the few labelled object pixels) dimmed.
+def _localize_pixels(env, params, key=5):
+    obs, state = jax.jit(env.reset)(jax.random.key(key), params)
+    return np.asarray(obs["pixels"]), state
+
+
+def test_localize_background_at_one_is_the_plain_scene_and_dims_only_the_void(dataset):
+    env = Localize(dataset, w=4, M=7, background_alpha=1.0)
+    plain = Localize(dataset, w=4, M=7)
+    obs, state = _localize_pixels(env, env.default_params)
+    np.testing.assert_array_equal(obs, _localize_pixels(plain, plain.default_params)[0])
+    params = env.default_params.replace(distraction=env.default_params.distraction.replace(
+        background_alpha=jnp.float32(0.3)))
+    dimmed, same_state = _localize_pixels(env, params)
+    assert int(same_state.image_index) == int(state.image_index)
+    index = int(state.image_index)
+    image = np.asarray(params.images[index], np.float64)
+    void = np.asarray(params.class_maps[index]) == 255
+    assert void.any() and (~void).any()
+    np.testing.assert_array_equal(dimmed[..., :3][void], np.round(np.float32(0.3) * image[void]))
+    np.testing.assert_array_equal(dimmed[..., :3][~void], image[~void])  # the objects unchanged
+    np.testing.assert_array_equal(dimmed[..., 3], obs[..., 3])  # the footprint plane too
+
+
+def test_localize_background_effect_grows_as_alpha_falls_and_sweeps_in_one_trace(dataset):
+    env = Localize(dataset, w=4, M=7, background_alpha=1.0)
+    params = env.default_params
+    alphas = jnp.array([1.0, 0.75, 0.5, 0.0], jnp.float32)
+    separate = [_localize_pixels(env, params.replace(distraction=params.distraction.replace(background_alpha=a)))[0]
+                .astype(np.int32) for a in alphas]
+    _grows_and_sweeps_in_one_trace(env, params, alphas, separate, 5, lambda obs: obs["pixels"])
+    with pytest.raises(ValueError, match=r"background_alpha must be in \[0, 1\]"):
+        Localize(dataset, w=4, background_alpha=-0.5)
+    with pytest.raises(ValueError, match=r"background_alpha must be in \[0, 1\]"):
+        params.sweep(background_alpha=jnp.array([1.0, 1.5]))

@@ -36,8 +36,9 @@ from flax import struct
 
 from jaxnat.core import is_concrete, sweep_distraction
 
-__all__ = ["Distraction", "ClassifyDistraction", "DistractionSweep", "NOISE_STREAM", "BACKGROUND_STREAM",
-           "noisy_image", "noise_key_data", "observe_with_noise", "check_distraction", "background_image"]
+__all__ = ["Distraction", "ClassifyDistraction", "LocalizeDistraction", "DistractionSweep", "NOISE_STREAM", "BACKGROUND_STREAM",
+           "noisy_image", "noise_key_data", "observe_with_noise", "check_distraction", "background_image",
+           "dimmed_background"]
 
 NOISE_STREAM = 0x6E6F6973  # "nois": the fold-in that makes the noise's key
 BACKGROUND_STREAM = 0x62616B67  # "bakg": the fold-in of the reset key that draws Classify's background
@@ -70,6 +71,22 @@ class ClassifyDistraction(Distraction):
     background_alpha: float | None = None
 
 
+@struct.dataclass
+class LocalizeDistraction(Distraction):
+    """Localize's strengths: the vision envs' noise, and how much of the scene's natural
+    background shows.
+
+    `background_alpha` (in [0, 1], or None, the default: off): every pixel outside the scene's
+    objects (the class map's void pixels: the photo behind Clutter's objects, the unlabelled
+    parts of a Cityscapes scene) is scaled by alpha, `round(alpha * value)`, the objects'
+    pixels unchanged (`dimmed_background`). At 1 the observation is the plain env's bit for bit,
+    at 0 the objects on black; the effect grows as alpha falls. As Classify's: 0 no natural
+    background, 1 all of it.
+    """
+
+    background_alpha: float | None = None
+
+
 class DistractionSweep:
     """`sweep` for params with a `distraction: Distraction` field."""
 
@@ -96,6 +113,14 @@ def check_distraction(distraction: Distraction) -> None:
         value = np.asarray(alpha, np.float64)
         if not np.all(np.isfinite(value) & (value >= 0.0) & (value <= 1.0)):
             raise ValueError(f"background_alpha must be in [0, 1], got {alpha}")
+
+
+def dimmed_background(image: jax.Array, background: jax.Array, alpha) -> jax.Array:
+    """uint8 `image` with its `background` pixels (bool `[H, W]`) scaled to `round(alpha *
+    value)`; `alpha` may be traced (clipped to [0, 1]); at 1, `image` exactly."""
+    alpha = jnp.clip(jnp.asarray(alpha, jnp.float32), 0.0, 1.0)
+    dimmed = jnp.round(alpha * image.astype(jnp.float32)).astype(jnp.uint8)
+    return jnp.where(background[..., None], dimmed, image)
 
 
 def background_image(image: jax.Array, frame: jax.Array, alpha) -> jax.Array:

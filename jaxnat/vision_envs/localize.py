@@ -36,6 +36,9 @@ section 2 (the paper's task; where the authors' code differs, this env follows t
   pixel noise `noise_sigma` (default None: off, the plain env bit for bit; 0 draws noise at
   zero strength, the same observations) on the photo channels, fresh
   every step, as a traced param; `params.sweep(noise_sigma=...)` vmaps a difficulty curve.
+  `background_alpha` (default None: off) scales the scene's background, the class map's void
+  pixels, to `round(alpha * value)` (the objects unchanged): 1 is the plain env bit for bit, 0
+  the objects on black.
 
 `w` is a constructor argument (static), not a traced param: the footprint's pixels are read
 with a `w` x `w` slice, and which images have a valid goal depends on where the start
@@ -62,10 +65,10 @@ from flax import struct
 
 from jaxnat import spaces
 from jaxnat.core import Environment, EnvParams, EnvState
-from jaxnat.datasets.segmentation import SegmentationDataset
+from jaxnat.datasets.segmentation import VOID, SegmentationDataset
 from jaxnat.vision_envs.classify import DOWN, LEFT, MOVES, RIGHT, UP, window_mask
 from jaxnat.vision_envs.distraction import (
-    Distraction, DistractionSweep, check_distraction, noise_key_data, observe_with_noise,
+    DistractionSweep, LocalizeDistraction, check_distraction, dimmed_background, noise_key_data, observe_with_noise,
 )
 from jaxnat.vision_envs.observation import WRITERS, masked_image_observation
 
@@ -91,7 +94,7 @@ class LocalizeParams(DistractionSweep, EnvParams):
     goals: jax.Array  # bool [N, K]: classes that may be the goal in each image
     max_steps_in_episode: int = 200
     success_reward: float = 1.0
-    distraction: Distraction = struct.field(default_factory=Distraction)
+    distraction: LocalizeDistraction = struct.field(default_factory=LocalizeDistraction)
 
 
 class Localize(Environment[LocalizeState, LocalizeParams]):
@@ -117,6 +120,9 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
             speed differs (`bench/localize_throughput.py` compares them).
         noise_sigma: the default `Distraction.noise_sigma`, additive pixel noise (None: the dial
             off, no noise in the program; a number, 0 included: on, sweepable).
+        background_alpha: the default `LocalizeDistraction.background_alpha`, how much of the
+            scene's natural background shows, in [0, 1] (None: off, the plain scene; 1 the
+            same; 0 the objects on black; a number: on, sweepable).
     """
 
     params_type = LocalizeParams
@@ -137,8 +143,9 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         backgrounds: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
         observation_writer: str = "auto",
         noise_sigma: float | None = None,
+        background_alpha: float | None = None,
     ):
-        check_distraction(Distraction(noise_sigma=noise_sigma))
+        check_distraction(LocalizeDistraction(noise_sigma=noise_sigma, background_alpha=background_alpha))
         if observation_writer not in WRITERS:
             raise ValueError(f"observation_writer must be one of {WRITERS}, got "
                              f"{observation_writer!r}")
@@ -175,7 +182,9 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         self._images = jnp.asarray(dataset.images[keep])
         self._class_maps = jnp.asarray(dataset.class_maps[keep])
         self._goals = jnp.asarray(goals[keep])
-        self._distraction = Distraction(noise_sigma=None if noise_sigma is None else float(noise_sigma))
+        self._distraction = LocalizeDistraction(noise_sigma=None if noise_sigma is None else float(noise_sigma),
+                                                background_alpha=None if background_alpha is None
+                                                else float(background_alpha))
 
     @property
     def name(self) -> str:
@@ -228,10 +237,15 @@ class Localize(Environment[LocalizeState, LocalizeParams]):
         h, w = self.image_shape
         footprint = window_mask(state.top_left, self.footprint, h, w)
         everywhere = jnp.ones((h, w), jnp.bool_)
+        images, index = params.images, state.image_index
+        if params.distraction.background_alpha is not None:  # the scene's background dimmed
+            images = dimmed_background(images[index], params.class_maps[index] == VOID,
+                                       params.distraction.background_alpha)[None]
+            index = 0
         pixels = observe_with_noise(
             lambda images, index: masked_image_observation(
                 images, index, everywhere, [footprint], writer=self.observation_writer),
-            params.images, state.image_index, state.noise_key, params.distraction.noise_sigma)
+            images, index, state.noise_key, params.distraction.noise_sigma)
         return {"pixels": pixels, "goal": state.goal}
 
 
