@@ -83,9 +83,10 @@ def child_streams(streams: dict[str, list[Cell]], gpus: tuple[str, ...], seconds
     preallocates it as a one-GPU run would, or, with n streams on that GPU, an n-th of that
     (`XLA_PYTHON_CLIENT_MEM_FRACTION`: `PREALLOCATED`, or the fraction this process was given,
     over n); with a `claims` folder, pooled GPU streams (`pool_streams`) also take their pool's
-    other cells when their own are done. `host` allocates accelerator memory as it needs it (its GPU's memory is mostly
-    preallocated by a device stream: the parent's with one GPU, else that of the GPU whose
-    streams have the least estimated work, by `seconds`) and runs at `HOST_STREAM_NICE`."""
+    other cells when their own are done. `host` allocates accelerator memory as it needs it
+    (its GPU's memory is mostly preallocated by a device stream: the parent's with one GPU,
+    else that of the GPU whose streams have the least estimated work, by `seconds`) and runs at
+    `HOST_STREAM_NICE`."""
     import os
 
     on = {i: [name for name in streams if stream_gpu(name) == i] for i in range(len(gpus))}
@@ -190,7 +191,6 @@ class CellStream:
         one it was in also gets its timing line, which the child had no time to write); a pooled
         stream only the cell it was in (another stream may still take the others:
         `command.run_cells` reports those no stream took)."""
-
         if self.stopped:
             return
         why = self.failure(status)
