@@ -210,8 +210,10 @@ def host_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
     """`play_episodes` for a host-emulated policy (`env_params` None): its one-game batch plays
     `num_episodes` whole games one after another, each reset with a seed drawn from `key` (the
     same key, the same games), for at most `max_steps` agent steps (default the env's
-    `max_episode_steps`). Returns the same per-episode arrays; with `record`, `(seen, results)`
-    where `seen[i]` is game `i`'s observations `[length + 1, ...]`, the reset's first."""
+    `max_episode_steps`); an episode ends where the env's flags end it (with
+    `preprocessing="deepmind"`, at a lost life, its reward the sign). Returns the same
+    per-episode arrays; with `record`, `(seen, results)` where `seen[i]` is game `i`'s
+    observations `[length + 1, ...]`, the reset's first."""
     import numpy as np
 
     env = policy.env
