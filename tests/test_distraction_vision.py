@@ -234,7 +234,7 @@ def test_background_is_the_stated_composite_on_revealed_pixels(behind):
     obs, states = _classify_rollout(reset, step, params)
     for o, state in zip(obs, states):
         image = np.asarray(params.images[int(state.image_index)], np.float64)
-        frame = np.asarray(params.background[int(state.background_index)], np.float64)
+        frame = np.asarray(params.background.frames[int(state.background_index)], np.float64)
         want = np.clip(np.round(image + (1 - image / 255) * np.float32(0.7) * frame), 0, 255)
         revealed = np.asarray(unpack_mask(state.revealed, 10))
         np.testing.assert_array_equal(o[..., 0][revealed], want[..., 0][revealed])
@@ -302,11 +302,18 @@ def test_digits_behind_the_splits_own_photos_and_video_frames():
         _, test_params = jaxnat.make("Classify/Digits-v0", split="test", background_alpha=0.5)
     except jaxnat.datasets.DatasetNotFoundError as err:
         pytest.skip(str(err))
-    assert train_params.background.shape[1:] == (28, 28, 1) and train_params.background.dtype == jnp.uint8
-    train_frames = {np.asarray(f).tobytes() for f in train_params.background}
-    assert not train_frames & {np.asarray(f).tobytes() for f in test_params.background}
+    frames = train_params.background.frames
+    assert frames.shape[1:] == (28, 28, 1) and frames.dtype == jnp.uint8
+    train_frames = {np.asarray(f).tobytes() for f in frames}
+    assert not train_frames & {np.asarray(f).tobytes() for f in test_params.background.frames}
     obs, state = train.reset(jax.random.key(0), train_params)
-    assert obs.shape == (28, 28, 3) and 0 <= int(state.background_index) < train_params.background.shape[0]
+    assert obs.shape == (28, 28, 3) and 0 <= int(state.background_index) < frames.shape[0]
+    # A run records the files behind its frames (`config.json`'s "data"): disjoint by name and hash.
+    from jaxnat.natural import bank_manifests
+
+    (train_files,), (test_files,) = bank_manifests(train_params), bank_manifests(test_params)
+    assert train_files and test_files and all(len(f["sha256"]) == 64 for f in train_files)
+    assert not {f["sha256"] for f in train_files} & {f["sha256"] for f in test_files}
 
 
 # Localize's background dial (`LocalizeDistraction.background_alpha`): the scene's void pixels

@@ -45,6 +45,7 @@ Example::
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -95,9 +96,10 @@ class ClassifyParams(DistractionSweep, EnvParams):
     correct_reward: float = 1.0
     wrong_reward: float = -0.1
     distraction: ClassifyDistraction = struct.field(default_factory=ClassifyDistraction)
-    # uint8 [F, H, W, C] natural frames behind the image (`ClassifyDistraction.background_alpha`),
-    # or None with that dial off.
-    background: jax.Array | None = None
+    # The natural frames behind the image (`ClassifyDistraction.background_alpha`): a
+    # `jaxnat.natural.FrameBank` of uint8 [F, H, W, C] frames, whose manifest a run records; None
+    # with that dial off.
+    background: Any = None
 
 
 class Classify(Environment[ClassifyState, ClassifyParams]):
@@ -182,8 +184,8 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         self._distraction = ClassifyDistraction(noise_sigma=None if noise_sigma is None else float(noise_sigma),
                                                 background_alpha=None if background_alpha is None
                                                 else float(background_alpha))
-        self._background = None if background_alpha is None else jnp.asarray(
-            _background_frames(backgrounds, self.split, self.image_shape))
+        self._background = None if background_alpha is None else _background_bank(
+            backgrounds, self.split, self.image_shape).to_device()
 
     @property
     def name(self) -> str:
@@ -257,7 +259,7 @@ class Classify(Environment[ClassifyState, ClassifyParams]):
         images, index = params.images, state.image_index
         if params.distraction.background_alpha is not None:  # the image over its natural frame
             _check_background(params)
-            images = background_image(images[index], params.background[state.background_index],
+            images = background_image(images[index], params.background.frames[state.background_index],
                                       params.distraction.background_alpha)[None]
             index = 0
         return observe_with_noise(
@@ -283,7 +285,8 @@ def _draw_background(key, params: ClassifyParams):
     if params.distraction.background_alpha is None:
         return None
     _check_background(params)
-    return jax.random.randint(jax.random.fold_in(key, BACKGROUND_STREAM), (), 0, params.background.shape[0])
+    return jax.random.randint(jax.random.fold_in(key, BACKGROUND_STREAM), (), 0,
+                              params.background.frames.shape[0])
 
 
 def _check_background(params: ClassifyParams) -> None:
@@ -292,18 +295,25 @@ def _check_background(params: ClassifyParams) -> None:
                          "background_alpha=<0 to 1> (it loads them), then sweep it")
 
 
-def _background_frames(backgrounds, split: str, image_shape) -> np.ndarray:
-    """uint8 [F, H, W, C]: the natural frames behind a split's images, at the images' size and
-    channels (grey from RGB by ITU-R 601 luma)."""
+def _background_bank(backgrounds, split: str, image_shape):
+    """The `FrameBank` of natural frames behind a split's images, at the images' size and
+    channels (grey from RGB by ITU-R 601 luma), its manifest the source files'."""
+    import dataclasses
+
     from jaxnat.natural import FrameBank
 
     h, w, c = image_shape
-    if isinstance(backgrounds, FrameBank):
-        frames = np.asarray(backgrounds.frames)
-    else:
+    if not isinstance(backgrounds, FrameBank):
         from jaxnat.natural.clutter import background_frames
 
-        frames = np.asarray(background_frames(split, (h, w), backgrounds).frames)
+        backgrounds = background_frames(split, (h, w), backgrounds)
+    bank = backgrounds.to_host()
+    return dataclasses.replace(bank, frames=_as_channels(np.asarray(bank.frames), image_shape))
+
+
+def _as_channels(frames: np.ndarray, image_shape) -> np.ndarray:
+    """`frames` [F, H, W, 1 or 3] checked against the images' `(H, W, C)` and given C channels."""
+    h, w, c = image_shape
     if frames.shape[1:3] != (h, w) or frames.shape[3] not in (1, 3):
         raise ValueError(f"background frames of shape {frames.shape[1:]} for images of {image_shape}: "
                          "give frames at the images' height and width")
