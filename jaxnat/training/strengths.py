@@ -15,13 +15,12 @@ gives (`placement.make_sharded_train` with those params), to float rounding.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 
 from jaxnat.agents import ALGORITHMS
 from jaxnat.agents.rollout import count_updates
 from jaxnat.training.args import TrainError
+from jaxnat.training.placement import Placement
 
 __all__ = ["make_strength_train"]
 
@@ -40,11 +39,12 @@ def make_strength_train(algo: str, config, env, env_params, **values):
     if not values:
         raise TrainError("name at least one dial field and its strengths, e.g. noise_sigma=[0.0, 32.0]")
     swept, axes = env_params.sweep(**values)
-    make, updates = ALGORITHMS[algo].make, count_updates(config)
 
-    def at_strength(params, keys):
-        learner = make(config, env, params)
-        runner = jax.vmap(learner.init)(keys)
-        return jax.vmap(functools.partial(learner.run, config=config, num_updates=updates))(runner)
+    def train(keys):
+        # One device's programs (`make_sharded_train`'s), vmapped over the strength axis.
+        placement = Placement.resolve(algo, config, keys.shape[0], 1, None)
+        init, chunk = placement.learner_programs(algo, config, env, env_params, keys.shape[0])
+        run = chunk(count_updates(config))
+        return jax.vmap(lambda params: run(params, init(params, keys)), in_axes=(axes,))(swept)
 
-    return jax.jit(lambda keys: jax.vmap(at_strength, in_axes=(axes, None))(swept, keys))
+    return jax.jit(train)
