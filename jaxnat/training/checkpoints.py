@@ -38,6 +38,39 @@ def _stored_fields(runner):
     return {name: value for name, value in runner._asdict().items() if value is not None}
 
 
+def _path(path) -> str:
+    """A leaf's path as a dotted name (`train_state.opt_state.1.0.nu`), the same for the state's
+    dataclasses and named tuples as for the dicts and lists orbax stores them as."""
+    names = []
+    for key in path:
+        for attr in ("name", "key", "idx"):
+            if hasattr(key, attr):
+                names.append(str(getattr(key, attr)))
+                break
+        else:
+            names.append(str(key))
+    return ".".join(names)
+
+
+def _check_layout(step: int, wanted: dict, stored: dict) -> None:
+    """A `TrainError` naming the first arrays in which checkpoint `step` and this run's state
+    differ (missing, extra, or of another shape), if any."""
+    def first(names):
+        names = sorted(names)
+        return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+    missing, extra = wanted.keys() - stored.keys(), stored.keys() - wanted.keys()
+    shapes = [f"{name} {tuple(stored[name].shape)} (this run: {tuple(wanted[name].shape)})"
+              for name in sorted(wanted.keys() & stored.keys())
+              if tuple(stored[name].shape) != tuple(wanted[name].shape)]
+    problems = ([f"this run's state has {first(missing)}, the checkpoint does not"] * bool(missing)
+                + [f"the checkpoint has {first(extra)}, this run's state does not"] * bool(extra)
+                + [f"shapes differ: {first(shapes)}"] * bool(shapes))
+    if problems:
+        raise TrainError(f"checkpoint {step} does not match this run's state: {'; '.join(problems)} "
+                         "(written by another version of jaxnat, or for another config); start a new run")
+
+
 class Checkpoints:
     """Orbax checkpoints of the vmapped RunnerState under run_dir/checkpoints, step = update."""
 
@@ -61,23 +94,33 @@ class Checkpoints:
 
     def restore(self, target, step: int | None = None):
         """(runner, meta): arrays from the checkpoint in `target`'s structure (whose static
-        fields, the network's apply_fn and the optimizer, come from this process)."""
+        fields, the network's apply_fn and the optimizer, come from this process). Arrays are
+        matched by their path in the state (`env_state.env_state.label`), not by position, so a
+        field that holds no arrays (None, or a dial that is off) does not have to be on disk; an
+        array this run needs that the checkpoint lacks, or the other way round, or one of another
+        shape, is a `TrainError` that names it."""
         ocp = self.ocp
         step = self.latest_step() if step is None else step
         fields = _stored_fields(target)
-        abstract = jax.tree.map(ocp.utils.to_shape_dtype_struct, to_saveable(fields))
+        target_leaves, treedef = jax.tree_util.tree_flatten_with_path(fields)
+        wanted = {_path(path): to_saveable(ref) for path, ref in target_leaves if not _is_empty(ref)}
+        item = self.manager.directory / str(step) / "state"  # an epath.Path, as orbax's handlers take
+        on_disk = ocp.StandardCheckpointHandler().metadata(item).tree
+        stored = {_path(path): meta for path, meta in jax.tree_util.tree_flatten_with_path(on_disk)[0]}
+        _check_layout(step, wanted, stored)
+        abstract = jax.tree_util.tree_map_with_path(
+            lambda path, _: ocp.utils.to_shape_dtype_struct(wanted[_path(path)]), on_disk)
         restored = self.manager.restore(step, args=ocp.args.Composite(
             state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
-        target_leaves, treedef = jax.tree.flatten(fields)
-        stored = jax.tree.leaves(restored.state)
-        expected = sum(not _is_empty(ref) for ref in target_leaves)
-        if len(stored) != expected:
-            raise TrainError(f"checkpoint {step} does not match this run's state "
-                             f"({len(stored)} arrays, expected {expected})")
-        stored = iter(stored)
-        leaves = [jnp.zeros(ref.shape, ref.dtype) if _is_empty(ref)
-                  else jax.random.wrap_key_data(next(stored), impl=jax.random.key_impl(ref)) if _is_key(ref)
-                  else jnp.asarray(next(stored)) for ref in target_leaves]
+        arrays = {_path(path): value for path, value in jax.tree_util.tree_flatten_with_path(restored.state)[0]}
+        leaves = []
+        for path, ref in target_leaves:
+            if _is_empty(ref):
+                leaves.append(jnp.zeros(ref.shape, ref.dtype))
+                continue
+            value = arrays[_path(path)]
+            leaves.append(jax.random.wrap_key_data(value, impl=jax.random.key_impl(ref)) if _is_key(ref)
+                          else jnp.asarray(value))
         state = jax.tree.unflatten(treedef, leaves)
         return (target._replace(**state) if hasattr(target, "_asdict") else state), dict(restored.meta)
 
