@@ -483,3 +483,16 @@ def test_a_natural_atari_run_loads_acts_greedily_and_evaluates(tmp_path, capsys)
     newest = np.repeat(np.repeat(seen[1][-1][..., -1], 2, axis=0), 2, axis=1)
     # The GIF's palette dithers each pixel (a noise background most): the frame's mean is kept.
     assert abs(frames[-1][..., 0].mean() - newest.mean()) < 2
+
+
+def test_observation_space_leaves_the_background_dial_out():
+    """The default trunk's probe (one env, no background) takes a run's kwargs without the ones
+    only a background takes: `jaxnat train` on a dimmed video background sets up, and the
+    space is the plain env's."""
+    pytest.importorskip("ale_py")
+    from jaxnat.training.host_backend import observation_space
+
+    plain = observation_space("NaturalAtari/Breakout-v0", {"obs_size": 42})
+    dimmed = observation_space("NaturalAtari/Breakout-v0", {"obs_size": 42, "background": "video",
+                                                             "video_alpha": 0.5, "frame_rate": 0})
+    assert (dimmed.shape, dimmed.dtype) == (plain.shape, plain.dtype) == ((42, 42, 4), np.uint8)

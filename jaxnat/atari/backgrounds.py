@@ -30,9 +30,11 @@ from jaxnat.atari.compositor import GrayNoiseSampler, grayscale
 from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
 from jaxnat.natural.sampler import per_env_values
 
-__all__ = ["BACKGROUNDS", "make_background"]
+__all__ = ["BACKGROUNDS", "BACKGROUND_KWARGS", "make_background"]
 
 BACKGROUNDS = ("none", "noise", "video", "image")
+# The env kwargs that only a background other than "none" takes (its source and its dial).
+BACKGROUND_KWARGS = ("video_sources", "noise", "noise_scale", "video_alpha", "frame_rate", "num_videos")
 
 
 class NoBackground:

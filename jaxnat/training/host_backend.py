@@ -61,8 +61,12 @@ DATA_PARALLEL_ALGORITHMS = tuple(name for name in HOST_ALGORITHMS
 
 
 def observation_space(env_id: str, env_kwargs: dict):
-    """The observation space, from one env without background (cheap), for the default trunk."""
-    probe = jaxnat.make_vec(env_id, 1, **{**env_kwargs, "background": "none"})
+    """The observation space, from one env without background (cheap), for the default trunk
+    (the background's own kwargs left out: without one they are refused)."""
+    from jaxnat.atari.backgrounds import BACKGROUND_KWARGS
+
+    plain = {key: value for key, value in env_kwargs.items() if key not in BACKGROUND_KWARGS}
+    probe = jaxnat.make_vec(env_id, 1, **{**plain, "background": "none"})
     try:
         return probe.single_observation_space
     finally:
