@@ -15,9 +15,17 @@ program (`make_sharded_train` per strength, compiled each time, as separate runs
 wall time of both ways (compiling included); `--no-levels` skips them.
 
     python bench/strength_sweep.py                                          # PixelMuJoCo HalfCheetah, 3 x 5 seeds, 2M steps
-    python bench/strength_sweep.py --env-id NaturalAtari/...                # (host envs: not in one program; refused)
+    python bench/strength_sweep.py --env-id NaturalAtari/Breakout-v0 --env-kwargs \\
+        background=video --num-envs 8 --num-steps 128 --total-timesteps 2000000 --episodes 8 \\
+        --max-steps 4500                                                    # host envs: a run per strength
     JAX_PLATFORMS=cpu python bench/strength_sweep.py --env-id Classify/Digits-v0 --env-kwargs --param noise_sigma \\
         --train 0 64 --test 0 32 64 --seeds 2 --num-envs 4 --num-steps 8 --total-timesteps 64 --episodes 4 --no-record
+
+Natural Atari (ALE on the host) cannot put its strengths in one program: there each train strength
+is one `jaxnat train` run (its seeds one after another, as the host backend trains them, in a
+temporary folder), and each seed's policy (`jaxnat.trained.load_policy`) plays `--episodes` whole greedy
+test games at each test strength (`trained.host_episodes`, the same game seeds at every strength).
+The matrix, table and figure are the same; the wall times are the runs' and the games'.
 
 Records to `bench/results/strength_sweep.{md,jsonl}` (and the figure) unless `--no-record`.
 """
@@ -48,6 +56,9 @@ def parse(argv=None) -> argparse.Namespace:
     parser.add_argument("--num-steps", type=int, default=16)
     parser.add_argument("--dtype", default=None, help="the trunk's dtype (default: bfloat16 on a GPU, float32 else)")
     parser.add_argument("--episodes", type=int, default=32, help="test episodes per policy and test strength")
+    parser.add_argument("--max-steps", type=int, default=None,
+                        help="host envs: the env's `max_episode_steps` in training and test games (default: the "
+                             "env's, 27,000: a greedy policy that never serves plays Breakout that long)")
     parser.add_argument("--no-levels", action="store_true", help="skip training the strengths one after another")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
@@ -116,10 +127,9 @@ def main(argv=None) -> int:
     from jaxnat.trained import TrainedPolicy, episode_limit, episode_program, policy_step
     from jaxnat.training import make_sharded_train, make_strength_train, parse_env_kwargs
 
-    if jaxnat.spec(args.env_id).batched:
-        sys.exit(f"strength_sweep.py: {args.env_id} is emulated on the host; its strengths cannot train in one "
-                 "jitted program (sweep a JAX env: PixelMuJoCo, Classify, Localize)")
     info = common.machine()
+    if jaxnat.spec(args.env_id).batched:
+        return host_sweep(args, info, common)
     kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     env, params = jaxnat.make(args.env_id, **kwargs)
     test_env, test_params = jaxnat.make(args.env_id, split="test", **kwargs)
@@ -159,30 +169,95 @@ def main(argv=None) -> int:
     train_curve = np.asarray(metrics["episode_return"], np.float64)  # [train, seed, updates]
     last = max(1, train_curve.shape[-1] // 10)
 
-    figure = common.RESULTS / "strength_sweep.png"
+    times = {"one program (seeds x strengths)": f"{sweep_s:.1f} s, compiling included",
+             "strengths one after another": "not run" if levels_s is None else
+             f"{levels_s:.1f} s ({levels_s / sweep_s:.2f}x the one program's time)",
+             "evaluation (one program)": f"{eval_s:.1f} s"}
+    finals = [float(np.nanmean(train_curve[i, :, -last:])) for i in range(len(args.train))]
+    record(args, info, rows, args.env_kwargs, f", {config.dtype}", "episodes", times, finals,
+           {"sweep_s": sweep_s, "levels_s": levels_s, "eval_s": eval_s})
+    return 0
+
+
+def host_sweep(args, info, common) -> int:
+    """The matrix for a host-emulated env (Natural Atari): a `jaxnat train` run per train
+    strength, then every seed's greedy test games at every test strength."""
+    import dataclasses
+    import tempfile
+
+    import jax
+
+    import jaxnat
+    from jaxnat.trained import host_episodes, load_policy
+    from jaxnat.training import parse_args, parse_env_kwargs, read_run, train
+
+    env_kwargs = [*args.env_kwargs, *([f"max_episode_steps={args.max_steps}"] if args.max_steps else [])]
+    kwargs = parse_env_kwargs(env_kwargs, args.env_id)
+    if args.param in kwargs:
+        sys.exit(f"strength_sweep.py: --env-kwargs sets {args.param}, the swept field; leave it out")
+    returns = np.zeros((len(args.train), args.seeds, len(args.test), args.episodes))
+    train_last, train_s, eval_s = [], 0.0, 0.0
+    with tempfile.TemporaryDirectory(prefix="strength_sweep-") as folder:
+        for i, value in enumerate(args.train):
+            run_dir = Path(folder) / f"train-{value:g}"
+            argv = ["--env-id", args.env_id, "--algo", "ppo", "--seeds", str(args.seeds),
+                    "--num-envs", str(args.num_envs), "--num-steps", str(args.num_steps),
+                    "--total-timesteps", str(args.total_timesteps), "--eval-episodes", "1",
+                    "--run-dir", str(run_dir), "--env-kwargs", *env_kwargs, f"{args.param}={value:g}"]
+            start = time.perf_counter()
+            train(parse_args(argv))
+            train_s += time.perf_counter() - start
+            per_seed = {}
+            for row in read_run(run_dir).metrics:  # the seeds' rows one after another (trained so)
+                ended = row.get("episode_return")
+                per_seed.setdefault(row["seed"], []).append(np.nan if ended is None else ended)
+            last = [c[-max(1, len(c) // 10):] for c in per_seed.values()]
+            finite = [v for c in last for v in c if np.isfinite(v)]
+            train_last.append(float(np.mean(finite)) if finite else float("nan"))  # nan: no game ended
+            start = time.perf_counter()
+            for seed in range(args.seeds):
+                policy = load_policy(run_dir, seed=seed)
+                for j, test in enumerate(args.test):
+                    env = jaxnat.make_vec(args.env_id, 1, split="test", **{**kwargs, args.param: test})
+                    try:
+                        games = host_episodes(dataclasses.replace(policy, env=env), jax.random.key(1), args.episodes,
+                                              greedy=True)
+                    finally:
+                        env.close()
+                    returns[i, seed, j] = games["return"]
+                policy.env.close()
+            eval_s += time.perf_counter() - start
+            print(f"train {args.param}={value:g}: trained {train_s:.1f} s, tested {eval_s:.1f} s (so far)", flush=True)
+    rows = matrix_rows(returns, args.train, args.test, common)
+    times = {"training (a jaxnat train run per strength; ALE on the host)": f"{train_s:.1f} s",
+             "evaluation (games one after another)": f"{eval_s:.1f} s"}
+    record(args, info, rows, env_kwargs, "", "games", times, train_last, {"train_s": train_s, "eval_s": eval_s})
+    return 0
+
+
+def record(args, info, rows: list[dict], env_kwargs: list[str], dtype: str, played: str, times: dict,
+           finals: list[float], extras: dict) -> None:
+    """Print the matrix and its summary, and (unless `--no-record`) write the heat map and append
+    both to `bench/results/strength_sweep.*`: `times` the wall times by what they timed,
+    `finals` each train strength's final training return, `extras` the timings in every row."""
+    import common
+
     if not args.no_record:
-        heat_map(rows, args.train, args.test, args.param, args.env_id, figure)
+        heat_map(rows, args.train, args.test, args.param, args.env_id, common.RESULTS / "strength_sweep.png")
     table = common.markdown_table(rows, [("train", f"train {args.param}", "g"), ("test", f"test {args.param}", "g"),
                                          ("mean", "test return", ".1f"), ("low", "95% low", ".1f"),
                                          ("high", "95% high", ".1f")])
     summary = {
-        "workload": (f"PPO on {args.env_id} ({' '.join(args.env_kwargs) or 'defaults'}), {args.seeds} seeds x "
+        "workload": (f"PPO on {args.env_id} ({' '.join(env_kwargs) or 'defaults'}), {args.seeds} seeds x "
                      f"{len(args.train)} train strengths of {args.param}, {args.num_envs} envs x {args.num_steps} steps, "
-                     f"{args.total_timesteps:,} env steps per seed, {config.dtype}; tested greedy on the test split, "
-                     f"{args.episodes} episodes per policy and test strength"),
-        "one program (seeds x strengths)": f"{sweep_s:.1f} s, compiling included",
-        "strengths one after another": "not run" if levels_s is None else
-        f"{levels_s:.1f} s ({levels_s / sweep_s:.2f}x the one program's time)",
-        "evaluation (one program)": f"{eval_s:.1f} s",
+                     f"{args.total_timesteps:,} env steps per seed{dtype}; tested greedy on the test split, "
+                     f"{args.episodes} {played} per policy and test strength"),
+        **times,
         "train return, last 10% of updates, per train strength": ", ".join(
-            f"{a:g}: {np.nanmean(train_curve[i, :, -last:]):.1f}" for i, a in enumerate(args.train)),
+            f"{a:g}: {r:.1f}" for a, r in zip(args.train, finals)),
         "figure": "bench/results/strength_sweep.png" if not args.no_record else "not written (--no-record)",
     }
-    common.record("strength_sweep", info, table, summary,
-                  [{**r, "sweep_s": sweep_s, "levels_s": levels_s, "eval_s": eval_s} for r in rows],
-                  save=not args.no_record)
-    return 0
-
+    common.record("strength_sweep", info, table, summary, [{**r, **extras} for r in rows], save=not args.no_record)
 
 if __name__ == "__main__":
     sys.exit(main())
