@@ -72,6 +72,9 @@ def test_results_json_cell_entry_per_seed_values():
     entry = results_json._plain(results_json.cell_entry(short))
     assert [c["env_steps"] for c in entry["train_checkpoints"]] == [250_000.0]
     assert entry["untrained_test_sampled"]["per_seed"] == [0.3, 0.2, 0.1] and entry["complete"] is False
+    # Its one evaluation is the untrained policy's: never shown as the final test score.
+    assert entry["test_final"] is None and short.final_eval is None
+    assert str(short.final_greedy) == str(short.final_sampled) == str(report.bootstrap_ci([]))
 
 
 def _plan(out, cells, only=("classify",), profile=None):

@@ -86,6 +86,14 @@ DEPARTURES: tuple[Departure, ...] = (
               "a random position (the authors' code: top-left (16 - w, 16 - w) on 32x32)",
               "a uniformly random top-left in [0, H - w] x [0, W - w] (`start=\"random\"`), as the paper's text",
               lambda cell: cell.experiment == "classify" and cell.env_kwargs.get("start", "random") == "random"),
+    Departure("classification moves",
+              "four moves (the authors' code: UP and LEFT did nothing, a bug they fixed later)",
+              "all four moves shift the window by w pixels, clamped inside the image",
+              lambda cell: cell.experiment == "classify"),
+    Departure("classification observation",
+              "the image where revealed, -1 elsewhere (the authors' code), which collides with black pixels",
+              "the image where revealed and 0 elsewhere, plus a revealed-mask channel and a window channel",
+              lambda cell: cell.experiment == "classify"),
     Departure("natural videos",
               "840 Kinetics \"driving car\" clips, one set for training and testing (the authors' PixelMuJoCo "
               "advanced 4 video frames per agent step)",
@@ -151,10 +159,12 @@ def _config_default(algo: str, name: str):
 
 
 def batch_rows(cells: list[Cell]) -> list[dict]:
-    """Per experiment and algorithm: this report's envs per seed x steps per update, the authors',
-    and the other learning settings the cells override (`Cell.overrides` less `RUN_SETTINGS`);
-    only the rows that differ from the authors'."""
-    rows: dict[tuple[str, str], dict] = {}
+    """Per experiment, algorithm and settings: this report's envs per seed x steps per update, the
+    authors', the other learning settings the cells override (`Cell.overrides` less
+    `RUN_SETTINGS`) and, where cells of one experiment and algorithm differ (PixelMuJoCo's pixel
+    cells and its state and constant references), the observations each row is for; only the
+    rows that differ from the authors'."""
+    rows: dict[tuple, dict] = {}
     for cell in cells:
         if cell.experiment == CALIBRATION:  # several batches by design: the calibration section's table
             continue
@@ -163,9 +173,17 @@ def batch_rows(cells: list[Cell]) -> list[dict]:
         authors = AUTHORS_BATCH.get(cell.algo)
         if authors == (envs, steps) and not others:
             continue
-        rows.setdefault((cell.experiment, cell.algo), {"experiment": cell.experiment, "algo": cell.algo,
-                                                       "batch": (envs, steps), "authors": authors,
-                                                       "others": others})
+        key = (cell.experiment, cell.algo, envs, steps, tuple(sorted((k, repr(v)) for k, v in others.items())))
+        row = rows.setdefault(key, {"experiment": cell.experiment, "algo": cell.algo, "batch": (envs, steps),
+                                    "authors": authors, "others": others, "observations": []})
+        observation = cell.labels.get("observation")
+        if observation and observation not in row["observations"]:
+            row["observations"].append(observation)
+    split = {(r["experiment"], r["algo"]) for r in rows.values()
+             if sum((o["experiment"], o["algo"]) == (r["experiment"], r["algo"]) for o in rows.values()) > 1}
+    for row in rows.values():
+        if (row["experiment"], row["algo"]) not in split:
+            row["observations"] = []
     return list(rows.values())
 
 
@@ -213,7 +231,8 @@ def departures_section(profile: Profile, cells: list[Cell]) -> list[str]:
                   "16 x 5, ACKTR 32 x 20):", "",
                   "| experiment | algorithm | this report | the authors' | other settings changed |",
                   "|---|---|---|---|---|"]
-        lines += [f"| {r['experiment']} | {r['algo'].upper()} | {_batch_text(r['batch'])} "
+        lines += [f"| {r['experiment']}{' (' + ', '.join(r['observations']) + ')' if r['observations'] else ''} "
+                  f"| {r['algo'].upper()} | {_batch_text(r['batch'])} "
                   f"| {_batch_text(r['authors'])} "
                   f"| {', '.join(f'`{k}={v}`' for k, v in r['others'].items()) or '—'} |" for r in batches]
     if skipped:
@@ -226,7 +245,8 @@ def departures_data(profile: Profile, cells: list[Cell]) -> list[dict]:
     cells = [c for c in cells if not c.skip]
     rows = [{"topic": d.topic, "paper": d.paper, "jaxnat": d.jaxnat, "cells": names} for d, names in applying(cells)]
     rows += [{"topic": f"batch: {r['experiment']} {r['algo']}", "paper": _batch_text(r["authors"]),
-              "jaxnat": _batch_text(r["batch"]), "other_settings": r["others"]} for r in batch_rows(cells)]
+              "jaxnat": _batch_text(r["batch"]), "other_settings": r["others"],
+              **({"observations": r["observations"]} if r["observations"] else {})} for r in batch_rows(cells)]
     rows += [{"topic": f"note: {c.name}", "paper": "", "jaxnat": c.note, "cells": [c.name]}
              for c in cells if c.note and stand_in_for(c) is None]
     rows += [{"topic": f"{e} env settings", "paper": "the env's defaults",

@@ -119,12 +119,20 @@ class CellResult:
         return max(share, 1.0) if self.complete and self.cell.budget.total_timesteps >= paper else share
 
     @property
+    def final_eval(self) -> int | None:
+        """The index of the test evaluation of the trained policy: the latest one after update 0
+        (the untrained policy's is never a final score), or None when there is none (a run whose
+        last evaluation was lost has its untrained one only)."""
+        trained = np.flatnonzero(self.eval_steps > 0)
+        return int(trained[-1]) if trained.size else None
+
+    @property
     def final_greedy(self) -> Interval:
-        return bootstrap_ci(self.greedy[-1] if len(self.greedy) else [])
+        return bootstrap_ci([] if self.final_eval is None else self.greedy[self.final_eval])
 
     @property
     def final_sampled(self) -> Interval:
-        return bootstrap_ci(self.sampled[-1] if len(self.sampled) else [])
+        return bootstrap_ci([] if self.final_eval is None else self.sampled[self.final_eval])
 
 
 def load_result(cell: Cell, run_dir: Path) -> CellResult:
@@ -432,7 +440,10 @@ def findings_section(finished: list[CellResult], only: tuple[str, ...]) -> list[
 
 
 def _findings_lines(rows: list[tuple]) -> list[str]:
-    lines = ["## Findings", "", "Verdicts: reproduced (95% intervals apart, in the paper's order), contradicted "
+    lines = ["## Findings", "", "The quantity compared is each cell's training return (each seed's mean over the last "
+             "10% of its updates, as the paper's figures plot training curves; the test scores are in the final "
+             "table), its mean over seeds with a 95% bootstrap interval over seeds. "
+             "Verdicts: reproduced (95% intervals apart, in the paper's order), contradicted "
              "(apart, the reverse order), inconclusive (intervals overlap), not shown (the cell the comparison "
              "needs did not beat its untrained policy), not run; rules in `jaxnat/reproduce/verdicts.py`.", "",
              "| the paper's claim | verdict | share of the paper's budget | comparisons |", "|---|---|---|---|"]

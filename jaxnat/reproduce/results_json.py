@@ -59,7 +59,7 @@ def cell_entry(result) -> dict:
     if not checkpoints or checkpoints[-1]["env_steps"] != last:
         checkpoints.append({"env_steps": last, "per_seed": result.train_per_seed(None)})
     untrained = result.untrained_per_seed
-    evaluated = bool(len(result.eval_steps))
+    final = result.final_eval
     return {
         "name": cell.name, "experiment": cell.experiment, "figure": cell.figure, "labels": cell.labels,
         "dataset": dataset_label(cell) or None, "env_id": cell.env_id, "env_kwargs": cell.env_kwargs,
@@ -72,10 +72,10 @@ def cell_entry(result) -> dict:
         "train_checkpoints": checkpoints,
         "untrained_test_sampled": None if untrained is None else {"env_steps": 0, "per_seed": untrained,
                                                                  "interval": _interval(result.untrained)},
-        "test_final": None if not evaluated else {
-            "env_steps": float(result.eval_steps[-1]),
-            "greedy": {"per_seed": result.greedy[-1], "interval": _interval(result.final_greedy)},
-            "sampled": {"per_seed": result.sampled[-1], "interval": _interval(result.final_sampled)}},
+        "test_final": None if final is None else {
+            "env_steps": float(result.eval_steps[final]),
+            "greedy": {"per_seed": result.greedy[final], "interval": _interval(result.final_greedy)},
+            "sampled": {"per_seed": result.sampled[final], "interval": _interval(result.final_sampled)}},
     }
 
 
