@@ -131,6 +131,13 @@ def test_verdict_speed_claims_at_fixed_checkpoints():
     ms = [_sweep(5, m, 1.0 - m / 50, steps=steps) for m in (10, 20, 40)]
     assert _judge("_smaller_m_easier", ms).verdict == "reproduced"
     assert verdicts.checkpoint_steps(ms[0]) == [(1_000_000, 1_000_000), (10_000_000, 10_000_000)]
+    # M moves the return's floor and the untrained policy: the sweep compares normalised scores.
+    # M=20's raw return is above M=10's, but both close 80% of the gap from untrained to 1.
+    floors = [_sweep(5, 10, 0.8, steps=steps, untrained=0.0), _sweep(5, 20, 0.96, steps=steps, untrained=0.8)]
+    verdict = _judge("_smaller_m_easier", floors)
+    assert verdict.verdict == "inconclusive" and "M=10 0.8 [" in verdict.numbers and "normalised" in verdict.numbers
+    unrecorded = [floors[0], _sweep(5, 20, 0.96, steps=steps, untrained=None)]
+    assert "records no untrained policy" in _judge("_smaller_m_easier", unrecorded).numbers
     assert verdicts.checkpoint_steps(short[0]) == [(1_000_000, 500_000), (10_000_000, None)]
 
 

@@ -6,7 +6,8 @@ Per claim: PPO and ACKTR "close to 1 on MNIST": each cell's interval against 0.9
 CNN only (the claim is made of the CNN; with ResNet-18 the paper has ACKTR and A2C "suffer
 dramatically", PPO alone keeping its MNIST performance). "A2C worst": PPO and ACKTR each above
 A2C, per dataset and trunk. "Worse on CIFAR": MNIST above each CIFAR, per algorithm and trunk.
-"Fewer steps M" (speed): M=10 above M=20 above M=40 at each speed checkpoint. "Initially a larger
+"Fewer steps M" (speed): M=10 above M=20 above M=40 at each speed checkpoint, on the return
+normalised between each cell's untrained policy and the best return (their floors differ). "Initially a larger
 window, later w=2" (speed): w=5 and w=7 above w=2 at the first checkpoint, w=2 above both at the
 last. Localisation: the 3-layer CNN above ResNet-18, per dataset and algorithm (the drop's size,
 "small", is not judged). Atari "worst with video": no background and the noise background each
@@ -22,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+from jaxnat.reproduce.aggregates import MAX_RETURNS
 from jaxnat.reproduce.labels import dataset_label
 from jaxnat.reproduce.verdicts import (SPEED_CHECKPOINTS, Verdict, as_good, at_least, checkpoint_label,
                                        checkpoint_steps, judge, not_reached, ordered)
@@ -105,9 +107,9 @@ def _cifar_harder(results) -> Verdict:
                   for a, b in pairs])
 
 
-def _at_checkpoints(label: str, pairs, parts=None) -> list:
+def _at_checkpoints(label: str, pairs, parts=None, top: float | None = None) -> list:
     """Each `(high, low)` pair of `(name, result)`s ordered at each speed checkpoint (`parts`: the
-    checkpoints' indices to judge it at)."""
+    checkpoints' indices to judge it at; `top`: on scores normalised to it, `verdicts.ordered`)."""
     comparisons = []
     for high, low in pairs:
         for i, (checkpoint, step) in enumerate(checkpoint_steps(high[1], low[1])):
@@ -118,14 +120,15 @@ def _at_checkpoints(label: str, pairs, parts=None) -> list:
                                                (high[1], low[1])))
             else:
                 comparisons.append(ordered(f"{label} {checkpoint_label(checkpoint, step)}".strip(), high, low,
-                                           at=step))
+                                           at=step, top=top))
     return comparisons
 
 
 def _smaller_m_easier(results) -> Verdict:
     cells = sorted(_select(results, "classify", "sweep", w=5), key=lambda r: r.cell.labels["M"])
     named = [(f"M={r.cell.labels['M']}", r) for r in cells]
-    return judge("the M sweep", _at_checkpoints("", list(zip(named, named[1:]))))
+    # Normalised: the return's floor (-0.1 M) and the untrained policy's return move with M.
+    return judge("the M sweep", _at_checkpoints("", list(zip(named, named[1:])), top=MAX_RETURNS["classify"]))
 
 
 def _small_window_later(results) -> Verdict:

@@ -6,6 +6,10 @@ aggregates them.
 mean over the last 10% of its updates in which an episode ended, the mean over seeds with a 95%
 percentile-bootstrap interval (`report.CellResult.final_train`). Claims about learning speed
 read it at fixed env-step checkpoints instead (`SPEED_CHECKPOINTS`; `CellResult.train_at`).
+Cells whose returns are on different scales (the classification sweep over M: a wrong guess
+costs 0.1 a step, so the floor is -0.1 M and the untrained policy's return moves with M) are
+compared on the return normalised per seed between the cell's untrained policy (0) and the
+task's best return (1), as the report's aggregates are (`normalised`).
 
 **Outcomes of a comparison** (the paper puts cell `high` above cell `low`):
 
@@ -54,8 +58,10 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["OUTCOMES", "SPEED_CHECKPOINTS", "Comparison", "Verdict", "judge", "not_run", "ordered", "at_least",
-           "as_good", "checkpoint_steps", "learned"]
+from jaxnat.reproduce.stats import Interval, bootstrap_ci
+
+__all__ = ["OUTCOMES", "SPEED_CHECKPOINTS", "Comparison", "Verdict", "judge", "not_run", "ordered", "normalised",
+           "at_least", "as_good", "checkpoint_steps", "learned"]
 
 OUTCOMES = ("reproduced", "contradicted", "inconclusive", "not shown", "not run")
 SPEED_CHECKPOINTS = (1_000_000, 10_000_000)  # env steps per seed: early in training, and the paper's budget
@@ -109,15 +115,30 @@ def _compare(label: str, text: str, gated, cells, outcome) -> Comparison:
     return Comparison(result, f"{label}: {text} ({result})", tuple(cells))
 
 
-def ordered(label: str, high: tuple, low: tuple, at: float | None = None) -> Comparison:
-    """The paper puts `high` above `low`; each is `(name, result)`. `at`: judged at this env step."""
+def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: float | None = None) -> Comparison:
+    """The paper puts `high` above `low`; each is `(name, result)`. `at`: judged at this env step.
+    `top` (the task's best return): compare the scores normalised between each cell's untrained
+    policy (0) and `top` (1), for cells whose returns are on different scales (`normalised`)."""
     (hn, hr), (ln, lr) = high, low
-    h, lo = _value(hr, at), _value(lr, at)
+    if top is not None:
+        missing = next((r for r in (hr, lr) if r.untrained is None), None)
+        if missing is not None:
+            return Comparison("not shown", f"{label}: {hn} vs {ln} (not shown: {missing.cell.name} records no "
+                                           "untrained policy, which the normalised score needs)", (hr, lr))
+    h, lo = (_value(r, at) if top is None else normalised(r, top, at) for r in (hr, lr))
 
     def outcome():
         return "reproduced" if h.low > lo.high else "contradicted" if lo.low > h.high else "inconclusive"
 
-    return _compare(label, f"{hn} {h} vs {ln} {lo}", (hr, at), (hr, lr), outcome)
+    scale = "" if top is None else f" (normalised: the untrained policy at 0, the best return, {top:g}, at 1)"
+    return _compare(label, f"{hn} {h} vs {ln} {lo}{scale}", (hr, at), (hr, lr), outcome)
+
+
+def normalised(result, top: float, at: float | None = None) -> Interval:
+    """The cell's training return (final, or at env step `at`) normalised per seed between its
+    untrained policy's mean (0) and `top` (1), with its 95% bootstrap interval over seeds."""
+    untrained = result.untrained.mean
+    return bootstrap_ci((result.train_per_seed(at) - untrained) / (top - untrained))
 
 
 def at_least(label: str, result, threshold: float) -> Comparison:
