@@ -141,14 +141,15 @@ def normalised(result, top: float, at: float | None = None) -> Interval:
     return bootstrap_ci((result.train_per_seed(at) - untrained) / (top - untrained))
 
 
-def at_least(label: str, result, threshold: float) -> Comparison:
-    """The paper puts `result` at or above `threshold`: its interval above, below, or across it."""
+def at_least(label: str, result, threshold: float, reading: str = "") -> Comparison:
+    """The paper puts `result` at or above `threshold`: its interval above, below, or across it.
+    `reading`: where the number comes from, when the paper gives none (shown after it)."""
     got = result.final_train
 
     def outcome():
         return "reproduced" if got.low >= threshold else "contradicted" if got.high < threshold else "inconclusive"
 
-    return _compare(label, f"{got} vs {threshold:g}", (result, None), (result,), outcome)
+    return _compare(label, f"{got} vs {threshold:g}{reading}", (result, None), (result,), outcome)
 
 
 def as_good(label: str, reference: tuple, other: tuple) -> Comparison:
