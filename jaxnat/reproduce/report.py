@@ -44,7 +44,10 @@ __all__ = ["CellResult", "load_result", "write_report", "FIGURES"]
 FINAL_FRACTION = 0.1  # the final training return averages the last 10% of a seed's updates with episodes
 GREEDY_NOTE = ("Test greedy takes the most likely action at every step: a feed-forward classifier whose window "
                "stops moving (against an edge) then sees one observation over and over and repeats one wrong label "
-               "to the episode's end, so its greedy return can sit far below its sampled one.")
+               "to the episode's end, so its greedy return can sit far below its sampled one. A continuous "
+               "policy's greedy action is its Gaussian's mean, free of the exploration noise the training and "
+               "sampled returns carry: for a PixelMuJoCo policy that sees a constant observation, one fixed gait, "
+               "whose greedy return can sit far above its sampled one.")
 
 # figure file stem -> (title, cells' figure tag, panel label key, curve label key)
 FIGURES = {
