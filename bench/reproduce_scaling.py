@@ -11,6 +11,7 @@ to agree bit for bit; the column shows whether they did).
 
     python bench/reproduce_scaling.py                          # quick profile's classification cells, 1 vs 2 GPUs
     python bench/reproduce_scaling.py --gpus 1 2 4 --only classify,localize
+    python bench/reproduce_scaling.py --profile paper --cells 'classify-sweep-w5-*'   # paper cells, 1 vs 2 GPUs
     JAX_PLATFORMS=cpu python bench/reproduce_scaling.py --profile smoke --gpus 1 --no-record
 
 The paper profile's own cells take GPU-hours each; the quick profile trains the same grid of
@@ -56,6 +57,8 @@ def run_reproduce(args, gpus: int, out: Path, gpu_ids: list[str]) -> dict:
         argv += ["--seeds", str(args.seeds)]
     if args.pack_small > 1:
         argv += ["--pack-small", str(args.pack_small)]
+    if args.cells:
+        argv += ["--cells", args.cells]
     env = {**os.environ, "COLUMNS": "160"}
     env.pop("XLA_PYTHON_CLIENT_PREALLOCATE", None)  # the children run as a user's would
     if gpu_ids:  # a 1-GPU run must not take the others' memory, as JAX in one process would
@@ -86,6 +89,8 @@ def main(argv=None) -> int:
                         help="GPU counts, one reproduce each, the first the baseline (default: 1 2)")
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default: the profile's)")
     parser.add_argument("--pack-small", type=int, default=1, help="reproduce's --pack-small (default: 1)")
+    parser.add_argument("--cells", default=None,
+                        help="reproduce's --cells: only these cells (e.g. the paper profile's 'classify-sweep-*')")
     parser.add_argument("--keep", type=Path, default=None, help="keep the out folders under this folder")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
@@ -128,7 +133,8 @@ def main(argv=None) -> int:
                                   ("max_return_diff", "max |return diff|", ".3g")])
     summary = {"command": f"jaxnat reproduce --profile {args.profile} --only {args.only} --trunks {args.trunks}"
                           + (f" --seeds {args.seeds}" if args.seeds else "")
-                          + (f" --pack-small {args.pack_small}" if args.pack_small > 1 else "") + " --gpus G",
+                          + (f" --pack-small {args.pack_small}" if args.pack_small > 1 else "")
+                          + (f" --cells '{args.cells}'" if args.cells else "") + " --gpus G",
                "baseline": f"{rows[0]['gpus']} GPU(s), the first row",
                "speedup": "wall(first row) / wall(row), each from nothing, compiling included"}
     record("reproduce_scaling", info, table, summary, rows, save=not args.no_record)
