@@ -587,6 +587,31 @@ def test_step_in_two_halves_is_step_and_wrappers_keep_their_work():
     split.close()
 
 
+def test_pipelined_parts_reset_with_their_own_seeds_replay_lone_batches():
+    """`PipelinedVecEnv.reset(seeds=...)` resets each part as a batch of its own (the seeds of a
+    run side by side): with the same actions every part replays the lone batch reset with its
+    seed, noise background included, while `step` emulates the parts at once."""
+    from jaxnat.atari.wrappers import PipelinedVecEnv
+
+    def make():
+        return NaturalAtariVecEnv("Breakout", 2, background="noise", num_threads=1)
+
+    lone, side = [make(), make()], PipelinedVecEnv([make(), make()])
+    first = side.reset(seeds=[7, 11])[0]
+    np.testing.assert_array_equal(first, np.concatenate([lone[0].reset(seed=7)[0], lone[1].reset(seed=11)[0]]))
+    for a in np.random.default_rng(2).integers(0, 4, (25, 4)):
+        got = side.step(a)
+        expected = [env.step(part) for env, part in zip(lone, np.split(a, 2))]
+        for i in range(4):
+            np.testing.assert_array_equal(got[i], np.concatenate([out[i] for out in expected]))
+    with pytest.raises(ValueError, match="one per part"):
+        side.reset(seeds=[1])
+    with pytest.raises(ValueError, match="not both"):
+        side.reset(seed=1, seeds=[1, 2])
+    for env in (*lone, side):
+        env.close()
+
+
 # -- threaded host work --------------------------------------------------------------------
 def _trajectory(env, steps, seed=0):
     """Observations, final observations, rewards and episode statistics of a reset and `steps`

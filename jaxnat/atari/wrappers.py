@@ -93,8 +93,9 @@ class PipelinedVecEnv:
     """One batch of `sum(part.num_envs)` envs made of `parts` (host-batched envs of the same
     game and settings): env `j` of the batch is env `j - offset` of the part holding it.
 
-    As an env it steps every part and concatenates (`reset(seed=s)` seeds part `i` with
-    `s + offset_i`, so emulator `j` gets seed `s + j`, as in one batch). The host driver
+    As an env it steps every part (their emulators at once, where they step in two halves) and
+    concatenates (`reset(seed=s)` seeds part `i` with `s + offset_i`, so emulator `j` gets seed
+    `s + j`, as in one batch; `reset(seeds=...)` seeds each part as a batch of its own). The host driver
     (`jaxnat.agents.rollout.host_steps_pipelined`) steps the parts in turn instead: while ALE
     emulates one part, the device computes the next actions of another, so the policy's round
     trip, the host pass and the emulation overlap (EnvPool's asynchronous idea) while every
@@ -117,13 +118,33 @@ class PipelinedVecEnv:
         """`[num_envs, ...]` -> one view per part."""
         return [batch[lo:hi] for lo, hi in zip(self.offsets[:-1], self.offsets[1:])]
 
-    def reset(self, *, seed: int | None = None):
-        outs = [part.reset(**({} if seed is None else {"seed": int(seed) + int(offset)}))
-                for part, offset in zip(self.parts, self.offsets)]
+    def reset(self, *, seed: int | None = None, seeds=None):
+        """Reset every part: with `seed`, as one batch (emulator `j` gets `seed + j`); with `seeds`
+        (one per part), part `i` as a batch of its own reset with `seeds[i]` (its emulator `j`
+        gets `seeds[i] + j`): parts that each replay another run's batch, such as the seeds of
+        a run trained side by side."""
+        if seeds is not None:
+            if seed is not None:
+                raise ValueError("reset takes seed (one batch) or seeds (one per part), not both")
+            if len(seeds) != len(self.parts):
+                raise ValueError(f"seeds: one per part ({len(self.parts)}), got {len(seeds)}")
+            options = [{"seed": int(s)} for s in seeds]
+        else:
+            options = [{} if seed is None else {"seed": int(seed) + int(offset)} for offset in self.offsets[:-1]]
+        outs = [part.reset(**kwargs) for part, kwargs in zip(self.parts, options)]
         return np.concatenate([obs for obs, _ in outs]), _concat_infos([info for _, info in outs])
 
     def step(self, actions):
-        outs = [part.step(a) for part, a in zip(self.parts, self.split(np.asarray(actions)))]
+        """Every part steps; the parts with `step_async` get their actions before any outcome
+        is awaited, so that their emulators run at once."""
+        sent = []
+        for part, a in zip(self.parts, self.split(np.asarray(actions))):
+            if hasattr(part, "step_async"):
+                part.step_async(a)
+                sent.append(None)
+            else:
+                sent.append(part.step(a))
+        outs = [part.step_wait() if out is None else out for part, out in zip(self.parts, sent)]
         obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
         return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
 
