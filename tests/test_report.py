@@ -72,6 +72,10 @@ def test_results_json_cell_entry_per_seed_values():
     entry = results_json._plain(results_json.cell_entry(short))
     assert [c["env_steps"] for c in entry["train_checkpoints"]] == [250_000.0]
     assert entry["untrained_test_sampled"]["per_seed"] == [0.3, 0.2, 0.1] and entry["complete"] is False
+    # An untrained evaluation computed after the run (a lost record, recomputed) says so.
+    assert entry["untrained_test_sampled"]["computed_after"] is None
+    after = dataclasses.replace(short, untrained_after="cpu")
+    assert results_json.cell_entry(after)["untrained_test_sampled"]["computed_after"] == "cpu"
     # Its one evaluation is the untrained policy's: never shown as the final test score.
     assert entry["test_final"] is None and short.final_eval is None
     assert str(short.final_greedy) == str(short.final_sampled) == str(report.bootstrap_ci([]))
@@ -267,6 +271,15 @@ def test_greedy_column_is_explained_under_the_table(tmp_path):
     table_end = text.index("| `localize-clutter-cnn-ppo` |")
     assert text.index(report.GREEDY_NOTE) > table_end
     assert "repeats one wrong label" in report.GREEDY_NOTE
+    assert "computed after the run" not in text
+    # An untrained evaluation recomputed after the run (its record lost) is marked where shown.
+    evals = tmp_path / cells[0].name / "eval.jsonl"
+    rows = [json.loads(line) for line in evals.read_text().splitlines()]
+    evals.write_text("".join(json.dumps({**r, **({"computed_after": "cpu"} if r["update"] == 0 else {})}) + "\n"
+                             for r in rows))
+    text = write_report(_plan(tmp_path, cells, ("localize",)), {}).read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| `localize-clutter-cnn-ppo` |"))
+    assert row.endswith("(computed after the run, on cpu) |")
 
 
 def test_the_report_names_the_natural_data_the_cells_saw():

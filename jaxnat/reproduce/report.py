@@ -79,6 +79,9 @@ class CellResult:
     # The natural videos and photos the run saw, per split (`config.json`'s `data`: each bank's
     # `FrameBank.manifest()`); empty for a run with none, or written before runs recorded them.
     data: dict = dataclasses.field(default_factory=dict)
+    # Where the untrained policy's evaluation was computed after the run, not by it (its rows'
+    # `computed_after`, e.g. "cpu": a record lost with a machine, recomputed from the config).
+    untrained_after: str | None = None
 
     @property
     def final_train(self) -> Interval:
@@ -160,9 +163,10 @@ def load_result(cell: Cell, run_dir: Path) -> CellResult:
     _, sampled = table(record.evals, "sampled_return")
     summary = record.summary or {}
     chance = (summary.get("chance") or {}).get("return")
+    after = next((r["computed_after"] for r in record.evals if r["update"] == 0 and r.get("computed_after")), None)
     return CellResult(cell, bool(summary.get("complete")), len(seed_values), steps, train, eval_steps, greedy, sampled,
                       chance, float(summary.get("wall_time_s") or 0.0), tuple(seed_values),
-                      record.config.get("data") or {})
+                      record.config.get("data") or {}, after)
 
 
 def data_section(results: list[CellResult]) -> list[str]:
@@ -390,6 +394,8 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         steps = int(r.steps.max()) if r.steps.size else 0
         mark = "" if r.complete else " (incomplete)"
         untrained = "not recorded" if r.untrained is None else str(r.untrained)
+        if r.untrained is not None and r.untrained_after:
+            untrained += f" (computed after the run, on {r.untrained_after})"
         lines.append(f"| `{r.cell.name}`{mark} | {r.cell.env_id} {_kwargs(r.cell.env_kwargs)} | {r.seeds} | {steps:,} | "
                      f"{r.final_train} | {r.final_greedy} | {r.final_sampled} | {chance} | {untrained} |")
     if results:

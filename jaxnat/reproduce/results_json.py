@@ -71,7 +71,8 @@ def cell_entry(result) -> dict:
                         "interval": _interval(result.final_train)},
         "train_checkpoints": checkpoints,
         "untrained_test_sampled": None if untrained is None else {"env_steps": 0, "per_seed": untrained,
-                                                                 "interval": _interval(result.untrained)},
+                                                                 "interval": _interval(result.untrained),
+                                                                 "computed_after": result.untrained_after},
         "test_final": None if final is None else {
             "env_steps": float(result.eval_steps[final]),
             "greedy": {"per_seed": result.greedy[final], "interval": _interval(result.final_greedy)},

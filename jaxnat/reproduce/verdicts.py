@@ -125,6 +125,10 @@ def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: f
         if missing is not None:
             return Comparison("not shown", f"{label}: {hn} vs {ln} (not shown: {missing.cell.name} records no "
                                            "untrained policy, which the normalised score needs)", (hr, lr))
+        top_already = next((r for r in (hr, lr) if not r.untrained.mean < top), None)
+        if top_already is not None:
+            return Comparison("not shown", f"{label}: {hn} vs {ln} (not shown: {top_already.cell.name}'s untrained "
+                                           f"policy is at the best return {top:g}: nothing to normalise)", (hr, lr))
     h, lo = (_value(r, at) if top is None else normalised(r, top, at) for r in (hr, lr))
 
     def outcome():
