@@ -8,24 +8,25 @@ test split: held-out videos) at each of `--test` strengths, again in one program
 (`trained.episode_program` vmapped over policies, test strengths and episodes; greedy actions).
 The table is the matrix: per train strength and test strength, the mean return over seeds
 (each seed's mean over its episodes) with its 95% t-interval over seeds; the figure
-(`bench/results/strength_sweep.png`) is its heat map.
+(`bench/results/strength_sweep_<family>.png`) is its heat map.
 
 Side by side, in the same run: the strengths trained one after another, each as its own
 program (`make_sharded_train` per strength, compiled each time, as separate runs are), and the
 wall time of both ways (compiling included); `--no-levels` skips them.
 
     python bench/strength_sweep.py                                          # PixelMuJoCo HalfCheetah, 3 x 5 seeds, 2M steps
-    python bench/strength_sweep.py --env-id NaturalAtari/Breakout-v0 --env-kwargs \\
-        background=video --num-envs 8 --num-steps 128 --total-timesteps 2000000 --episodes 8 \\
-        --max-steps 4500                                                    # host envs: a run per strength
+    python bench/strength_sweep.py --env-id NaturalAtari/Breakout-v0 --env-kwargs background=video \\
+        preprocessing=deepmind --seeds 2 --num-envs 64 --num-steps 32 --total-timesteps 1500000 \\
+        --episodes 8 --max-steps 1000 --parallel 3                          # host envs: a run per strength
     JAX_PLATFORMS=cpu python bench/strength_sweep.py --env-id Classify/Digits-v0 --env-kwargs --param noise_sigma \\
         --train 0 64 --test 0 32 64 --seeds 2 --num-envs 4 --num-steps 8 --total-timesteps 64 --episodes 4 --no-record
 
 Natural Atari (ALE on the host) cannot put its strengths in one program: there each train strength
-is one `jaxnat train` run (its seeds one after another, as the host backend trains them, in a
-temporary folder), and each seed's policy (`jaxnat.trained.load_policy`) plays `--episodes` whole greedy
-test games at each test strength (`trained.host_episodes`, the same game seeds at every strength).
-The matrix, table and figure are the same; the wall times are the runs' and the games'.
+is one `jaxnat train` run in a temporary folder (`--parallel N`: N runs at once, each in its own
+process with 1/N of the host's cores for ALE), and each seed's policy (`jaxnat.trained.load_policy`)
+plays `--episodes` whole greedy test games at each test strength, all at once on a batch of that
+many envs (`trained.host_episodes`, the same game seeds at every strength). The matrix, table
+and figure are the same; the wall times are the runs' and the games'.
 
 Records to `bench/results/strength_sweep.{md,jsonl}` (and the figure) unless `--no-record`.
 """
@@ -60,6 +61,8 @@ def parse(argv=None) -> argparse.Namespace:
                         help="host envs: the env's `max_episode_steps` in training and test games (default: the "
                              "env's, 27,000: a greedy policy that never serves plays Breakout that long)")
     parser.add_argument("--no-levels", action="store_true", help="skip training the strengths one after another")
+    parser.add_argument("--parallel", type=int, default=1,
+                        help="host envs: train strengths run at once, each in its own process (ALE's threads shared)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     for name in ("seeds", "total_timesteps", "num_envs", "num_steps", "episodes"):
@@ -181,9 +184,51 @@ def main(argv=None) -> int:
 
 def host_sweep(args, info, common) -> int:
     """The matrix for a host-emulated env (Natural Atari): a `jaxnat train` run per train
-    strength, then every seed's greedy test games at every test strength."""
-    import dataclasses
+    strength (`--parallel` of them at once, each in its own process with its share of the
+    host's cores for ALE), then every seed's greedy test games at every test strength, the
+    `--episodes` games of a strength at once on a batch of that many envs."""
+    import concurrent.futures
+    import multiprocessing
+    import os
     import tempfile
+
+    from jaxnat.training import parse_env_kwargs
+
+    env_kwargs = [*args.env_kwargs, *([f"max_episode_steps={args.max_steps}"] if args.max_steps else [])]
+    kwargs = parse_env_kwargs(env_kwargs, args.env_id)
+    if args.param in kwargs:
+        sys.exit(f"strength_sweep.py: --env-kwargs sets {args.param}, the swept field; leave it out")
+    if args.parallel > 1 and "num_threads" not in kwargs:  # ALE's threads: the cores shared out
+        env_kwargs.append(f"num_threads={max(1, (os.cpu_count() or 1) // args.parallel)}")
+    # Several processes on one GPU: each takes the memory it needs, not XLA's default share.
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="strength_sweep-") as folder:
+        jobs = [(args, env_kwargs, value, str(Path(folder) / f"train-{value:g}")) for value in args.train]
+        if args.parallel > 1:
+            context = multiprocessing.get_context("spawn")  # no fork of a process that runs JAX
+            with concurrent.futures.ProcessPoolExecutor(args.parallel, mp_context=context) as pool:
+                done = list(pool.map(host_strength, *zip(*jobs)))
+        else:
+            done = [host_strength(*job) for job in jobs]
+    wall_s = time.perf_counter() - start
+    returns = np.stack([d["returns"] for d in done])  # [train, seed, test, episode]
+    train_s, eval_s = sum(d["train_s"] for d in done), sum(d["eval_s"] for d in done)
+    rows = matrix_rows(returns, args.train, args.test, common)
+    at_once = f"{args.parallel} runs at once" if args.parallel > 1 else "one run after another"
+    times = {f"wall time (training and tests; {at_once})": f"{wall_s:.1f} s",
+             "training (a jaxnat train run per strength, ALE on the host; summed over runs)": f"{train_s:.1f} s",
+             f"tests ({args.episodes} games at once per seed and test strength; summed over runs)": f"{eval_s:.1f} s"}
+    record(args, info, rows, env_kwargs, "", "games", times, [d["train_last"] for d in done],
+           {"wall_s": wall_s, "train_s": train_s, "eval_s": eval_s})
+    return 0
+
+
+def host_strength(args, env_kwargs: list[str], value: float, run_dir: str) -> dict:
+    """One train strength of `host_sweep`: its `jaxnat train` run in `run_dir`, then each seed's
+    greedy test games at every test strength; `returns[seed, test, episode]`, the mean training
+    return of the last 10% of each seed's updates (nan where no game ended), the seconds."""
+    import dataclasses
 
     import jax
 
@@ -191,48 +236,40 @@ def host_sweep(args, info, common) -> int:
     from jaxnat.trained import host_episodes, load_policy
     from jaxnat.training import parse_args, parse_env_kwargs, read_run, train
 
-    env_kwargs = [*args.env_kwargs, *([f"max_episode_steps={args.max_steps}"] if args.max_steps else [])]
+    argv = ["--env-id", args.env_id, "--algo", "ppo", "--seeds", str(args.seeds), "--num-envs", str(args.num_envs),
+            "--num-steps", str(args.num_steps), "--total-timesteps", str(args.total_timesteps), "--eval-episodes", "1",
+            "--run-dir", run_dir, "--env-kwargs", *env_kwargs, f"{args.param}={value:g}"]
+    start = time.perf_counter()
+    train(parse_args(argv))
+    train_s = time.perf_counter() - start
+    per_seed = {}
+    for row in read_run(Path(run_dir)).metrics:
+        ended = row.get("episode_return")
+        per_seed.setdefault(row["seed"], []).append(np.nan if ended is None else ended)
+    last = [v for c in per_seed.values() for v in c[-max(1, len(c) // 10):] if np.isfinite(v)]
     kwargs = parse_env_kwargs(env_kwargs, args.env_id)
-    if args.param in kwargs:
-        sys.exit(f"strength_sweep.py: --env-kwargs sets {args.param}, the swept field; leave it out")
-    returns = np.zeros((len(args.train), args.seeds, len(args.test), args.episodes))
-    train_last, train_s, eval_s = [], 0.0, 0.0
-    with tempfile.TemporaryDirectory(prefix="strength_sweep-") as folder:
-        for i, value in enumerate(args.train):
-            run_dir = Path(folder) / f"train-{value:g}"
-            argv = ["--env-id", args.env_id, "--algo", "ppo", "--seeds", str(args.seeds),
-                    "--num-envs", str(args.num_envs), "--num-steps", str(args.num_steps),
-                    "--total-timesteps", str(args.total_timesteps), "--eval-episodes", "1",
-                    "--run-dir", str(run_dir), "--env-kwargs", *env_kwargs, f"{args.param}={value:g}"]
-            start = time.perf_counter()
-            train(parse_args(argv))
-            train_s += time.perf_counter() - start
-            per_seed = {}
-            for row in read_run(run_dir).metrics:  # the seeds' rows one after another (trained so)
-                ended = row.get("episode_return")
-                per_seed.setdefault(row["seed"], []).append(np.nan if ended is None else ended)
-            last = [c[-max(1, len(c) // 10):] for c in per_seed.values()]
-            finite = [v for c in last for v in c if np.isfinite(v)]
-            train_last.append(float(np.mean(finite)) if finite else float("nan"))  # nan: no game ended
-            start = time.perf_counter()
-            for seed in range(args.seeds):
-                policy = load_policy(run_dir, seed=seed)
-                for j, test in enumerate(args.test):
-                    env = jaxnat.make_vec(args.env_id, 1, split="test", **{**kwargs, args.param: test})
-                    try:
-                        games = host_episodes(dataclasses.replace(policy, env=env), jax.random.key(1), args.episodes,
-                                              greedy=True)
-                    finally:
-                        env.close()
-                    returns[i, seed, j] = games["return"]
-                policy.env.close()
-            eval_s += time.perf_counter() - start
-            print(f"train {args.param}={value:g}: trained {train_s:.1f} s, tested {eval_s:.1f} s (so far)", flush=True)
-    rows = matrix_rows(returns, args.train, args.test, common)
-    times = {"training (a jaxnat train run per strength; ALE on the host)": f"{train_s:.1f} s",
-             "evaluation (games one after another)": f"{eval_s:.1f} s"}
-    record(args, info, rows, env_kwargs, "", "games", times, train_last, {"train_s": train_s, "eval_s": eval_s})
-    return 0
+    returns = np.zeros((args.seeds, len(args.test), args.episodes))
+    start = time.perf_counter()
+    for seed in range(args.seeds):
+        policy = load_policy(Path(run_dir), seed=seed)
+        policy.env.close()
+        for j, test in enumerate(args.test):
+            env = jaxnat.make_vec(args.env_id, args.episodes, split="test", **{**kwargs, args.param: test})
+            try:  # the same key at every strength: the same games
+                games = host_episodes(dataclasses.replace(policy, env=env), jax.random.key(1), args.episodes,
+                                      greedy=True)
+            finally:
+                env.close()
+            returns[seed, j] = games["return"]
+    eval_s = time.perf_counter() - start
+    print(f"train {args.param}={value:g}: trained {train_s:.1f} s, tested {eval_s:.1f} s", flush=True)
+    return {"returns": returns, "train_last": float(np.mean(last)) if last else float("nan"),
+            "train_s": train_s, "eval_s": eval_s}
+
+
+def figure_name(env_id: str) -> str:
+    """The heat map's file: one per env family (`strength_sweep_pixelmujoco.png`, ...)."""
+    return f"strength_sweep_{env_id.split('/')[0].lower()}.png"
 
 
 def record(args, info, rows: list[dict], env_kwargs: list[str], dtype: str, played: str, times: dict,
@@ -243,7 +280,7 @@ def record(args, info, rows: list[dict], env_kwargs: list[str], dtype: str, play
     import common
 
     if not args.no_record:
-        heat_map(rows, args.train, args.test, args.param, args.env_id, common.RESULTS / "strength_sweep.png")
+        heat_map(rows, args.train, args.test, args.param, args.env_id, common.RESULTS / figure_name(args.env_id))
     table = common.markdown_table(rows, [("train", f"train {args.param}", "g"), ("test", f"test {args.param}", "g"),
                                          ("mean", "test return", ".1f"), ("low", "95% low", ".1f"),
                                          ("high", "95% high", ".1f")])
@@ -255,7 +292,7 @@ def record(args, info, rows: list[dict], env_kwargs: list[str], dtype: str, play
         **times,
         "train return, last 10% of updates, per train strength": ", ".join(
             f"{a:g}: {r:.1f}" for a, r in zip(args.train, finals)),
-        "figure": "bench/results/strength_sweep.png" if not args.no_record else "not written (--no-record)",
+        "figure": f"bench/results/{figure_name(args.env_id)}" if not args.no_record else "not written (--no-record)",
     }
     common.record("strength_sweep", info, table, summary, [{**r, **extras} for r in rows], save=not args.no_record)
 

@@ -19,6 +19,7 @@ strengths in one jitted program on the same episode keys (`jaxnat sweep`'s curve
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -207,36 +208,60 @@ def _load_host_policy(run_dir: Path, spec, seed: int, split: str, step: int | No
 
 def host_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
                   max_steps: int | None = None, record: bool = False):
-    """`play_episodes` for a host-emulated policy (`env_params` None): its one-game batch plays
-    `num_episodes` whole games one after another, each reset with a seed drawn from `key` (the
-    same key, the same games), for at most `max_steps` agent steps (default the env's
-    `max_episode_steps`); an episode ends where the env's flags end it (with
-    `preprocessing="deepmind"`, at a lost life, its reward the sign). Returns the same
-    per-episode arrays; with `record`, `(seen, results)` where `seen[i]` is game `i`'s
-    observations `[length + 1, ...]`, the reset's first."""
+    """`play_episodes` for a host-emulated policy (`env_params` None): `num_episodes` whole
+    games on `policy.env`, in rounds of its `num_envs` games at once (`load_policy` gives a
+    one-game batch: one game after another; `dataclasses.replace(policy, env=jaxnat.make_vec(
+    env_id, B, split="test", ...))` plays B at once). Round `r` resets the batch with a seed `s_r`
+    drawn from `key`, so its env `i` plays the game of seed `s_r + i` (the same key, the same
+    games); each env's first game counts, for at most `max_steps` agent steps (default the
+    env's `max_episode_steps`), and the round ends when all of them have ended. An episode ends
+    where the env's flags end it (with `preprocessing="deepmind"`, at a lost life, its reward
+    the sign). Returns the same per-episode arrays; with `record`, `(seen, results)` where
+    `seen[i]` is game `i`'s observations `[length + 1, ...]`, the reset's first."""
     import numpy as np
 
     env = policy.env
+    width = int(env.num_envs)
     limit = int(max_steps or episode_limit(policy))
     key_seeds, key = jax.random.split(key)
     seeds = np.asarray(jax.random.randint(key_seeds, (num_episodes,), 0, 2 ** 30))
+    if width == 1:
+        def act(obs, key):
+            return np.asarray(policy.act(obs[0], key, greedy=greedy)).reshape(1)  # one env, one factor
+    else:
+        # Not jitted again: the learner's policy is (with its compiler options, which a nested jit refuses).
+        batch = jax.vmap(functools.partial(policy.apply, greedy=greedy), in_axes=(None, None, 0, 0))
+
+        def act(obs, key):
+            keys = jax.random.split(key, width)  # each action `[1]`: the learner's one factor
+            return np.asarray(batch(policy.params, policy.normalization, obs, keys)).reshape(width)
     results = {name: [] for name in ("return", "length", "terminated", "unfinished")}
     seen = []
-    for index in range(num_episodes):
-        obs, _ = env.reset(seed=int(seeds[index]))
-        frames, total, length, ended, terminated = [obs[0]], 0.0, 0, False, False
-        while length < limit and not ended:
+    for first in range(0, num_episodes, width):
+        count = min(width, num_episodes - first)
+        obs, _ = env.reset(seed=int(seeds[first // width]))
+        frames = [[obs[i]] for i in range(count)]
+        total, length = np.zeros(width), np.zeros(width, np.int64)
+        ended, terminated = np.zeros(width, bool), np.zeros(width, bool)
+        steps = 0
+        while steps < limit and not ended[:count].all():
             key, key_act = jax.random.split(key)
-            action = np.asarray(policy.act(obs[0], key_act, greedy=greedy))
-            obs, reward, term, trunc, _ = env.step(action.reshape(1))  # one env, one factor
-            total, length = total + float(reward[0]), length + 1
-            terminated, ended = bool(term[0]), bool(term[0] or trunc[0])
-            frames.append(obs[0])
-        for name, value in (("return", total), ("length", length), ("terminated", terminated),
-                            ("unfinished", not ended)):
-            results[name].append(value)
+            obs, reward, term, trunc, _ = env.step(act(obs, key_act))
+            live = ~ended
+            total += np.where(live, reward, 0.0)
+            length += live
+            terminated |= live & term
+            ended |= live & (term | trunc)
+            steps += 1
+            if record:
+                for i in np.flatnonzero(live[:count]):
+                    frames[i].append(obs[i])
+        for i in range(count):
+            for name, value in (("return", total[i]), ("length", length[i]), ("terminated", terminated[i]),
+                                ("unfinished", not ended[i])):
+                results[name].append(value)
         if record:
-            seen.append(np.stack(frames))
+            seen.extend(np.stack(game) for game in frames)
     dtypes = {"return": np.float32, "length": np.int32, "terminated": bool, "unfinished": bool}
     results = {name: np.asarray(values, dtypes[name]) for name, values in results.items()}
     return (seen, results) if record else results
