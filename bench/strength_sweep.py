@@ -82,6 +82,18 @@ def ppo_config(args, env, params, gpu: bool):
                      trunk=default_trunk(env.observation_space(params)))
 
 
+def final_return(curves) -> float:
+    """The mean training return of the last 10% of each seed's updates that ended an episode
+    (`curves[seed]`: a return per update, nan where none ended: PixelMuJoCo's 1,000-step
+    episodes end in few updates); nan where no episode ended at all."""
+    last = []
+    for curve in curves:
+        ended = np.asarray(curve, np.float64)
+        ended = ended[np.isfinite(ended)]
+        last.extend(ended[-max(1, len(ended) // 10):])
+    return float(np.mean(last)) if last else float("nan")
+
+
 def matrix_rows(returns: np.ndarray, train: list[float], test: list[float], common) -> list[dict]:
     """Rows of the matrix from `returns[train, seed, test, episode]`: per train and test strength
     the mean over seeds of each seed's mean over episodes, with its 95% t-interval over seeds."""
@@ -129,13 +141,15 @@ def main(argv=None) -> int:
     from jaxnat.agents import ALGORITHMS
     from jaxnat.trained import TrainedPolicy, episode_limit, episode_program, policy_step
     from jaxnat.training import make_sharded_train, make_strength_train, parse_env_kwargs
+    from jaxnat.training.device_backend import split_argument
 
     info = common.machine()
     if jaxnat.spec(args.env_id).batched:
         return host_sweep(args, info, common)
     kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     env, params = jaxnat.make(args.env_id, **kwargs)
-    test_env, test_params = jaxnat.make(args.env_id, split="test", **kwargs)
+    split = split_argument(args.env_id, kwargs)  # `split`, or PixelMuJoCo's `video_split`: held-out data
+    test_env, test_params = jaxnat.make(args.env_id, **kwargs, **({split: "test"} if split else {}))
     config = ppo_config(args, env, params, info["backend"] == "gpu")
     keys = jax.vmap(jax.random.key)(jnp.arange(args.seeds))
     train_values = {args.param: jnp.asarray(args.train, jnp.float32)}
@@ -170,13 +184,12 @@ def main(argv=None) -> int:
     returns = np.asarray(results["return"], np.float64)  # [train, seed, test, episode]
     rows = matrix_rows(returns, args.train, args.test, common)
     train_curve = np.asarray(metrics["episode_return"], np.float64)  # [train, seed, updates]
-    last = max(1, train_curve.shape[-1] // 10)
 
     times = {"one program (seeds x strengths)": f"{sweep_s:.1f} s, compiling included",
              "strengths one after another": "not run" if levels_s is None else
              f"{levels_s:.1f} s ({levels_s / sweep_s:.2f}x the one program's time)",
              "evaluation (one program)": f"{eval_s:.1f} s"}
-    finals = [float(np.nanmean(train_curve[i, :, -last:])) for i in range(len(args.train))]
+    finals = [final_return(train_curve[i]) for i in range(len(args.train))]
     record(args, info, rows, args.env_kwargs, f", {config.dtype}", "episodes", times, finals,
            {"sweep_s": sweep_s, "levels_s": levels_s, "eval_s": eval_s})
     return 0
@@ -227,7 +240,7 @@ def host_sweep(args, info, common) -> int:
 def host_strength(args, env_kwargs: list[str], value: float, run_dir: str) -> dict:
     """One train strength of `host_sweep`: its `jaxnat train` run in `run_dir`, then each seed's
     greedy test games at every test strength; `returns[seed, test, episode]`, the mean training
-    return of the last 10% of each seed's updates (nan where no game ended), the seconds."""
+    return (`final_return`), the seconds."""
     import dataclasses
 
     import jax
@@ -246,7 +259,6 @@ def host_strength(args, env_kwargs: list[str], value: float, run_dir: str) -> di
     for row in read_run(Path(run_dir)).metrics:
         ended = row.get("episode_return")
         per_seed.setdefault(row["seed"], []).append(np.nan if ended is None else ended)
-    last = [v for c in per_seed.values() for v in c[-max(1, len(c) // 10):] if np.isfinite(v)]
     kwargs = parse_env_kwargs(env_kwargs, args.env_id)
     returns = np.zeros((args.seeds, len(args.test), args.episodes))
     start = time.perf_counter()
@@ -263,7 +275,7 @@ def host_strength(args, env_kwargs: list[str], value: float, run_dir: str) -> di
             returns[seed, j] = games["return"]
     eval_s = time.perf_counter() - start
     print(f"train {args.param}={value:g}: trained {train_s:.1f} s, tested {eval_s:.1f} s", flush=True)
-    return {"returns": returns, "train_last": float(np.mean(last)) if last else float("nan"),
+    return {"returns": returns, "train_last": final_return(list(per_seed.values())),
             "train_s": train_s, "eval_s": eval_s}
 
 
@@ -290,7 +302,7 @@ def record(args, info, rows: list[dict], env_kwargs: list[str], dtype: str, play
                      f"{args.total_timesteps:,} env steps per seed{dtype}; tested greedy on the test split, "
                      f"{args.episodes} {played} per policy and test strength"),
         **times,
-        "train return, last 10% of updates, per train strength": ", ".join(
+        "train return, last 10% of the updates that ended an episode, per train strength": ", ".join(
             f"{a:g}: {r:.1f}" for a, r in zip(args.train, finals)),
         "figure": f"bench/results/{figure_name(args.env_id)}" if not args.no_record else "not written (--no-record)",
     }
