@@ -11,6 +11,13 @@ video; also none / noise) at `--threads` ALE threads:
   (`PipelinedVecEnv`: the batch in that many parts stepped in turn, so that each part's
   policy call overlaps the other parts' emulation; every part has `--threads` ALE threads).
 
+With `--side-by-side 1 5 10`, instead: `jaxnat train`'s seeds side by side (`--host-seeds
+together`: `make_train_env(..., seeds=S)` and `make_learner(..., seeds=S)`, one batch of
+`--envs-per-seed` envs per seed, every seed's emulators stepped at once, one vmapped policy
+call per step) for each seed count S, against the env alone on one batch of the same S x
+envs-per-seed envs at the same `--threads` (shared out among the seeds' batches when side by
+side); env steps/s of all seeds, and their ratio.
+
 The table gives env steps/s of both, their ratio (target: PPO >= 0.70 of the env alone), and
 where a PPO step's time goes (ms per batched step of all envs, from `learner.timings` and
 `env.step_timings`): the policy's round trip (observations to the device, the jitted call,
@@ -22,6 +29,7 @@ spread over the update's steps. The env alone is timed before and after the PPO 
     python bench/atari_training.py                            # 64 128 256 envs, video
     python bench/atari_training.py --num-envs 16 --threads 2 --updates 2 --num-steps 32
     python bench/atari_training.py --video-sources out/videos   # a folder of your own clips
+    python bench/atari_training.py --side-by-side 1 5 10          # seeds side by side, 8 envs each
 
 A host without Debian's opencv-doc needs videos for the video background: copy some there
 (e.g. opencv-doc's vtest.avi, tree.avi and Megamind.avi into out/videos/).
@@ -44,6 +52,7 @@ import common  # noqa: E402
 import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
 from jaxnat.agents.networks import default_trunk  # noqa: E402
+from jaxnat.agents.rollout import stack_seeds  # noqa: E402
 from jaxnat.atari.wrappers import ClipRewardWrapper  # noqa: E402
 from jaxnat.training.host_backend import make_learner, make_train_env  # noqa: E402
 
@@ -71,11 +80,13 @@ def step_timings(env) -> dict:
     return total
 
 
-def train_rate(env, config, warmup: int, updates: int, compiler_options, seed: int = 0):
-    """(env steps/s over `updates` timed updates after `warmup`, timings, step timings, seconds
-    of the warm-up)."""
-    learner = make_learner("ppo", config, env, compiler_options)
-    state = learner.init(jax.random.key(seed))
+def train_rate(env, config, warmup: int, updates: int, compiler_options, seed: int = 0, seeds: int | None = None):
+    """(env steps/s over `updates` timed updates after `warmup`, of every seed (`seeds`: that
+    many side by side, on `make_train_env(..., seeds=)`), timings, step timings, seconds of the
+    warm-up)."""
+    learner = make_learner("ppo", config, env, compiler_options, seeds=seeds)
+    state = learner.init(jax.random.key(seed) if seeds is None else
+                         stack_seeds([jax.random.key(seed + i) for i in range(seeds)]))
     it = learner.updates(state)
     start = time.perf_counter()
     for _ in range(warmup):
@@ -89,8 +100,38 @@ def train_rate(env, config, warmup: int, updates: int, compiler_options, seed: i
         next(it)
     seconds = time.perf_counter() - start
     it.close()
-    rate = updates * config.num_envs * config.num_steps / seconds
+    rate = updates * config.num_envs * config.num_steps * (seeds or 1) / seconds
     return rate, dict(learner.timings), step_timings(env), warm_s
+
+
+def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> tuple[list[dict], str]:
+    """`--side-by-side`: per seed count, the env alone on all the seeds' envs as one batch, then
+    PPO training them side by side; (rows, table)."""
+    rows = []
+    for seeds in args.side_by_side:
+        base = jaxnat.make_vec(env_id, seeds * args.envs_per_seed, split="train", **env_kwargs)
+        base.reset(seed=0)
+        env_alone(base, 10, rng)  # warm: threads started, numba compiled
+        before, _ = env_alone(base, args.env_steps, rng)
+        env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
+        config = ppo.PPOConfig(num_envs=args.envs_per_seed, num_steps=args.num_steps,
+                               total_timesteps=args.envs_per_seed * args.num_steps * (args.warmup + args.updates),
+                               trunk=default_trunk(base.single_observation_space))
+        rate, timings, _, warm_s = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)
+        env.close()
+        after, _ = env_alone(base, args.env_steps, rng)
+        base.close()
+        alone = (before + after) / 2
+        n = timings["steps"]
+        rows.append(dict(seeds=seeds, num_envs=seeds * args.envs_per_seed, alone=alone, steps_per_s=rate,
+                         ratio=rate / alone, policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
+                         update_ms=1e3 * (timings["update_s"] - timings["rollout_s"]) / n, warmup_s=warm_s,
+                         alone_before=before, alone_after=after))
+    return rows, common.markdown_table(rows, [
+        ("seeds", "seeds", "d"), ("num_envs", "envs (all seeds)", "d"), ("alone", "env alone steps/s", ",.0f"),
+        ("steps_per_s", "PPO side by side steps/s", ",.0f"), ("ratio", "vs env alone", ".2f"),
+        ("policy_ms", "policy ms", ".2f"), ("env_ms", "env step ms", ".2f"), ("update_ms", "update ms", ".2f"),
+        ("warmup_s", "warm-up s", ".1f")])
 
 
 def main(argv=None):
@@ -110,6 +151,10 @@ def main(argv=None):
     parser.add_argument("--video-sources", default=None, help="default: opencv-doc's videos")
     parser.add_argument("--fast-compile", action="store_true",
                         help="xla_backend_optimization_level=0 (CPU: compiles much faster, runs slower)")
+    parser.add_argument("--side-by-side", type=int, nargs="+", default=None, metavar="SEEDS",
+                        help="time seeds side by side (as jaxnat train --host-seeds together) for these seed "
+                             "counts instead of the --num-envs/--parts loops")
+    parser.add_argument("--envs-per-seed", type=int, default=8, help="with --side-by-side: envs of each seed")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     compiler_options = {"xla_backend_optimization_level": 0} if args.fast_compile else None
@@ -131,6 +176,20 @@ def main(argv=None):
     started = time.perf_counter()
     rows = []
     rng = np.random.default_rng(0)
+    if args.side_by_side:
+        rows, table = side_by_side(args, env_id, env_kwargs, compiler_options, rng)
+        summary = {
+            "game": args.game, "background": args.background, "ALE threads (all seeds)": args.threads,
+            "PPO": f"seeds side by side (jaxnat train --host-seeds together), {args.envs_per_seed} envs per seed, "
+                   f"{args.num_steps} steps per env per update, {args.warmup} warm-up + {args.updates} timed updates"
+                   + (", xla_backend_optimization_level=0" if args.fast_compile else ""),
+            "columns": "env steps/s of all seeds; the env alone steps the same envs as one batch (random actions), "
+                       "before and after (mean); ms per batched step of all envs",
+            "bench seconds": f"{time.perf_counter() - started:.0f}",
+            "video sources": args.video_sources or "opencv-doc",
+        }
+        common.record("atari_training", info, table, summary, rows, save=not args.no_record)
+        return
     for num_envs in args.num_envs:
         base = jaxnat.make_vec(env_id, num_envs, split="train", **env_kwargs)
         base.reset(seed=0)

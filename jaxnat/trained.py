@@ -176,7 +176,8 @@ def _load_host_policy(run_dir: Path, spec, seed: int, split: str, step: int | No
     value = spec.seed_values[seed]
     folder = run_dir / "checkpoints" / f"seed_{value}"
     missing = LoadError(f"{run_dir} has no checkpoint of seed {value} (index {seed}) yet: {folder.relative_to(run_dir)} "
-                        "holds none (a host run trains its seeds one after another)")
+                        "holds none (a host run's seeds save their first checkpoint together, or one after another with "
+                         "--host-seeds sequential)")
     if not folder.is_dir():
         raise missing
     with host_errors(spec.env_id):
@@ -310,7 +311,8 @@ def play_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
     steps, default the env's time limit), in one jitted program vmapped over the episodes:
     per-episode arrays `return`, `length`, `terminated` (for Classify: classified right;
     Localize: the target found) and `unfinished` (cut at `max_steps`), as numpy. A host
-    (Natural Atari) policy plays its games one after another on the host (`host_episodes`)."""
+    (Natural Atari) policy plays its games on the host, as many at once as its env has envs
+    (`host_episodes`)."""
     if policy.env_params is None:
         return host_episodes(policy, key, num_episodes, greedy=greedy, max_steps=max_steps)
     if max_steps is None:

@@ -258,9 +258,11 @@ def _leaves(tree):
 @pytest.mark.parametrize("algo", ["ppo", "dqn"])  # a2c: the same on-policy host loop as ppo
 def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
     """`jaxnat train` routes NaturalAtari ids to the host loop and writes a run directory; a run
-    stopped after 3 checkpoints (seed 0 done, seed 1 at update 1) and resumed restores exactly
-    what was saved (params, optimizer state, DQN's buffer, the update count and key), finishes
-    seed 1 only, and its metrics hold every (seed, update) once."""
+    of seeds one after another (DQN's way; PPO's with `--host-seeds sequential`: its seeds side
+    by side are tests/test_host_seeds.py's) stopped after 3 checkpoints (seed 0 done, seed 1 at
+    update 1) and resumed restores exactly what was saved (params, optimizer state, DQN's
+    buffer, the update count and key), finishes seed 1 only, and its metrics hold every (seed,
+    update) once."""
     pytest.importorskip("ale_py")
     import json
 
@@ -271,7 +273,7 @@ def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
     from jaxnat.training.checkpoints import Checkpoints
 
     run_dir = tmp_path / "run"
-    argv = [*ATARI, "--algo", algo, *ALGO_ARGS[algo]]
+    argv = [*ATARI, "--algo", algo, *ALGO_ARGS[algo], *(["--host-seeds", "sequential"] if algo == "ppo" else [])]
     assert main([*argv, "--run-dir", str(run_dir)], compiler_options=FAST, stop_after_chunks=3) == 0
     rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
     assert [(r["seed"], r["update"]) for r in rows] == [(0, 1), (0, 2), (1, 1)]
@@ -284,7 +286,7 @@ def test_jaxnat_train_natural_atari_checkpoints_and_resume(algo, tmp_path):
 
     # What the checkpoint of seed 1 holds is what the resumed run starts from.
     spec = RunSpec.from_json(json.loads((run_dir / "config.json").read_text())["spec"])
-    assert spec.env_parts == 1  # one batch, the loop as it always was
+    assert spec.env_parts == 1 and spec.host_seeds == "sequential"  # one batch, the loop as it always was
     if algo == "dqn":
         assert spec.config.loss == "huber"  # Nature DQN's loss is the Atari default
     env = ClipRewardWrapper(jaxnat_make_vec(spec, "train"))
@@ -367,6 +369,7 @@ def test_jaxnat_train_env_parts_pipelines_records_and_resumes(tmp_path, monkeypa
     assert calls == [2]  # one update, two parts of one env
     config = json.loads((run_dir / "config.json").read_text())
     assert config["spec"]["env_parts"] == 2 and config["args"]["env_parts"] == 2
+    assert config["spec"]["host_seeds"] == "sequential"  # parts pipeline one seed's batch
     assert main(["--resume", str(run_dir), "--env-parts", "1"]) == 2
     assert main(["--resume", str(run_dir), "--env-parts", "2"], compiler_options=FAST) == 0
     assert calls == [2, 2]
@@ -436,7 +439,8 @@ def test_a_run_records_the_videos_it_saw(tmp_path):
 
 
 def test_a_natural_atari_run_loads_acts_greedily_and_evaluates(tmp_path, capsys):
-    """`load_policy` on a host run: seed 0's checkpoint (seed 1 never trained: one line), its
+    """`load_policy` on a host run of seeds one after another: seed 0's checkpoint (seed 1 never
+    trained: one line), its
     greedy action the network's most likely one, `host_episodes` the same games under one key
     (whole games within the 10-step limit), and `jaxnat eval` scores them."""
     pytest.importorskip("ale_py")
@@ -447,8 +451,8 @@ def test_a_natural_atari_run_loads_acts_greedily_and_evaluates(tmp_path, capsys)
     from jaxnat.trained import LoadError, host_episodes, load_policy
 
     run_dir = tmp_path / "run"
-    assert main([*ATARI, "--algo", "ppo", *ALGO_ARGS["ppo"], "--run-dir", str(run_dir)], compiler_options=FAST,
-                stop_after_chunks=2) == 0  # seed 0 done (2 updates), seed 1 not started
+    assert main([*ATARI, "--algo", "ppo", *ALGO_ARGS["ppo"], "--host-seeds", "sequential", "--run-dir", str(run_dir)],
+                compiler_options=FAST, stop_after_chunks=2) == 0  # seed 0 done (2 updates), seed 1 not started
     with pytest.raises(LoadError, match=r"has no checkpoint of seed 1 \(index 1\) yet: checkpoints/seed_1 holds none"):
         load_policy(run_dir, seed=1, compiler_options=FAST)
     policy = load_policy(run_dir, compiler_options=FAST)

@@ -75,7 +75,7 @@ def make_a2c(config: A2CConfig, env, env_params, axis_name=None) -> Learner:
     return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
-# `make_host_a2c(config, env, compiler_options=None, devices=None) -> HostLearner`: as PPO's.
+# `make_host_a2c(config, env, compiler_options=None, devices=None, *, seeds=None) -> HostLearner`: as PPO's.
 make_host_a2c = functools.partial(on_policy_host_learner, rule=RULE)
 
 

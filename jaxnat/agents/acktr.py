@@ -96,11 +96,13 @@ def make_acktr(config: ACKTRConfig, env, env_params) -> Learner:
     return on_policy_learner(config, env, env_params, RULE)
 
 
-def make_host_acktr(config: ACKTRConfig, env, compiler_options: dict | None = None) -> HostLearner:
+def make_host_acktr(config: ACKTRConfig, env, compiler_options: dict | None = None, *,
+                    seeds: int | None = None) -> HostLearner:
     """The ACKTR learner on a host-batched env (Natural Atari), as the paper ran it: each update's
-    K-FAC statistics come from the host rollout, on the device (`rollout.on_policy_host_learner`).
-    One device: K-FAC's factors are the whole batch's."""
-    return on_policy_host_learner(config, env, compiler_options, rule=RULE)
+    K-FAC statistics come from the host rollout, on the device (`rollout.on_policy_host_learner`;
+    `seeds`: that many seeds side by side, each with its own factors). One device: K-FAC's
+    factors are the whole batch's."""
+    return on_policy_host_learner(config, env, compiler_options, rule=RULE, seeds=seeds)
 
 
 def make_train(config: ACKTRConfig, env, env_params):

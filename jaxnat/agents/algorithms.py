@@ -17,7 +17,8 @@ class Algorithm(NamedTuple):
     config: type  # the config dataclass
     make: Callable  # (config, env, env_params) -> rollout.Learner (jitted, JAX envs)
     # (config, env, compiler_options=None) -> rollout.HostLearner (host-batched envs: Natural
-    # Atari), or None; data-parallel ones also take devices= (`rollout.on_policy_host_learner`)
+    # Atari), or None; data-parallel ones also take devices=, and those that train seeds side
+    # by side seeds= (`rollout.on_policy_host_learner`)
     make_host: Callable | None
 
 

@@ -1,5 +1,6 @@
 """DQN on a host-batched env (Natural Atari): `dqn.py`'s pieces (`DQNParts`) driven from the
-host loop of `jaxnat.agents.rollout.host`."""
+host loop of `jaxnat.agents.rollout.host`. One seed per learner (no `seeds=`): `jaxnat train`
+trains DQN's seeds one after another, where the on-policy learners train them side by side."""
 
 from __future__ import annotations
 

@@ -164,9 +164,10 @@ def make_ppo(config: PPOConfig, env, env_params, axis_name=None) -> Learner:
     return on_policy_learner(config, env, env_params, RULE, axis_name)
 
 
-# `make_host_ppo(config, env, compiler_options=None, devices=None) -> HostLearner`: the PPO
-# learner on a host-batched env (Natural Atari), `rollout.on_policy_host_learner` (`devices`:
-# data parallel over them and every process, one env batch per process).
+# `make_host_ppo(config, env, compiler_options=None, devices=None, *, seeds=None) -> HostLearner`:
+# the PPO learner on a host-batched env (Natural Atari), `rollout.on_policy_host_learner`
+# (`devices`: data parallel over them and every process, one env batch per process; `seeds`:
+# that many seeds side by side on one batch of all their envs).
 make_host_ppo = functools.partial(on_policy_host_learner, rule=RULE)
 
 

@@ -9,7 +9,8 @@ DQN on a jaxnat env over many seeds, into a run directory (`config.json`, `metri
 `chunk_loop.py` is the one loop, over a backend: `device_backend.DeviceBackend` trains every seed at once
 in one compiled program (`jit(vmap(...))` over their keys) and resumes bit for bit (the state
 carries the PRNG keys), on one device or split over several (`--devices`, `placement.py`);
-`host_backend.HostBackend` trains host-batched envs (Natural Atari).
+`host_backend.HostBackend` trains host-batched envs (Natural Atari: every seed side by side on one
+batch of emulators, or one seed after another).
 """
 
 from jaxnat.training.args import ConfigOverrides, TrainArgs, TrainError, parse_args, parse_env_kwargs

@@ -122,7 +122,9 @@ class TrainArgs:
     num_envs: Annotated[Optional[int], tyro.conf.arg(metavar="INT", help_behavior_hint="")] = None
     """Parallel envs per seed (unset: the algorithm's default, ppo 8, a2c 16, acktr 32, dqn 8; ppo 1 for Box actions on state vectors, as the authors' MuJoCo setting)."""
     env_parts: int = 1
-    """Host-batched envs (NaturalAtari) with ppo or a2c: step the num_envs envs as this many equal parts in turn, so that the policy's call for one part runs while ALE emulates the others (pays with many envs per part, e.g. 2 parts of 128, on a host with many cores; small parts lose). 1: one batch, the loop as it always was. Other parts draw other action samples, so the run differs from the one-batch run."""
+    """Host-batched envs (NaturalAtari) with ppo or a2c: step the num_envs envs as this many equal parts in turn, so that the policy's call for one part runs while ALE emulates the others (pays with many envs per part, e.g. 2 parts of 128, on a host with many cores; small parts lose). 1: one batch, the loop as it always was. Other parts draw other action samples, so the run differs from the one-batch run. Parts pipeline one seed's batch: the seeds then train one after another (--host-seeds sequential)."""
+    host_seeds: Annotated[Optional[str], tyro.conf.arg(metavar="{together,sequential}", help_behavior_hint="")] = None
+    """Host-batched envs (NaturalAtari): together trains every seed at once, their envs one batch of emulators stepped together and one vmapped policy call acting for all (each seed keeps its own keys and games: its result is its run alone, to float tolerance); sequential trains one seed after another. Unset: together for ppo, a2c and acktr, sequential for dqn and with --env-parts above 1."""
     trunk: Annotated[Optional[str], tyro.conf.arg(metavar="{" + ",".join(TRUNKS) + "}",
                                                   help_behavior_hint="")] = None
     """Network trunk (unset: the paper's trunk for the observation size)."""

@@ -1,4 +1,5 @@
-"""Orbax checkpoints of the vmapped runner state, and loading a run's checkpoint back."""
+"""Orbax checkpoints of the vmapped runner state (or, seeds side by side on the host, of each
+seed's slice of their stacked state: `SeedCheckpoints`), and loading a run's checkpoint back."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
+from jaxnat.agents.rollout import seed_slice, stack_seeds
 from jaxnat.training.args import TrainError
 from jaxnat.training.placement import resumed_devices
 from jaxnat.training.device_backend import compiled_program
@@ -71,6 +73,12 @@ def _check_layout(step: int, wanted: dict, stored: dict) -> None:
                          "(written by another version of jaxnat, or for another config); start a new run")
 
 
+def damaged(step: int, directory: Path, err: Exception) -> TrainError:
+    """The one-line error of checkpoint `step` in `directory` that cannot be read."""
+    return TrainError(f"cannot resume: checkpoint {step} in {directory} is damaged ({type(err).__name__}); "
+                      f"delete {directory / str(step)} to resume from the checkpoint before it, or start a new run")
+
+
 class Checkpoints:
     """Orbax checkpoints of the vmapped RunnerState under run_dir/checkpoints, step = update."""
 
@@ -78,6 +86,7 @@ class Checkpoints:
         import orbax.checkpoint as ocp
 
         self.ocp = ocp
+        self.directory = Path(directory)
         self.manager = ocp.CheckpointManager(
             directory.absolute(),
             options=ocp.CheckpointManagerOptions(max_to_keep=2, enable_async_checkpointing=False),
@@ -124,8 +133,65 @@ class Checkpoints:
         state = jax.tree.unflatten(treedef, leaves)
         return (target._replace(**state) if hasattr(target, "_asdict") else state), dict(restored.meta)
 
+    def steps(self) -> list[int]:
+        return list(self.manager.all_steps())
+
+    def delete(self, step: int) -> None:
+        self.manager.delete(step)
+
     def close(self) -> None:
         self.manager.close()
+
+
+class SeedCheckpoints:
+    """`Checkpoints`' interface over a state stacked along a leading seed axis (seeds side by
+    side: `rollout.stacked`), one folder per seed, each holding that seed's slice: what a
+    one-seed run of it would save, so each folder reads as a one-seed run's.
+
+    The seeds are saved one after another; a run stopped between two saves leaves some seeds one
+    checkpoint ahead, so `latest_step` is the newest step every seed holds, `restore` stacks
+    the seeds at it, and a save over a step a seed already holds (written ahead, then not
+    resumed from) replaces it."""
+
+    def __init__(self, directories: list[Path]):
+        self.directory = Path(directories[0]).parent if directories else Path()
+        self.seeds = []
+        try:
+            for directory in directories:
+                self.seeds.append(Checkpoints(Path(directory)))
+        except BaseException:
+            self.close()
+            raise
+
+    def latest_step(self) -> int | None:
+        common = set.intersection(*(set(c.steps()) for c in self.seeds))
+        return max(common) if common else None
+
+    def save(self, state, meta: dict) -> None:
+        for i, checkpoints in enumerate(self.seeds):
+            if int(meta["update"]) in checkpoints.steps():
+                checkpoints.delete(int(meta["update"]))
+            checkpoints.save(seed_slice(state, i), meta)
+
+    def restore(self, target, step: int | None = None):
+        """`(stacked state, meta)` of every seed at `step` (default: `latest_step`), each
+        restored into its slice of `target` (`Checkpoints.restore`: a seed's damaged checkpoint
+        is a `TrainError` naming its folder)."""
+        step = self.latest_step() if step is None else step
+        states, meta = [], None
+        for i, checkpoints in enumerate(self.seeds):
+            try:
+                state, meta = checkpoints.restore(seed_slice(target, i), step)
+            except TrainError:
+                raise
+            except Exception as err:  # noqa: BLE001 (orbax and tensorstore raise many kinds for bad bytes)
+                raise damaged(step, checkpoints.directory, err) from None
+            states.append(state)
+        return stack_seeds(states), meta
+
+    def close(self) -> None:
+        for checkpoints in self.seeds:
+            checkpoints.close()
 
 
 def load_checkpoint(run_dir, step: int | None = None, *, compiler_options: dict | None = None, devices=None):

@@ -3,10 +3,11 @@ checkpoints, resume, the curve and the summary, over a `Backend` that trains the
 
 Two backends: `device_backend.DeviceBackend` (pure-JAX envs: every seed in one compiled, vmapped
 program; the test split is scored after every chunk) and `host_backend.HostBackend` (host-batched
-envs, Natural Atari: one seed after another from a Python loop; the test split is scored before
-a seed's first update and when it ends). Both score the untrained policy at update 0. A
-backend trains *groups* of seeds (the device backend one group of all seeds, the host backend
-one group per seed); the loop here is the same for both:
+envs, Natural Atari: from a Python loop, every seed side by side or one seed after another; the
+test split is scored before a group's first update and when it ends). Both score the untrained
+policy at update 0. A backend trains *groups* of seeds (the device backend one group of all
+seeds, the host backend one group of all seeds side by side, or one group per seed); the loop
+here is the same for both:
 
     for each group: restore its latest checkpoint (if any), drop the records written after it,
         then chunk by chunk: train `eval_every` updates, append `metrics.jsonl` rows, evaluate
@@ -14,8 +15,10 @@ one group per seed); the loop here is the same for both:
         (at most every `PLOT_EVERY_S`, and after the last chunk)
     write `summary.json` (also for a run stopped early, marked incomplete)
 
-Checkpoints live in `checkpoints/` (device) or `checkpoints/seed_<s>/` (host); each holds the
-backend's state pytree and `{"chunk", "update", "env_steps", "wall_time_s"}`.
+Checkpoints live in `checkpoints/` (device) or `checkpoints/seed_<s>/` (host: a group of one
+seed, or with `checkpoints_per_seed` each seed's slice of the group's stacked state,
+`checkpoints.SeedCheckpoints`); each holds the backend's state pytree and `{"chunk", "update",
+"env_steps", "wall_time_s"}`.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 
 from jaxnat.training.args import TrainError
-from jaxnat.training.checkpoints import Checkpoints
+from jaxnat.training.checkpoints import Checkpoints, SeedCheckpoints, damaged
 from jaxnat.training.progress import EvalProgress, Progress
 from jaxnat.training.records import (History, json_value, mean_std, nanmean, plot, print_summary, read_jsonl,
                                      run_summary, shows_first_guess, Sink, terminated_label, write_jsonl, FIRST_GUESS)
@@ -46,12 +49,16 @@ class Backend(Protocol):
 
     groups: list[list[int]]  # seed values trained together, in order
     evaluates_each_chunk: bool  # score the test split after every chunk (else at a group's end)
+    # The group's state stacks its seeds along a leading axis and each seed's slice is saved in
+    # a folder of its own (`checkpoint_dir([seed])`); False: the state is one checkpoint.
+    checkpoints_per_seed: bool
     # Steps of one evaluation pass (a scan over a test episode's time limit), reported to the
     # `progress.EvalProgress` that `evaluate` and `chance` are handed; None: not known ahead.
     eval_steps: int | None
 
     def checkpoint_dir(self, group: list[int]) -> str:
-        """The group's checkpoint folder, relative to the run directory."""
+        """The group's checkpoint folder, relative to the run directory (with
+        `checkpoints_per_seed`, asked for each seed's own: `[seed]`)."""
 
     def init(self, group: list[int]) -> Any:
         """The group's state at update 0 (the structure a checkpoint restores into)."""
@@ -123,11 +130,11 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
     try:
         for group in backend.groups:
             label = "" if len(group) == len(spec.seed_values) else f"seed {', '.join(map(str, group))} · "
-            checkpoints = Checkpoints(run_dir / backend.checkpoint_dir(group))
+            checkpoints = _open_checkpoints(backend, run_dir, group)
             try:
                 state = backend.init(group)
                 if checkpoints.latest_step() is not None:
-                    state, meta = _restore(checkpoints, state, run_dir / backend.checkpoint_dir(group))
+                    state, meta = _restore(checkpoints, state)
                     prior_wall = max(prior_wall, float(meta.get("wall_time_s", 0.0)))
                     console.print(f"{label}resumed from checkpoint at update {meta['update']}")
                 elif new_run is None:
@@ -136,7 +143,7 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
                     if recorded > spec.eval_every:
                         raise TrainError(
                             f"cannot resume {run_dir}: its metrics go to update {recorded} but "
-                            f"{run_dir / backend.checkpoint_dir(group)} holds no checkpoint; restore that "
+                            f"{_checkpoint_folders(checkpoints)} holds no checkpoint; restore that "
                             "folder, or start a new run (nothing was changed)")
                 update = backend.update_of(state)
                 # Drop the group's records written after its checkpoint (a run stopped between
@@ -222,7 +229,22 @@ def run_training(spec: RunSpec, run_dir: Path, backend: Backend, *, console, new
     return state, summary, complete
 
 
-def _restore(checkpoints: Checkpoints, state, directory: Path):
+def _open_checkpoints(backend: Backend, run_dir: Path, group: list[int]):
+    """The group's checkpoints: one folder, or one per seed (`Backend.checkpoints_per_seed`)."""
+    if backend.checkpoints_per_seed:
+        return SeedCheckpoints([run_dir / backend.checkpoint_dir([seed]) for seed in group])
+    return Checkpoints(run_dir / backend.checkpoint_dir(group))
+
+
+def _checkpoint_folders(checkpoints) -> str:
+    """The folder, or the seeds' folders (`{a,b}`), the group's checkpoints are in."""
+    if isinstance(checkpoints, SeedCheckpoints):
+        names = ",".join(c.directory.name for c in checkpoints.seeds)
+        return str(checkpoints.directory / f"{{{names}}}")
+    return str(checkpoints.directory)
+
+
+def _restore(checkpoints, state):
     """`checkpoints.restore(state)`, with a damaged checkpoint reported in one line."""
     step = checkpoints.latest_step()
     try:
@@ -230,9 +252,7 @@ def _restore(checkpoints: Checkpoints, state, directory: Path):
     except TrainError:
         raise
     except Exception as err:  # noqa: BLE001 (orbax and tensorstore raise many kinds for bad bytes)
-        raise TrainError(f"cannot resume: checkpoint {step} in {directory} is damaged ({type(err).__name__}); "
-                         f"delete {directory / str(step)} to resume from the checkpoint before it, or start "
-                         "a new run") from None
+        raise damaged(step, checkpoints.directory, err) from None
 
 
 def _episodes_field(spec: RunSpec, seeds: int, backend: Backend) -> str:

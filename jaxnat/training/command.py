@@ -59,6 +59,9 @@ def _setup(args: TrainArgs, console):
     if args.env_parts != 1:
         raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
                          "stepped in one compiled program")
+    if args.host_seeds is not None:
+        raise TrainError(f"--host-seeds applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
+                         "whose seeds train together in one compiled program")
     env_kwargs = parse_env_kwargs(args.env_kwargs, args.env_id)
     # Resolving the trunk needs the observation space: build the env once (cheap; cached data).
     episodes = args.eval_episodes or default_eval_episodes(args.env_id)
@@ -102,7 +105,9 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
     argument = split_argument(spec.env_id, spec.env_kwargs)
     split = f"{argument}=test" if argument else "the training env (no test split)"
     table.add_row("evaluation", f"{spec.eval_episodes} episodes per seed on {split}, every {spec.eval_every} updates")
-    table.add_row("seeds", f"{spec.seed_values}")
+    how = {"together": " (side by side: one batch of every seed's envs)",
+           "sequential": " (one after another)"}.get(spec.host_seeds, "")
+    table.add_row("seeds", f"{spec.seed_values}{how}")
     table.add_row("updates", f"{spec.num_updates} x {spec.steps_per_update} env steps per seed")
     if spec.env_parts > 1:
         parts = f"{spec.env_parts} of {spec.config.num_envs // spec.env_parts} envs, stepped in turn"

@@ -84,6 +84,7 @@ class DeviceBackend:
     With `spec.shard`, the programs run on `spec.devices` devices (`placement.Placement`)."""
 
     evaluates_each_chunk = True
+    checkpoints_per_seed = False  # one checkpoint of the vmapped runner
 
     def __init__(self, spec: RunSpec, compiler_options: dict | None, envs=None):
         self.spec = spec

@@ -1,24 +1,38 @@
 """The host backend of `jaxnat train`: runs on host-batched envs (`NaturalAtari/*`).
 
 The jitted, vmapped trainer needs a pure-JAX env; ALE runs in C++ on the host, so these runs
-use the agents' host learners (`rollout.host_steps`), one seed after another, on rewards
-clipped to [-1, 1] (`ClipRewardWrapper`, as DQN and the authors' code); the returns reported
-(train and test) are whole games with unclipped rewards. Before a seed's first update (the
-untrained policy, the baseline a trained one must beat) and when its last update is done, its
-policy plays `eval_episodes` whole games on the test split (videos the agent never saw),
-sampled and greedy, on at most `eval_episodes` envs. `chunk_loop.run_training` does the rest, as
-for every run: the run directory, checkpoints (`checkpoints/seed_<s>/`, every `--eval-every`
-updates), `--resume`, the summary.
+use the agents' host learners (`rollout.host_steps`) on rewards clipped to [-1, 1]
+(`ClipRewardWrapper`, as DQN and the authors' code); the returns reported (train and test) are
+whole games with unclipped rewards. The seeds train (`--host-seeds`, the spec's `host_seeds`):
+
+- together (PPO, A2C, ACKTR; their default): one group of every seed, side by side on one
+  batch of all their envs (`make_train_env(..., seeds=S)`: a `PipelinedVecEnv` of one part
+  per seed, every part's emulators stepped at once), one vmapped policy call per env step and
+  one vmapped update for all of them (`on_policy_host_learner(..., seeds=S)`); each seed keeps
+  its own keys and games, so its training is its run alone to float tolerance (its test games
+  are not: one test env, never reseeded, serves every evaluation in the order they run);
+- sequential (DQN's only way, the default with `--env-parts` above 1, and every run written
+  before the setting): one seed after another, each from a fresh learner state.
+
+Before the first update (the untrained policy, the baseline a trained one must beat) and when
+the last one is done, each seed's policy plays `eval_episodes` whole games on the test split
+(videos the agent never saw), sampled and greedy, on at most `eval_episodes` envs.
+`chunk_loop.run_training` does the rest, as for every run: the run directory, checkpoints
+(`checkpoints/seed_<s>/` in both modes, every `--eval-every` updates: seeds side by side save
+each seed's slice of their stacked state, so `--resume`, `jaxnat.trained.load_policy` and
+`jaxnat eval` read either the same way), `--resume`, the summary.
 
 `--env-parts N` (PPO, A2C) trains on a `PipelinedVecEnv` of N equal parts, which the learner
 steps in turn (`rollout.host_steps_pipelined`): the policy's call for one part overlaps the
 emulation of the others. The actions are sampled with other keys than in one batch, so a run
-with parts differs from the one-batch run (N=1, the default, is that run unchanged).
+with parts differs from the one-batch run (N=1, the default, is that run unchanged). Parts
+pipeline one seed's batch: such a run trains its seeds one after another.
 
 Several hosts (the API; `jaxnat train` runs in one process): `make_train_env(...,
 devices="all")` builds this process's share of the batch and `make_learner(..., devices="all")`
 its data-parallel learner (PPO, A2C; `rollout.on_policy_host_learner`): one ALE batch per
-process, the update data parallel over every process's devices, the same parameters in all.
+process, the update data parallel over every process's devices, the same parameters in all
+(one seed per learner: not with `seeds=`).
 
 What a host checkpoint holds: params, optimizer state, DQN's target network and replay buffer,
 the update count and the PRNG key. The emulators' state cannot be saved, so a resumed seed
@@ -37,7 +51,8 @@ import numpy as np
 
 import jaxnat
 from jaxnat.agents import ALGORITHMS
-from jaxnat.agents.rollout import evaluate_host
+from jaxnat.agents.rollout import evaluate_host, seed_slice, stack_seeds
+from jaxnat.atari.chunks import default_threads
 from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
@@ -45,9 +60,9 @@ from jaxnat.sharding import process_share
 from jaxnat.training.args import TrainArgs, TrainError, check_split_kwargs, default_eval_episodes, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, resolve_config
 
-__all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "MAX_EVAL_EPISODES", "HostBackend",
-           "is_host_env", "new_host_spec", "check_env_parts", "observation_space", "make_learner", "make_train_env",
-           "host_errors"]
+__all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "SIDE_BY_SIDE_ALGORITHMS",
+           "HOST_SEEDS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "new_host_spec", "check_env_parts",
+           "check_host_seeds", "observation_space", "make_learner", "make_train_env", "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
 EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_OFFSET + seed)
@@ -58,6 +73,10 @@ PIPELINED_ALGORITHMS = ("ppo", "a2c", "acktr")
 # The host learners that train data parallel (`make_learner(..., devices=)`).
 DATA_PARALLEL_ALGORITHMS = tuple(name for name in HOST_ALGORITHMS
                                  if "devices" in inspect.signature(ALGORITHMS[name].make_host).parameters)
+# The host learners that train seeds side by side (`make_learner(..., seeds=)`).
+SIDE_BY_SIDE_ALGORITHMS = tuple(name for name in HOST_ALGORITHMS
+                                if "seeds" in inspect.signature(ALGORITHMS[name].make_host).parameters)
+HOST_SEEDS = ("together", "sequential")  # `--host-seeds`: how a host run trains its seeds
 
 
 def observation_space(env_id: str, env_kwargs: dict):
@@ -73,13 +92,27 @@ def observation_space(env_id: str, env_kwargs: dict):
         probe.close()
 
 
-def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1, devices=None):
+def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1, devices=None,
+                   seeds: int | None = None):
     """The env a host run trains on: `num_envs` envs of the train split, rewards clipped to
     [-1, 1]; with `parts` > 1 a `PipelinedVecEnv` of that many equal batches, each with the
     same env kwargs (ALE threads included: the parts mostly emulate in turn), which the
     on-policy learners step in turn so that the policy calls overlap the emulation. With
     `devices` (for `make_learner(..., devices=)`) only this process's share of the `num_envs`
-    envs (`jaxnat.sharding.process_share`; all of them in one process)."""
+    envs (`jaxnat.sharding.process_share`; all of them in one process).
+
+    `seeds` (S, for `make_learner(..., seeds=S)`): a `PipelinedVecEnv` of S batches of
+    `num_envs` envs, one per seed, emulated at once: the ALE threads (`num_threads`, 0: one per
+    env of all S batches, at most one per CPU) are shared out among them, at least one each
+    (neither observations nor rewards depend on the threads); not with `parts` or `devices`."""
+    if seeds is not None:
+        if parts != 1 or devices is not None:
+            raise ValueError("seeds side by side step one batch per seed: leave parts and devices out")
+        threads = int(env_kwargs.get("num_threads", 0)) or default_threads(seeds * num_envs)
+        shares = [max(1, threads // seeds + (i < threads % seeds)) for i in range(seeds)]
+        return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs, split="train",
+                                                                  **{**env_kwargs, "num_threads": share}))
+                                for share in shares])
     if devices is not None:
         num_envs = process_share(num_envs, devices)[1]
     if parts < 1 or num_envs % parts:
@@ -90,11 +123,21 @@ def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1,
                                                               **env_kwargs)) for _ in range(parts)])
 
 
-def make_learner(algo: str, config, env, compiler_options: dict | None = None, devices=None):
+def make_learner(algo: str, config, env, compiler_options: dict | None = None, devices=None,
+                 seeds: int | None = None):
     """The host learner of `algo` (one of `HOST_ALGORITHMS`) for `config` on `env`; with
     `devices` (a count, "all", devices) data parallel over them and every process, `env` this
-    process's share (`make_train_env(..., devices=)`)."""
+    process's share (`make_train_env(..., devices=)`); with `seeds` (one of
+    `SIDE_BY_SIDE_ALGORITHMS`) that many seeds side by side on `make_train_env(..., seeds=)`."""
     make = ALGORITHMS[algo].make_host
+    if seeds is not None:
+        if algo not in SIDE_BY_SIDE_ALGORITHMS:
+            raise ValueError(f"{algo}'s host learner trains one seed at a time: leave seeds out, or train "
+                             f"{', '.join(SIDE_BY_SIDE_ALGORITHMS)} side by side")
+        if devices is not None:
+            raise ValueError("seeds side by side train on one device: leave devices out, or train one seed at a time "
+                             "data parallel")
+        return make(config, env, compiler_options, seeds=seeds)
     if devices is None:
         return make(config, env, compiler_options)
     if algo not in DATA_PARALLEL_ALGORITHMS:
@@ -120,13 +163,14 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
     with host_errors(args.env_id):  # (DQN takes Nature DQN's Huber loss here: `agents.defaults`)
         config, sources = resolve_config(args, observation_space(args.env_id, env_kwargs))
     check_env_parts(args.env_parts, args.algo, config.num_envs)
+    host_seeds = check_host_seeds(args.host_seeds, args.algo, args.env_parts)
     eval_episodes = args.eval_episodes or min(default_eval_episodes(args.env_id), MAX_EVAL_EPISODES)
     if eval_episodes > MAX_EVAL_EPISODES:
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
     return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes,
-                   args.env_parts, config_sources=sources)
+                   args.env_parts, host_seeds=host_seeds, config_sources=sources)
 
 
 def check_env_parts(parts: int, algo: str, num_envs: int) -> None:
@@ -139,6 +183,23 @@ def check_env_parts(parts: int, algo: str, num_envs: int) -> None:
         raise TrainError(f"--env-parts {parts} must divide num_envs={num_envs} (the parts are equal)")
 
 
+def check_host_seeds(mode: str | None, algo: str, parts: int) -> str:
+    """`--host-seeds` resolved: `together` or `sequential` as given, else together for the
+    `SIDE_BY_SIDE_ALGORITHMS` on one batch (`--env-parts 1`) and sequential otherwise; together
+    with an algorithm that cannot, or with parts (which pipeline one seed's batch), is refused."""
+    if mode is None:
+        return "together" if algo in SIDE_BY_SIDE_ALGORITHMS and parts == 1 else "sequential"
+    if mode not in HOST_SEEDS:
+        raise TrainError(f"--host-seeds takes {' or '.join(HOST_SEEDS)}, got {mode!r}")
+    if mode == "together" and algo not in SIDE_BY_SIDE_ALGORITHMS:
+        raise TrainError(f"--host-seeds together applies to {', '.join(SIDE_BY_SIDE_ALGORITHMS)}: {algo}'s host "
+                         "learner trains one seed at a time (--host-seeds sequential)")
+    if mode == "together" and parts > 1:
+        raise TrainError(f"--host-seeds together steps every seed's envs as one batch and --env-parts {parts} "
+                         "pipelines one seed's batch: give --env-parts 1, or --host-seeds sequential")
+    return mode
+
+
 @contextlib.contextmanager
 def host_errors(env_id: str):
     """Turn the env's and the learner's setup errors into one-line `TrainError`s."""
@@ -149,52 +210,74 @@ def host_errors(env_id: str):
 
 
 class HostBackend:
-    """`chunk_loop.Backend` for host-batched envs: one seed after another, each from a fresh
-    learner state; the emulators are built once (train and test split) and reused by every
-    seed. Checkpoints: `checkpoints/seed_<s>/`, the learner's `HostState`."""
+    """`chunk_loop.Backend` for host-batched envs. With `spec.host_seeds` "together": one group
+    of every seed, trained side by side from one stacked state (`rollout.stacked`), each seed
+    checkpointed in `checkpoints/seed_<s>/` (`checkpoints_per_seed`); else one seed after
+    another, each from a fresh learner state, its `HostState` in `checkpoints/seed_<s>/`. The
+    emulators are built once (train and test split) and serve every group."""
 
     evaluates_each_chunk = False
     eval_steps = None  # whole games: their length is known when they end (`EvalProgress` shows time only)
 
     def __init__(self, spec: RunSpec, compiler_options: dict | None = None):
         self.spec = spec
-        self.groups = [[seed] for seed in spec.seed_values]
+        self.side_by_side = spec.host_seeds == "together"
+        self.checkpoints_per_seed = self.side_by_side
+        self.groups = [list(spec.seed_values)] if self.side_by_side else [[seed] for seed in spec.seed_values]
+        seeds = spec.seeds if self.side_by_side else None
         check_split_kwargs(spec.env_kwargs)
         with host_errors(spec.env_id):
-            self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts)
+            self.env = (make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, seeds=seeds)
+                        if self.side_by_side else
+                        make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts))
             # No more test envs than test games: the first games to end are the short ones, so
             # many envs would bias the scores (and step emulators whose games are never counted).
             self.test_env = jaxnat.make_vec(spec.env_id, min(spec.config.num_envs, spec.eval_episodes), split="test",
                                             **spec.env_kwargs)
-            self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options)
+            self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options, seeds=seeds)
         self._updates = None
 
     def checkpoint_dir(self, group) -> str:
-        return f"checkpoints/seed_{group[0]}"
+        """A seed's folder (`group` of one seed: with `checkpoints_per_seed` the loop asks per seed)."""
+        (seed,) = group
+        return f"checkpoints/seed_{seed}"
 
     def init(self, group):
+        if self.side_by_side:
+            return self.learner.init(stack_seeds([jax.random.key(seed) for seed in group]))
         return self.learner.init(jax.random.key(group[0]))
 
     def update_of(self, state) -> int:
-        return int(self.learner.updates_of(state))
+        return int(np.max(np.asarray(self.learner.updates_of(state))))
 
     def begin(self, group, state) -> None:
-        self._updates = self.learner.updates(state)  # new games, seeded from the state's key
+        self._updates = self.learner.updates(state)  # new games, seeded from the state's key (per seed)
 
     def chunk(self, state, num_updates: int, progress):
         rows = []
         for state, metrics, _ in itertools.islice(self._updates, num_updates):
             rows.append(metrics)
-            progress(self.learner.updates_of(state), metrics)
-        return state, {name: np.asarray([[row[name] for row in rows]]) for name in rows[0]}
+            update = self.update_of(state)
+            for seed_metrics in self._per_seed(metrics):
+                progress(update, seed_metrics)
+        return state, {name: np.stack([np.atleast_1d(row[name]) for row in rows], axis=1) for name in rows[0]}
+
+    def _per_seed(self, metrics: dict) -> list[dict]:
+        """One update's metrics as one dict of scalars per seed of the group."""
+        if not self.side_by_side:
+            return [metrics]
+        return [{name: float(value[i]) for name, value in metrics.items()} for i in range(self.spec.seeds)]
 
     def evaluate(self, group, state, progress=None) -> dict:
-        scores = {}
-        for mode in ("sampled", "greedy"):
-            returns = evaluate_host(self.learner, self.learner.params(state), self.test_env, self.spec.eval_episodes,
-                                    jax.random.key(EVAL_SEED_OFFSET + group[0]), greedy=mode == "greedy")
-            scores[f"{mode}_return"] = np.asarray([returns.mean()])
-        return scores
+        params = self.learner.params(state)
+        scores = {"sampled_return": [], "greedy_return": []}
+        for i, seed in enumerate(group):
+            own = seed_slice(params, i) if self.side_by_side else params
+            for mode in ("sampled", "greedy"):
+                returns = evaluate_host(self.learner, own, self.test_env, self.spec.eval_episodes,
+                                        jax.random.key(EVAL_SEED_OFFSET + seed), greedy=mode == "greedy")
+                scores[f"{mode}_return"].append(returns.mean())
+        return {name: np.asarray(values) for name, values in scores.items()}
 
     def chance(self, progress=None) -> None:
         """Not measured: random play of whole Atari games costs as much as evaluating a seed."""
@@ -202,7 +285,7 @@ class HostBackend:
 
     def data_manifest(self) -> dict:
         """The background's videos or photos (`natural.bank_manifests`), per split (a pipelined
-        env's parts hold the same bank: its first part's)."""
+        env's parts, or the seeds' batches, hold the same bank: its first part's)."""
         from jaxnat.natural import bank_manifests
 
         return {"train": bank_manifests(getattr(self.env, "parts", [self.env])[0]),

@@ -326,8 +326,9 @@ class WandbSink(Sink):
     (WANDB_MODE, WANDB_PROJECT, WANDB_ENTITY, a login) apply as they are; without WANDB_PROJECT
     the project is "jaxnat". Values are keyed `seed_<s>/<kind>/<name>` and plotted against
     `env_steps` (a metric of its own, `define_metric`), not W&B's step: W&B drops a row whose
-    step goes back, and a host run trains its seeds one after another (seed 1's updates start
-    at 1 again), as a resume redoes the updates after its checkpoint."""
+    step goes back, and a host run may train its seeds one after another (`--host-seeds
+    sequential`: seed 1's updates start at 1 again), as a resume redoes the updates after its
+    checkpoint."""
 
     def __init__(self, run_dir: Path, config: dict):
         import os

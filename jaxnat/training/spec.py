@@ -13,8 +13,9 @@ from jaxnat.training.args import CORE_CONFIG_FIELDS, TrainArgs, TrainError
 
 TARGET_EVALUATIONS = 20  # --eval-every's default aims at about this many evaluations
 # Run spec fields added since runs were first written: the value an older config.json means
-# (every host run stepped its envs as one batch, on one device).
-SPEC_FIELDS_ADDED = {"env_parts": 1, "devices": 1, "shard": None}
+# (every host run stepped its envs as one batch, on one device, one seed after another: a host
+# run's `host_seeds` None reads as "sequential").
+SPEC_FIELDS_ADDED = {"env_parts": 1, "devices": 1, "shard": None, "host_seeds": None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +36,10 @@ class RunSpec:
     # `devices` is where the run is now: a resumed run may change it, never `shard`.
     devices: int = 1
     shard: str | None = None
+    # Host-batched envs: "together" (every seed side by side on one batch of all their envs) or
+    # "sequential" (one seed after another); None: a JAX env's run, or a host run written
+    # before the setting (sequential). The same result either way, to float tolerance.
+    host_seeds: str | None = None
     # Where each config value came from (`jaxnat.agents.resolve`: default, family, given,
     # derived); None for runs written before it was recorded. Says nothing about the result.
     config_sources: dict | None = dataclasses.field(default=None, compare=False)
@@ -73,6 +78,7 @@ class RunSpec:
             "env_parts": self.env_parts,
             "devices": self.devices,
             "shard": self.shard,
+            "host_seeds": self.host_seeds,
             **({} if self.config_sources is None else {"config_sources": self.config_sources}),
             "num_updates": self.num_updates,
             "steps_per_update": self.steps_per_update,
@@ -96,6 +102,7 @@ class RunSpec:
             config=config_cls(**data["config"]), seeds=int(data["seeds"]), seed=int(data["seed"]),
             eval_every=int(data["eval_every"]), eval_episodes=int(data["eval_episodes"]),
             env_parts=int(data["env_parts"]), devices=int(data["devices"]), shard=data["shard"],
+            host_seeds=data["host_seeds"],
             config_sources=data.get("config_sources"),
         )
 

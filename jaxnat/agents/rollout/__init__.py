@@ -10,7 +10,8 @@
 | `scan` | the jitted driver (JAX envs in `lax.scan`) and the jitted `Learner` |
 | `on_policy` | the jitted on-policy learner (PPO, A2C, ACKTR) over `UpdateRule`s |
 | `host` | the host driver (host-batched envs: Natural Atari) and its `HostLearner` loop |
-| `on_policy_host` | the on-policy learner on a host-batched env |
+| `on_policy_host` | the on-policy learner on a host-batched env (one seed, or several side by side) |
+| `stacked` | seeds side by side: stacked states, their slices, per-seed keys |
 | `evaluate` | evaluation: jitted first episodes, the uniform random policy, whole host games |
 
 The jitted side (`scan`, `on_policy`) and the host side (`host`, `on_policy_host`) share the
@@ -28,6 +29,7 @@ from jaxnat.agents.rollout.policy import act, choose, env_action, final_value, i
 from jaxnat.agents.rollout.records import (EPISODE_KEYS, GAE_UNROLL, EnvStep, Transition, bootstrap, count_updates,
                                            episode_metrics, gae, step_info)
 from jaxnat.agents.rollout.scan import Learner, pack_vectors, scan_learner, scan_steps, unpack_vectors, vector_env
+from jaxnat.agents.rollout.stacked import over_seeds, seed_slice, split_keys, stack_seeds
 
 __all__ = [
     "EPISODE_KEYS", "Transition", "EnvStep", "GAE_UNROLL", "gae", "bootstrap", "step_info", "episode_metrics",
@@ -35,5 +37,6 @@ __all__ = [
     "clip_by_global_norm", "pmean_gradients", "shard_slice", "Learner", "vector_env", "scan_steps", "pack_vectors",
     "unpack_vectors", "scan_learner", "RunnerState", "UpdateRule", "dtype_and_memory", "on_policy_learner",
     "HostState", "HostLearner", "check_host_batch", "host_steps", "host_steps_pipelined", "TIMING_KEYS",
-    "host_updates", "on_policy_host_learner", "make_evaluate", "make_chance", "evaluate_host",
+    "host_updates", "on_policy_host_learner", "make_evaluate", "make_chance", "evaluate_host", "seed_slice",
+    "stack_seeds", "split_keys", "over_seeds",
 ]

@@ -5,6 +5,11 @@ Python loop of updates that makes a `HostLearner` of an algorithm's update.
 `host_steps` takes the scan driver's callbacks with the part of a pipelined batch last:
 `policy(carry, obs, key, t, part)`, `observe(carry, EnvStep, aux, t, part) -> (carry, record)`,
 and hands back the records as a list, one per step.
+
+A learner of several seeds side by side (`host_updates(..., seeds=S)`) holds their states
+stacked (`rollout.stacked`) and steps one batch of every seed's envs (a `PipelinedVecEnv`, one
+part per seed), its keys split per seed (`stacked.split_keys`) so that each seed draws what it
+draws training alone.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 
 from jaxnat.agents.rollout.policy import choose, env_action
 from jaxnat.agents.rollout.records import EnvStep, count_updates
+from jaxnat.agents.rollout.stacked import split_keys
 
 __all__ = ["HostState", "HostLearner", "check_host_batch", "host_steps", "host_steps_pipelined", "TIMING_KEYS",
            "host_updates"]
@@ -26,7 +32,8 @@ __all__ = ["HostState", "HostLearner", "check_host_batch", "host_steps", "host_s
 
 class HostState(NamedTuple):
     """A host run's state apart from the env: a pytree (what a checkpoint holds). An emulator's
-    state cannot be saved, so `run(state)` starts new games, seeded from `key`."""
+    state cannot be saved, so `run(state)` starts new games, seeded from `key`. Of several
+    seeds side by side: every leaf stacked `[S, ...]` (`stacked.seed_slice` gives one seed's)."""
 
     learner: Any  # TrainState (PPO, A2C) or dqn.DQNState
     key: jax.Array
@@ -34,7 +41,11 @@ class HostState(NamedTuple):
 
 
 class HostLearner(NamedTuple):
-    """`train(key) -> (state, history)`, `run(state) -> (state, history)` and their parts."""
+    """`train(key) -> (state, history)`, `run(state) -> (state, history)` and their parts.
+
+    With `seeds` (S seeds side by side): `init` and `train` take S keys `[S]`, the state is
+    stacked (`HostState`), `params` and `updates_of` give stacked values and each update's
+    metrics are arrays `[S]`; `greedy` and `sample` take one seed's params (`stacked.seed_slice`)."""
 
     init: Callable  # key -> HostState at update 0
     run: Callable  # (state, num_updates=None) -> (state, history)
@@ -49,6 +60,7 @@ class HostLearner(NamedTuple):
     # Where the time of `updates` went, added up over the learner's life (`TIMING_KEYS`); the
     # caller may clear it. On-policy learners time their steps too; DQN's only its updates.
     timings: dict | None = None
+    seeds: int | None = None  # None: one seed; S: S seeds side by side (see above)
 
 
 def check_host_batch(config, env, memory: int = 0, share: tuple[int, int] | None = None) -> int:
@@ -116,7 +128,7 @@ def _step_parts(parts: list, num_steps: int, policy: Callable, observe: Callable
 
     def dispatch(e, part_obs):
         nonlocal key
-        key, key_act = jax.random.split(key)
+        key, key_act = split_keys(key)  # one key, or each seed's side by side
         obs_device = jax.device_put(part_obs)
         queued[e] = obs_device, policy(carry, obs_device, key_act, e // count, e % count)
 
@@ -191,41 +203,68 @@ class _Clock:
             self.timings["rollout_s"] = self.timings.get("rollout_s", 0.0) + time.perf_counter() - self.start
 
 
+def _draw_game_seed(key):
+    return jax.random.randint(key, (), 0, 2**31 - 1)
+
+
+def _game_seed(key) -> int:
+    """The seed of a run's new games (emulator `j` gets it plus `j`), drawn from `key`."""
+    return int(_draw_game_seed(key))
+
+
 def host_updates(env, network, num_updates: int, init_learner: Callable, update: Callable,
-                 params: Callable, jit: Callable, timings: dict | None = None, first_env: int = 0) -> HostLearner:
+                 params: Callable, jit: Callable, timings: dict | None = None, first_env: int = 0,
+                 seeds: int | None = None) -> HostLearner:
     """The Python loop of updates on a host-batched env. `update(learner, obs, key, update_index)
     -> (learner, obs, key, metrics)` does one update's env steps and learning; `timings` (the
     one `update` hands its `host_steps`, if any) also gets each update's seconds. `first_env`:
     the index of the env's first env in a batch split over processes (its games are seeded
-    as that batch's)."""
+    as that batch's).
+
+    `seeds` (S): S seeds side by side, `init_learner` and `update` taking and giving their
+    stacked learner states and keys; `env` a `PipelinedVecEnv` of one part per seed, which a
+    run resets with each seed's own game seed (`reset(seeds=...)`, drawn as one seed's run
+    draws it), so seed `s`'s games are those of its run alone. Every seed is at the same
+    update (a state whose seeds are not is refused)."""
     timings = {} if timings is None else timings
+    shape = () if seeds is None else (seeds,)
 
     greedy, sample = (jit(lambda params, obs, key, g=g: choose(network.apply(params, obs)[0], key, g))
                       for g in (True, False))
 
     def init(key) -> HostState:
-        key, key_init = jax.random.split(key)
-        return HostState(init_learner(key_init), key, jnp.zeros((), jnp.int32))
+        key, key_init = split_keys(key)
+        return HostState(init_learner(key_init), key, jnp.zeros(shape, jnp.int32))
+
+    def done(state: HostState) -> int:
+        counts = np.unique(np.asarray(state.update))
+        if len(counts) != 1:
+            raise ValueError(f"the seeds side by side are at different updates ({counts.tolist()}): "
+                             "they train one chunk at a time together")
+        return int(counts[0])
 
     def updates(state: HostState):
         """Updates `state.update + 1, ...` (up to `num_updates`) on freshly reset envs, one
         `(state, metrics, seconds)` per update; a consumer may stop anywhere (a chunk)."""
-        key, key_env = jax.random.split(state.key)
-        obs, _ = env.reset(seed=int(jax.random.randint(key_env, (), 0, 2**31 - 1)) + first_env)
+        key, key_env = split_keys(state.key)
+        if seeds is None:
+            obs, _ = env.reset(seed=_game_seed(key_env) + first_env)
+        else:
+            obs, _ = env.reset(seeds=[int(g) for g in np.asarray(jax.vmap(_draw_game_seed)(key_env))])
         learner = state.learner
-        for index in range(int(state.update), num_updates):
+        for index in range(done(state), num_updates):
             start = time.perf_counter()
             learner, obs, key, metrics = update(learner, obs, key, index)
-            metrics = {k: float(v) for k, v in jax.device_get(metrics).items()}
+            metrics = {k: float(v) if seeds is None else np.asarray(v) for k, v in jax.device_get(metrics).items()}
             seconds = time.perf_counter() - start
             timings["updates"] = timings.get("updates", 0) + 1
             timings["update_s"] = timings.get("update_s", 0.0) + seconds
-            yield HostState(learner, key, jnp.asarray(index + 1, jnp.int32)), metrics, seconds
+            yield HostState(learner, key, jnp.full(shape, index + 1, jnp.int32)), metrics, seconds
 
     def run(state: HostState, num_updates: int = num_updates):
         """Updates `state.update + 1 .. num_updates` on freshly reset envs: `(state, history)`."""
         history = []
-        for state, metrics, _ in itertools.islice(updates(state), max(0, num_updates - int(state.update))):
+        for state, metrics, _ in itertools.islice(updates(state), max(0, num_updates - done(state))):
             history.append(metrics)
         return state, history
 
@@ -234,4 +273,4 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
         return run(init(key), num_updates)
 
     return HostLearner(init, run, train, updates, params, lambda state: state.update, greedy, sample, network,
-                       num_updates, timings)
+                       num_updates, timings, seeds)

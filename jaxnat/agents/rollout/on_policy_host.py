@@ -4,6 +4,9 @@ jitted policy call, per update one jitted update (the jitted learner's `UpdateRu
 Data parallel across processes (`devices=`): each process steps its share of a host-batched
 env (one ALE batch per host) and the update runs under `jax.shard_map` over every process's
 devices, so every process holds the same parameters.
+
+Seeds side by side (`seeds=S`): one batch of every seed's envs, one vmapped policy call per
+step for all of them and one vmapped update, each seed's numbers its own (`rollout.stacked`).
 """
 
 from __future__ import annotations
@@ -23,13 +26,14 @@ from jaxnat.agents.rollout.host import HostLearner, check_host_batch, host_steps
 from jaxnat.agents.rollout.on_policy import UpdateRule
 from jaxnat.agents.rollout.policy import final_value, sample_each
 from jaxnat.agents.rollout.records import EPISODE_KEYS, EnvStep, Transition, bootstrap, step_info
+from jaxnat.agents.rollout.stacked import over_seeds, split_keys
 from jaxnat.sharding import AXIS, device_mesh, local_copy, process_share, put_global, replicated, shard_program, sharded
 
 __all__ = ["on_policy_host_learner"]
 
 
 def on_policy_host_learner(config, env, compiler_options: dict | None = None, devices=None, *,
-                           rule: UpdateRule) -> HostLearner:
+                           rule: UpdateRule, seeds: int | None = None) -> HostLearner:
     """The host-loop on-policy learner for `config` (a `PPOConfig` or `A2CConfig`) on a batched
     host env: per env step one jitted policy call, and one value call on final observations
     when an episode ended; per update the rollout goes to the device once and one jitted
@@ -50,14 +54,28 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
     every process holds the same parameters and any process or device count trains the same
     ones to float tolerance (with env parts: given the same parts per process, whose turns
     the step keys follow). Its random draws are not the default learner's (`devices=None`,
-    unchanged)."""
+    unchanged).
+
+    `seeds` (S): S seeds side by side (`HostLearner.seeds`), on a `PipelinedVecEnv` of S parts
+    of `config.num_envs` envs, part `s` seed `s`'s batch (`host_backend.make_train_env(...,
+    seeds=S)`), stepped as one batch (every part's emulators at once, not in turn). Per env
+    step one policy call acts for every seed, per update one update trains them all (both
+    `jax.vmap`ped over the stacked states); the keys are split per seed and each part is
+    reset with its seed's game seed, so seed `s` trains as the one-seed learner on its own
+    batch given `init` its key `s` (to float tolerance: vmapped programs may round otherwise).
+    One device: not with `devices`."""
     check_ranges(config)
     options = rule.network_options(config)
+    if seeds is not None:
+        if devices is not None:
+            raise ValueError("seeds side by side train on one device: leave devices out, or train one seed at a time "
+                             "data parallel")
+        _check_seed_parts(env, seeds, config.num_envs)
     mesh = None if devices is None else device_mesh(devices)
     if mesh is not None:
         rule = rule.averaged(AXIS)
     share = None if mesh is None else process_share(config.num_envs, mesh)
-    num_updates = check_host_batch(config, env, options.get("memory", 0), share)
+    num_updates = check_host_batch(config, env if seeds is None else env.parts[0], options.get("memory", 0), share)
     observation_space = env.single_observation_space
     if config.normalize_observations or config.normalize_rewards:  # (None, the default, is off here)
         raise ValueError("normalize_observations and normalize_rewards apply to jitted envs; a host-batched "
@@ -65,8 +83,7 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
     network = make_actor_critic(observation_space, env.single_action_space, config.trunk, **options)
     jit = functools.partial(jax.jit, compiler_options=compiler_options)  # XLA options for every program
 
-    @functools.partial(jit, static_argnames="first")
-    def policy(params, obs, key, first=None):
+    def act(params, obs, key, first=None):
         logits, value = network.apply(params, obs)
         if first is None:
             action = distributions.sample(key, logits)
@@ -74,11 +91,17 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
             action = sample_each(jax.random.split(key, config.num_envs)[first:first + len(obs)], logits)
         return action, (distributions.log_prob(logits, action), value)
 
-    value_of = jit(functools.partial(final_value, network))
-
-    init, learn, local_params = _host_programs(config, network, rule, observation_space, num_updates, jit, mesh)
+    if seeds is None:
+        policy = jit(act, static_argnames="first")
+        value_of = jit(functools.partial(final_value, network))
+        init, learn, local_params = _host_programs(config, network, rule, observation_space, num_updates, jit, mesh)
+    else:
+        stacked_policy = jit(over_seeds(act, seeds))
+        policy = lambda params, obs, key, first=None: stacked_policy(params, obs, key)  # noqa: E731
+        value_of = jit(over_seeds(functools.partial(final_value, network), seeds))
+        init, learn, local_params = _seed_programs(config, network, rule, observation_space, num_updates, jit, seeds)
     parts = getattr(env, "parts", None)
-    pipelined = parts is not None and len(parts) > 1
+    pipelined = seeds is None and parts is not None and len(parts) > 1
     offsets = env.offsets[:-1] if pipelined else [0]
     # Each part's first env in the whole batch (data parallel), or None: the default sampling.
     starts = [None if share is None else share[0] + int(offset) for offset in offsets]
@@ -110,12 +133,40 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
         rollout = {name: [np.stack(steps) if all(isinstance(x, np.ndarray) for x in steps) else steps
                           for steps in part_steps] for name, part_steps in rollout.items()}
         transitions = _host_transitions(rollout, last_value, config.clip_rewards)
-        key, key_update = jax.random.split(key)
+        key, key_update = split_keys(key)
         train_state, metrics = learn(train_state, transitions, key_update)
         return train_state, obs, key, metrics
 
     return host_updates(env, network, num_updates, init, update, lambda s: local_params(s.learner), jit, timings,
-                        0 if share is None else share[0])
+                        0 if share is None else share[0], seeds)
+
+
+def _check_seed_parts(env, seeds: int, num_envs: int) -> None:
+    """A `ValueError` unless `env` is `seeds` parts of `num_envs` envs (one batch per seed)."""
+    sizes = [int(part.num_envs) for part in getattr(env, "parts", [env])]
+    if seeds < 1 or sizes != [num_envs] * seeds:
+        raise ValueError(f"seeds={seeds} side by side take a PipelinedVecEnv of one part of config.num_envs="
+                         f"{num_envs} envs per seed (host_backend.make_train_env(..., seeds={seeds})); the env's "
+                         f"parts have {sizes} envs")
+
+
+def _seed_programs(config, network, rule: UpdateRule, observation_space, num_updates: int, jit: Callable,
+                   seeds: int):
+    """`_host_programs`' `(init, learn, local_params)` of `seeds` seeds side by side: `init(keys
+    [S])` and `learn(train_state, transitions, keys [S])` vmapped over the stacked train
+    states, the transitions of the seeds' envs side by side `[T, S * n, ...]` (seed `s`'s envs
+    `s * n ..`) regrouped per seed inside the program; `local_params` the stacked params."""
+    make_state = jit(jax.vmap(lambda key: rule.train_state(config, network, observation_space, num_updates, key)))
+
+    def per_seed(x):  # [T, S * n, ...] -> [S, T, n, ...]
+        return jnp.moveaxis(x.reshape(x.shape[0], seeds, x.shape[1] // seeds, *x.shape[2:]), 1, 0)
+
+    @jit
+    def learn(train_state, transitions: Transition, keys):
+        return jax.vmap(lambda state, rollout, key: rule.learn(config, network, state, rollout, key))(
+            train_state, jax.tree.map(per_seed, transitions), keys)
+
+    return make_state, learn, lambda train_state: train_state.params
 
 
 def _host_programs(config, network, rule: UpdateRule, observation_space, num_updates: int, jit: Callable, mesh):
