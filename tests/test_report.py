@@ -303,3 +303,12 @@ def test_the_report_names_the_natural_data_the_cells_saw():
     assert "| test | cup.mp4 | `cdcdcdcdcdcd` | 30 | 1 |" in lines
     assert "| train | tree.avi | `abababababab` | 50 | 2 |" in lines
     assert data_section([base]) == []
+
+
+def test_versions_line_names_each_device_with_its_cells():
+    """Cells from two sittings on two device kinds: the report names both, with their counts;
+    a field every cell agrees on once; a field a cell lacks as not recorded."""
+    line = report.versions_line([{"jax": "0.11.2", "device": "H100"}, {"jax": "0.11.2", "device": "H200"},
+                                 {"jax": "0.11.2", "device": "H100", "flax": "0.12"}])
+    assert line == "jax 0.11.2, device H100 (2 cells) / H200 (1 cell), flax not recorded (2 cells) / 0.12 (1 cell)"
+    assert report.versions_line([{"jax": "0.11.2"}]) == "jax 0.11.2"

@@ -20,6 +20,7 @@ as "Digits (for MNIST)" wherever its dataset is named (`labels.py`).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import datetime
 import json
@@ -281,6 +282,20 @@ def _run_versions(run_dir: Path) -> dict:
     return read_run(run_dir).config.get("versions") or _versions()
 
 
+def versions_line(per_cell: list[dict]) -> str:
+    """The versions and devices the cells ran with, each field once where every cell agrees,
+    else each value with its number of cells (cells of one report may come from several
+    sittings: one device kind, then another)."""
+    fields = []
+    for name in dict.fromkeys(k for versions in per_cell for k in versions):
+        counts = collections.Counter(str(versions.get(name, "not recorded")) for versions in per_cell)
+        if len(counts) == 1:
+            fields.append(f"{name} {next(iter(counts))}")
+        else:
+            fields.append(f"{name} " + " / ".join(f"{value} ({n} cell{'s' * (n > 1)})" for value, n in counts.most_common()))
+    return ", ".join(fields)
+
+
 def _timings(out: Path) -> list[dict]:
     path = out / "timings.jsonl"
     if not path.is_file():
@@ -344,11 +359,11 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     lines += budget_banner(findings_cells)
     lines += calibration_status(results)
     saved = [r.cell.name for r in results]
-    versions = _run_versions(out / saved[0]) if saved else _versions()
+    versions = versions_line([_run_versions(out / name) for name in saved] if saved else [_versions()])
     lines += [f"- Written {written} by `jaxnat reproduce --profile "
               f"{plan.profile.name} --only {','.join(plan.only)} --seeds {plan.seeds}`.",
               f"- Profile: {plan.profile.description}.",
-              f"- Versions and device of the runs: {', '.join(f'{k} {v}' for k, v in versions.items())}.",
+              f"- Versions and devices of the runs: {versions}.",
               f"- Cells: {len(plan.cells)} in the grid, {len(finished)} finished, {len(missing)} not finished or not run.",
               "- Per seed and per checkpoint, every number of this report (and the verdicts, aggregates and "
               "departures): `results.json`.", ""]
