@@ -5,7 +5,8 @@ PPO is trained at each of `--train` strengths of one dial field (`--param`, defa
 program (`jaxnat.training.make_strength_train`: seeds x strengths, each strength's seeds from
 the same keys). Each trained (strength, seed) policy then plays `--episodes` test episodes (the
 test split: held-out videos) at each of `--test` strengths, again in one program
-(`trained.episode_program` vmapped over policies, test strengths and episodes; greedy actions).
+(`trained.episode_program` vmapped over policies, test strengths and episodes; greedy actions,
+or sampled ones with `--sampled`).
 The table is the matrix: per train strength and test strength, the mean return over seeds
 (each seed's mean over its episodes) with its 95% t-interval over seeds; the figure
 (`bench/results/strength_sweep_<family>.png`) is its heat map.
@@ -61,6 +62,8 @@ def parse(argv=None) -> argparse.Namespace:
                         help="host envs: the env's `max_episode_steps` in training and test games (default: the "
                              "env's, 27,000: a greedy policy that never serves plays Breakout that long)")
     parser.add_argument("--no-levels", action="store_true", help="skip training the strengths one after another")
+    parser.add_argument("--sampled", action="store_true",
+                        help="test with sampled actions (default: greedy; a greedy Atari policy can ignore the screen)")
     parser.add_argument("--parallel", type=int, default=1,
                         help="host envs: train strengths run at once, each in its own process (ALE's threads shared)")
     parser.add_argument("--no-record", action="store_true")
@@ -175,7 +178,7 @@ def main(argv=None) -> int:
                            apply=policy_step(learner.network, test_env.action_space(test_params)), _act=None)
     swept, axes = test_params.sweep(**{args.param: jnp.asarray(args.test, jnp.float32)})
     getattr(test_env, "check_params", lambda _: None)(swept)
-    episode = episode_program(policy, episode_limit(policy), True)
+    episode = episode_program(policy, episode_limit(policy), not args.sampled)
     per_test = jax.vmap(jax.vmap(episode, in_axes=(None, None, None, 0)), in_axes=(None, None, axes, None))
     play = jax.jit(jax.vmap(jax.vmap(per_test, in_axes=(0, 0, None, None)), in_axes=(0, 0, None, None)))
     start = time.perf_counter()
@@ -269,7 +272,7 @@ def host_strength(args, env_kwargs: list[str], value: float, run_dir: str) -> di
             env = jaxnat.make_vec(args.env_id, args.episodes, split="test", **{**kwargs, args.param: test})
             try:  # the same key at every strength: the same games
                 games = host_episodes(dataclasses.replace(policy, env=env), jax.random.key(1), args.episodes,
-                                      greedy=True)
+                                      greedy=not args.sampled)
             finally:
                 env.close()
             returns[seed, j] = games["return"]
@@ -296,10 +299,11 @@ def record(args, info, rows: list[dict], env_kwargs: list[str], dtype: str, play
     table = common.markdown_table(rows, [("train", f"train {args.param}", "g"), ("test", f"test {args.param}", "g"),
                                          ("mean", "test return", ".1f"), ("low", "95% low", ".1f"),
                                          ("high", "95% high", ".1f")])
+    mode = "sampled" if args.sampled else "greedy"
     summary = {
         "workload": (f"PPO on {args.env_id} ({' '.join(env_kwargs) or 'defaults'}), {args.seeds} seeds x "
                      f"{len(args.train)} train strengths of {args.param}, {args.num_envs} envs x {args.num_steps} steps, "
-                     f"{args.total_timesteps:,} env steps per seed{dtype}; tested greedy on the test split, "
+                     f"{args.total_timesteps:,} env steps per seed{dtype}; tested {mode} on the test split, "
                      f"{args.episodes} {played} per policy and test strength"),
         **times,
         "train return, last 10% of the updates that ended an episode, per train strength": ", ".join(

@@ -238,7 +238,54 @@ def check_atari(out: Path) -> None:
     moved = _close(one[0], one[2], atol=np.inf)
     assert moved > 1e-3, moved  # training moves the parameters far beyond the tolerance
     np.savez(out / "atari_reference.npz", **reference)
+    check_atari_train()
     print("ok atari")
+
+
+ATARI_RUN = ["--env-id", ATARI_ENV[0], "--algo", "ppo", "--seeds", "1", "--num-envs", "4", "--num-steps", "8",
+             "--num-minibatches", "2", "--update-epochs", "2", "--total-timesteps", "64", "--eval-every", "1",
+             "--eval-episodes", "1", "--env-kwargs", *(f"{k}={v}" for k, v in ATARI_ENV[1].items())]
+
+
+def check_atari_train() -> None:
+    """`jaxnat train --devices N` on Natural Atari: the update data parallel over N devices, so
+    2 devices train the parameters 1 does (`--devices 1`, the same learner's draws); the run
+    resumes on 1 device to more steps, and `load_policy` reads it; the requests it cannot take
+    are one line each, before the run directory is made."""
+    from jaxnat.trained import load_policy
+
+    with tempfile.TemporaryDirectory() as tmp:
+        trained = {}
+        for devices in ("1", "2"):
+            run_dir = Path(tmp, f"devices-{devices}")
+            assert _run([*ATARI_RUN, "--devices", devices, "--run-dir", str(run_dir)]) == 0
+            spec = json.loads((run_dir / "config.json").read_text())["spec"]
+            assert (spec["devices"], spec["shard"], spec["host_seeds"]) == (int(devices), "envs", "sequential")
+            policy = load_policy(run_dir, compiler_options=FAST)
+            policy.env.close()
+            trained[devices] = policy.params
+        _close(trained["2"], trained["1"])
+        resumed = train(parse_args(["--resume", str(Path(tmp, "devices-2")), "--devices", "1",
+                                    "--total-timesteps", "96"]), compiler_options=FAST)
+        assert resumed.complete and resumed.summary["updates"] == 3, resumed.summary
+    never = Path(tempfile.gettempdir(), "jaxnat-sharded-checks-never")
+    cases = {
+        ("--devices", "2", "--shard", "seeds"): "--shard seeds places whole seeds on devices; a host env's seeds",
+        ("--devices", "2", "--host-seeds", "together"): "--host-seeds together trains every seed on one device",
+        ("--devices", "3"): "--devices 3 must divide num_envs=4",
+    }
+    for extra, expected in cases.items():
+        stderr = io.StringIO()
+        with redirect_stderr(stderr):
+            assert _run([*ATARI_RUN, "--run-dir", str(never), *extra]) == 2, extra
+        message = stderr.getvalue()
+        assert message.count("\n") == 1 and expected in message, message
+    dqn = ["--env-id", ATARI_ENV[0], "--algo", "dqn", "--num-envs", "4", "--devices", "2", "--run-dir", str(never)]
+    stderr = io.StringIO()
+    with redirect_stderr(stderr):
+        assert _run(dqn) == 2
+    assert "dqn's host learner needs the whole batch on one device" in stderr.getvalue(), stderr.getvalue()
+    assert not never.exists()
 
 
 def check_atari_distributed(out: Path) -> None:

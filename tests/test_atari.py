@@ -400,12 +400,12 @@ def test_video_background_dial_per_env(clips):
 
 
 def test_noise_spread_per_env():
-    """`noise_scale` one per env: spread 0 is the law's constant floor(mean) (black for the
+    """`noise_sigma` one per env: spread 0 is the law's constant floor(mean) (black for the
     authors' law); each env draws from its own generator, so env 1 is the same as in a batch
     built with its spread for every env."""
     kwargs = dict(background="noise", max_episode_steps=50, num_threads=1, seed=3)
-    mixed = NaturalAtariVecEnv("Breakout", 2, noise_scale=[0.0, 50.0], **kwargs)
-    same = NaturalAtariVecEnv("Breakout", 2, noise_scale=50.0, **kwargs)
+    mixed = NaturalAtariVecEnv("Breakout", 2, noise_sigma=[0.0, 50.0], **kwargs)
+    same = NaturalAtariVecEnv("Breakout", 2, noise_sigma=50.0, **kwargs)
     a, _ = mixed.reset()
     b, _ = same.reset()
     for _ in range(3):
@@ -415,9 +415,9 @@ def test_noise_spread_per_env():
         b, *_ = same.step(np.zeros(2, np.int64))
     for env in (mixed, same):
         env.close()
-    for bad, match in [(dict(noise_scale=-1.0), "noise_scale must be a finite number >= 0"),
-                       (dict(noise_scale=[1.0, 2.0, 3.0]), r"one number or one per env \(2\)"),
-                       (dict(noise_scale=10.0, background="none"), "noise_scale needs background='noise'")]:
+    for bad, match in [(dict(noise_sigma=-1.0), "noise_sigma must be a finite number >= 0"),
+                       (dict(noise_sigma=[1.0, 2.0, 3.0]), r"one number or one per env \(2\)"),
+                       (dict(noise_sigma=10.0, background="none"), "noise_sigma needs background='noise'")]:
         with pytest.raises(ValueError, match=match):
             NaturalAtariVecEnv("Breakout", 2, **{**kwargs, **bad})
 

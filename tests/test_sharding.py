@@ -53,8 +53,10 @@ def test_train_refuses_devices_it_lacks(capsys, tmp_path):
     assert main(["--devices", "3", "--run-dir", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert err == "jaxnat train: error: --devices 3: there is only 1 cpu device here; use at most 1 (or all)\n"
-    assert main(["--env-id", "NaturalAtari/Breakout-v0", "--devices", "1"]) == 2
-    assert "one ALE batch per process: leave --devices out" in capsys.readouterr().err
+    # A host env takes --devices (its update data parallel), not whole seeds per device.
+    assert main(["--env-id", "NaturalAtari/Breakout-v0", "--devices", "1", "--shard", "seeds",
+                 "--run-dir", str(tmp_path / "run")]) == 2
+    assert "--shard seeds places whole seeds on devices; a host env's seeds share" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
 
 

@@ -34,7 +34,7 @@ __all__ = ["BACKGROUNDS", "BACKGROUND_KWARGS", "make_background"]
 
 BACKGROUNDS = ("none", "noise", "video", "image")
 # The env kwargs that only a background other than "none" takes (its source and its dial).
-BACKGROUND_KWARGS = ("video_sources", "noise", "noise_scale", "video_alpha", "frame_rate", "num_videos")
+BACKGROUND_KWARGS = ("video_sources", "noise", "noise_sigma", "video_alpha", "frame_rate", "num_videos")
 
 
 class NoBackground:
@@ -155,11 +155,11 @@ class BankBackground(NoBackground):
 
 
 def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: str = "train", sources=None,
-                    seed: int = 0, noise=DEFAULT_NOISE, noise_scale: float | None = None, runner=None,
+                    seed: int = 0, noise=DEFAULT_NOISE, noise_sigma: float | None = None, runner=None,
                     video_alpha=1.0, frame_rate=1, num_videos=None):
     """The background source `kind` (one of `BACKGROUNDS`) for `num_envs` envs of frame `shape`;
     `noise`: the pixel-noise law of "noise" (a name in `jaxnat.natural.NOISE_LAWS` or a
-    `NoiseLaw`), `noise_scale` its scale when not None (one value, or one per env); `runner`: a `ChunkRunner` whose pool
+    `NoiseLaw`), `noise_sigma` its scale when not None (one value, or one per env); `runner`: a `ChunkRunner` whose pool
     threads draw the noise while ALE emulates; `video_alpha`, `frame_rate` ("video" only) and
     `num_videos`: the dial of `BankBackground`, each one number or one per env."""
     if kind == "none":
@@ -167,8 +167,8 @@ def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: 
     if kind == "noise":
         law = noise_law(noise)
         scales = None
-        if noise_scale is not None:
-            scales = per_env_values("noise_scale", noise_scale, num_envs, low=0.0)
+        if noise_sigma is not None:
+            scales = per_env_values("noise_sigma", noise_sigma, num_envs, low=0.0)
             if np.ndim(scales) == 0:
                 law, scales = dataclasses.replace(law, scale=float(scales)), None
         return NoiseBackground(num_envs, shape, seed, law, runner, scales)

@@ -75,7 +75,7 @@ class NaturalAtariVecEnv:
     one fused pass of jaxnat.atari.area's kernel, bit-identical to OpenCV's): pixels whose
     three channels are all 0 take this step's background frame (`background`: "none" black,
     "noise" i.i.d. noise per pixel and channel each step from the pixel-noise law `noise`
-    (`jaxnat.natural.NOISE_LAWS`; default `clip(N(0,1)*50, 0)`, the authors'; `noise_scale`
+    (`jaxnat.natural.NOISE_LAWS`; default `clip(N(0,1)*50, 0)`, the authors'; `noise_sigma`
     replaces its scale when not None, one value or one per env), "video" consecutive
     frames of a random natural video, one per agent step, a new video at a random offset at every
     reset, "image" a random still photo per episode); then ALE's grayscale, INTER_AREA resize to
@@ -152,7 +152,7 @@ class NaturalAtariVecEnv:
         host_pass: str = "auto",
         autoreset_mode: str = "same_step",
         noise: str = DEFAULT_NOISE,
-        noise_scale: float | None = None,
+        noise_sigma: float | None = None,
         seed: int = 0,
         video_alpha=1.0,
         frame_rate=1,
@@ -176,7 +176,7 @@ class NaturalAtariVecEnv:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ValueError(f"{name} must be an integer >= 0 (0: one per env, at most one "
                                  f"per CPU), got {value!r}")
-        _check_dial(background, int(num_envs), video_alpha, frame_rate, num_videos, noise_scale)
+        _check_dial(background, int(num_envs), video_alpha, frame_rate, num_videos, noise_sigma)
         rom_path(game)  # clear errors for unknown games and missing ROMs, before ale-py's
         from ale_py.vector_env import AtariVectorEnv  # noqa: PLC0415  (optional dependency)
 
@@ -226,7 +226,7 @@ class NaturalAtariVecEnv:
         self._runner = ChunkRunner(self.num_envs, max(1, chunks))
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
-            seed=self._seed, noise=noise, noise_scale=noise_scale, runner=self._runner,
+            seed=self._seed, noise=noise, noise_sigma=noise_sigma, runner=self._runner,
             **({"video_alpha": video_alpha, "frame_rate": frame_rate, "num_videos": num_videos}
                if background in ("video", "image") else {}),
         )
@@ -467,15 +467,15 @@ class NaturalAtariVecEnv:
         info["returned_episode_lengths"] = self._last_lengths.copy()
 
 
-def _check_dial(background: str, num_envs: int, video_alpha, frame_rate, num_videos, noise_scale=None) -> None:
+def _check_dial(background: str, num_envs: int, video_alpha, frame_rate, num_videos, noise_sigma=None) -> None:
     """One-line `ValueError`s for the distraction dial: a value the background would ignore, or
     out of range (the ranges `num_videos` needs the bank for are the sampler's, when it loads)."""
     from jaxnat.natural.sampler import per_env_values
 
-    if noise_scale is not None:
-        per_env_values("noise_scale", noise_scale, num_envs, low=0.0)
+    if noise_sigma is not None:
+        per_env_values("noise_sigma", noise_sigma, num_envs, low=0.0)
         if background != "noise":
-            raise ValueError(f"noise_scale needs background='noise', got background={background!r}")
+            raise ValueError(f"noise_sigma needs background='noise', got background={background!r}")
 
     per_env_values("video_alpha", video_alpha, num_envs, low=0.0, high=1.0)
     per_env_values("frame_rate", frame_rate, num_envs, low=0, whole=True)

@@ -52,10 +52,7 @@ def _setup(args: TrainArgs, console):
         raise TrainError(f"--shard {args.shard} places work on devices: give --devices N (or all) too")
     devices = None if args.devices is None else device_count(args.devices)
     if is_host_env(args.env_id):
-        if args.devices is not None:
-            raise TrainError(f"--devices places JAX envs on devices; {args.env_id} is emulated on the host, one ALE "
-                             "batch per process: leave --devices out")
-        return with_eval_every(new_host_spec(args, console), args), run_dir, None, None
+        return with_eval_every(new_host_spec(args, console, devices), args), run_dir, None, None
     if args.env_parts != 1:
         raise TrainError(f"--env-parts applies to host-batched envs (NaturalAtari/*); {args.env_id} is a JAX env, "
                          "stepped in one compiled program")

@@ -28,9 +28,11 @@ emulation of the others. The actions are sampled with other keys than in one bat
 with parts differs from the one-batch run (N=1, the default, is that run unchanged). Parts
 pipeline one seed's batch: such a run trains its seeds one after another.
 
-Several hosts (the API; `jaxnat train` runs in one process): `make_train_env(...,
-devices="all")` builds this process's share of the batch and `make_learner(..., devices="all")`
-its data-parallel learner (PPO, A2C; `rollout.on_policy_host_learner`): one ALE batch per
+Several devices: `jaxnat train --devices N` (PPO, A2C; `check_host_devices`) trains each seed
+in turn with its update data parallel over N devices of the process (`make_learner(...,
+devices=N)` on the whole batch). Several hosts (the API; `jaxnat train` runs in one process):
+`make_train_env(..., devices="all")` builds this process's share of the batch and
+`make_learner(..., devices="all")` its data-parallel learner (PPO, A2C; `rollout.on_policy_host_learner`): one ALE batch per
 process, the update data parallel over every process's devices, the same parameters in all
 (one seed per learner: not with `seeds=`).
 
@@ -62,7 +64,8 @@ from jaxnat.training.spec import RunSpec, resolve_config
 
 __all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "SIDE_BY_SIDE_ALGORITHMS",
            "HOST_SEEDS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "new_host_spec", "check_env_parts",
-           "check_host_seeds", "observation_space", "make_learner", "make_train_env", "host_errors"]
+           "check_host_seeds", "check_host_devices", "check_split_envs", "observation_space", "make_learner",
+           "make_train_env", "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
 EVAL_SEED_OFFSET = 10_000  # a seed's test games are played with key(EVAL_SEED_OFFSET + seed)
@@ -153,8 +156,9 @@ def is_host_env(env_id: str) -> bool:
         return False  # the main path reports it
 
 
-def new_host_spec(args: TrainArgs, console) -> RunSpec:
-    """The spec of a new host run (`eval_every` not yet resolved) of a known algorithm."""
+def new_host_spec(args: TrainArgs, console, devices: int | None = None) -> RunSpec:
+    """The spec of a new host run (`eval_every` not yet resolved) of a known algorithm; with
+    `devices` (`--devices N`), its update data parallel over them (`check_host_devices`)."""
     if args.algo not in HOST_ALGORITHMS:
         raise TrainError(f"{args.algo} has no host loop: {args.env_id} (host-emulated) trains "
                          f"with {', '.join(HOST_ALGORITHMS)}")
@@ -163,14 +167,18 @@ def new_host_spec(args: TrainArgs, console) -> RunSpec:
     with host_errors(args.env_id):  # (DQN takes Nature DQN's Huber loss here: `agents.defaults`)
         config, sources = resolve_config(args, observation_space(args.env_id, env_kwargs))
     check_env_parts(args.env_parts, args.algo, config.num_envs)
-    host_seeds = check_host_seeds(args.host_seeds, args.algo, args.env_parts)
+    check_host_devices(devices, args.shard, args.algo, args.host_seeds)
+    host_seeds = check_host_seeds(args.host_seeds, args.algo, args.env_parts, devices)
     eval_episodes = args.eval_episodes or min(default_eval_episodes(args.env_id), MAX_EVAL_EPISODES)
     if eval_episodes > MAX_EVAL_EPISODES:
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
+    if devices is not None:
+        check_split_envs(config.num_envs, devices)
     return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes,
-                   args.env_parts, host_seeds=host_seeds, config_sources=sources)
+                   args.env_parts, devices=devices or 1, shard=None if devices is None else "envs",
+                   host_seeds=host_seeds, config_sources=sources)
 
 
 def check_env_parts(parts: int, algo: str, num_envs: int) -> None:
@@ -183,12 +191,39 @@ def check_env_parts(parts: int, algo: str, num_envs: int) -> None:
         raise TrainError(f"--env-parts {parts} must divide num_envs={num_envs} (the parts are equal)")
 
 
-def check_host_seeds(mode: str | None, algo: str, parts: int) -> str:
+def check_host_devices(devices: int | None, shard: str | None, algo: str, host_seeds: str | None) -> None:
+    """`--devices N` on a host env: the update data parallel over N devices of this process
+    (`make_learner(..., devices=)`, `--shard envs`, the default), one seed at a time; every
+    other request is a one-line `TrainError` that names the fix."""
+    if devices is None:
+        return
+    if shard == "seeds":
+        raise TrainError("--shard seeds places whole seeds on devices; a host env's seeds share the host's cores "
+                         "(one ALE batch): use --shard envs (the update data parallel) or leave --devices out")
+    if algo not in DATA_PARALLEL_ALGORITHMS:
+        raise TrainError(f"--devices trains a host env's update data parallel with "
+                         f"{', '.join(DATA_PARALLEL_ALGORITHMS)}; {algo}'s host learner needs the whole batch on one "
+                         "device: leave --devices out")
+    if host_seeds == "together":
+        raise TrainError("--host-seeds together trains every seed on one device; with --devices the seeds train one "
+                         "after another, each data parallel: give --host-seeds sequential or leave --devices out")
+
+
+def check_split_envs(num_envs: int, devices: int) -> None:
+    """A data-parallel host run splits each update's `num_envs` envs evenly over the devices."""
+    if num_envs % devices:
+        raise TrainError(f"--devices {devices} must divide num_envs={num_envs} (each device takes an equal share of "
+                         "the update): change --num-envs or --devices")
+
+
+def check_host_seeds(mode: str | None, algo: str, parts: int, devices: int | None = None) -> str:
     """`--host-seeds` resolved: `together` or `sequential` as given, else together for the
-    `SIDE_BY_SIDE_ALGORITHMS` on one batch (`--env-parts 1`) and sequential otherwise; together
-    with an algorithm that cannot, or with parts (which pipeline one seed's batch), is refused."""
+    `SIDE_BY_SIDE_ALGORITHMS` on one batch (`--env-parts 1`) on one device, and sequential
+    otherwise; together with an algorithm that cannot, or with parts (which pipeline one seed's
+    batch), is refused."""
     if mode is None:
-        return "together" if algo in SIDE_BY_SIDE_ALGORITHMS and parts == 1 else "sequential"
+        return ("together" if algo in SIDE_BY_SIDE_ALGORITHMS and parts == 1 and devices is None
+                else "sequential")
     if mode not in HOST_SEEDS:
         raise TrainError(f"--host-seeds takes {' or '.join(HOST_SEEDS)}, got {mode!r}")
     if mode == "together" and algo not in SIDE_BY_SIDE_ALGORITHMS:
@@ -225,16 +260,17 @@ class HostBackend:
         self.checkpoints_per_seed = self.side_by_side
         self.groups = [list(spec.seed_values)] if self.side_by_side else [[seed] for seed in spec.seed_values]
         seeds = spec.seeds if self.side_by_side else None
+        devices = spec.devices if spec.shard == "envs" else None  # data parallel over this process's devices
         check_split_kwargs(spec.env_kwargs)
         with host_errors(spec.env_id):
             self.env = (make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, seeds=seeds)
                         if self.side_by_side else
-                        make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts))
+                        make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts, devices))
             # No more test envs than test games: the first games to end are the short ones, so
             # many envs would bias the scores (and step emulators whose games are never counted).
             self.test_env = jaxnat.make_vec(spec.env_id, min(spec.config.num_envs, spec.eval_episodes), split="test",
                                             **spec.env_kwargs)
-            self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options, seeds=seeds)
+            self.learner = make_learner(spec.algo, spec.config, self.env, compiler_options, devices, seeds)
         self._updates = None
 
     def checkpoint_dir(self, group) -> str:
