@@ -312,3 +312,12 @@ def test_versions_line_names_each_device_with_its_cells():
                                  {"jax": "0.11.2", "device": "H100", "flax": "0.12"}])
     assert line == "jax 0.11.2, device H100 (2 cells) / H200 (1 cell), flax not recorded (2 cells) / 0.12 (1 cell)"
     assert report.versions_line([{"jax": "0.11.2"}]) == "jax 0.11.2"
+
+
+def test_interval_note_only_where_cells_ran_on_a_gpu():
+    """GPU cells: the report says the intervals cover seeds, not the GPU kernels' run-to-run
+    variation, and counts those cells; CPU-only reports (deterministic under a key) say nothing."""
+    (line,) = report.interval_note([{"device": "NVIDIA H200"}, {"device": "cpu"}, {"device": "NVIDIA H100"}])
+    assert line.startswith("- Intervals are 95% bootstrap intervals over seeds. 2 of the 3 cells ran on GPUs")
+    assert "xla_gpu_deterministic_ops=true" in line
+    assert report.interval_note([{"device": "cpu"}]) == [] == report.interval_note([{}])

@@ -282,6 +282,19 @@ def _run_versions(run_dir: Path) -> dict:
     return read_run(run_dir).config.get("versions") or _versions()
 
 
+def interval_note(per_cell: list[dict]) -> list[str]:
+    """What the intervals cover, where cells ran on a GPU: seeds, not the run-to-run variation
+    of XLA's default GPU kernels (a CPU run under a key is the same run every time)."""
+    gpus = sum(str(v.get("device", "cpu")).lower() != "cpu" for v in per_cell)
+    if not gpus:
+        return []
+    return [f"- Intervals are 95% bootstrap intervals over seeds. {gpus} of the {len(per_cell)} cells ran on GPUs "
+            "with XLA's default kernels, which are not bit for bit reproducible across processes: a rerun of a "
+            "cell is another draw for the same seeds, a variation the intervals do not include "
+            "(`bench/results/determinism.md`; `XLA_FLAGS=--xla_gpu_deterministic_ops=true` removes it, at a "
+            "cost in speed)."]
+
+
 def versions_line(per_cell: list[dict]) -> str:
     """The versions and devices the cells ran with, each field once where every cell agrees,
     else each value with its number of cells (cells of one report may come from several
@@ -359,12 +372,14 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     lines += budget_banner(findings_cells)
     lines += calibration_status(results)
     saved = [r.cell.name for r in results]
-    versions = versions_line([_run_versions(out / name) for name in saved] if saved else [_versions()])
+    per_cell = [_run_versions(out / name) for name in saved] if saved else [_versions()]
+    versions = versions_line(per_cell)
     lines += [f"- Written {written} by `jaxnat reproduce --profile "
               f"{plan.profile.name} --only {','.join(plan.only)} --seeds {plan.seeds}`.",
               f"- Profile: {plan.profile.description}.",
               f"- Versions and devices of the runs: {versions}.",
               f"- Cells: {len(plan.cells)} in the grid, {len(finished)} finished, {len(missing)} not finished or not run.",
+              *interval_note(per_cell),
               "- Per seed and per checkpoint, every number of this report (and the verdicts, aggregates and "
               "departures): `results.json`.", ""]
     if timings:
