@@ -265,17 +265,18 @@ def host_strength(args, env_kwargs: list[str], value: float, run_dir: str) -> di
     kwargs = parse_env_kwargs(env_kwargs, args.env_id)
     returns = np.zeros((args.seeds, len(args.test), args.episodes))
     start = time.perf_counter()
-    for seed in range(args.seeds):
-        policy = load_policy(Path(run_dir), seed=seed)
-        policy.env.close()
-        for j, test in enumerate(args.test):
-            env = jaxnat.make_vec(args.env_id, args.episodes, split="test", **{**kwargs, args.param: test})
-            try:  # the same key at every strength: the same games
+    policies = [load_policy(Path(run_dir), seed=seed) for seed in range(args.seeds)]
+    for policy in policies:
+        policy.env.close()  # its one-game batch: the games are played on a batch per strength
+    for j, test in enumerate(args.test):
+        env = jaxnat.make_vec(args.env_id, args.episodes, split="test", **{**kwargs, args.param: test})
+        try:  # the same key at every strength: the same games
+            for seed, policy in enumerate(policies):
                 games = host_episodes(dataclasses.replace(policy, env=env), jax.random.key(1), args.episodes,
                                       greedy=not args.sampled)
-            finally:
-                env.close()
-            returns[seed, j] = games["return"]
+                returns[seed, j] = games["return"]
+        finally:
+            env.close()
     eval_s = time.perf_counter() - start
     print(f"train {args.param}={value:g}: trained {train_s:.1f} s, tested {eval_s:.1f} s", flush=True)
     return {"returns": returns, "train_last": final_return(list(per_seed.values())),

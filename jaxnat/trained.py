@@ -19,7 +19,6 @@ strengths in one jitted program on the same episode keys (`jaxnat sweep`'s curve
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 from pathlib import Path
 from typing import Any, Callable
@@ -68,6 +67,10 @@ class TrainedPolicy:
     normalization: Any  # `normalize.Normalizer` (this seed's), or None where observations are raw
     apply: Callable = dataclasses.field(repr=False)
     _act: Callable = dataclasses.field(repr=False)
+    # Host-emulated policies (Natural Atari): `act_batch(params, obs, key, greedy=False) -> actions`,
+    # the learner's jitted policy on a whole batch of observations `[B, ...]` (`host_episodes`);
+    # None for JAX envs (`jax.vmap(act)` batches them).
+    act_batch: Callable | None = dataclasses.field(default=None, repr=False)
 
     def act(self, obs, key, *, greedy: bool = False):
         return self._act(self.params, self.normalization, obs, key, greedy=greedy)
@@ -201,10 +204,13 @@ def _load_host_policy(run_dir: Path, spec, seed: int, split: str, step: int | No
     def apply(params, normalizer, obs, key, greedy: bool = False):
         return (learner.greedy if greedy else learner.sample)(params, jnp.asarray(obs)[None], key)[0]
 
+    def act_batch(params, obs, key, greedy: bool = False):
+        return (learner.greedy if greedy else learner.sample)(params, jnp.asarray(obs), key)
+
     return TrainedPolicy(run_dir=run_dir, env_id=spec.env_id, env_kwargs=spec.env_kwargs, algo=spec.algo,
                          config=spec.config, split=split, env=env, env_params=None, seed_index=seed, seed_value=value,
                          update=int(meta["update"]), network=learner.network, params=learner.params(state),
-                         normalization=None, apply=apply, _act=apply)
+                         normalization=None, apply=apply, _act=apply, act_batch=act_batch)
 
 
 def host_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool = False,
@@ -226,16 +232,10 @@ def host_episodes(policy: TrainedPolicy, key, num_episodes: int, *, greedy: bool
     limit = int(max_steps or episode_limit(policy))
     key_seeds, key = jax.random.split(key)
     seeds = np.asarray(jax.random.randint(key_seeds, (num_episodes,), 0, 2 ** 30))
-    if width == 1:
-        def act(obs, key):
-            return np.asarray(policy.act(obs[0], key, greedy=greedy)).reshape(1)  # one env, one factor
-    else:
-        # Not jitted again: the learner's policy is (with its compiler options, which a nested jit refuses).
-        batch = jax.vmap(functools.partial(policy.apply, greedy=greedy), in_axes=(None, None, 0, 0))
 
-        def act(obs, key):
-            keys = jax.random.split(key, width)  # each action `[1]`: the learner's one factor
-            return np.asarray(batch(policy.params, policy.normalization, obs, keys)).reshape(width)
+    def act(obs, key):  # the learner's one factor per env: `[B, 1]` -> `[B]`
+        return np.asarray(policy.act_batch(policy.params, obs, key, greedy=greedy)).reshape(width)
+
     results = {name: [] for name in ("return", "length", "terminated", "unfinished")}
     seen = []
     for first in range(0, num_episodes, width):

@@ -272,7 +272,7 @@ def check_atari_train() -> None:
     cases = {
         ("--devices", "2", "--shard", "seeds"): "--shard seeds places whole seeds on devices; a host env's seeds",
         ("--devices", "2", "--host-seeds", "together"): "--host-seeds together trains every seed on one device",
-        ("--devices", "3"): "--devices 3 must divide num_envs=4",
+        ("--devices", "3"): "num_envs=4 does not split evenly over 3 devices: use --num-envs 3 or 6",
     }
     for extra, expected in cases.items():
         stderr = io.StringIO()

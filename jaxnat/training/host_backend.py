@@ -58,13 +58,13 @@ from jaxnat.atari.chunks import default_threads
 from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
-from jaxnat.sharding import process_share
+from jaxnat.sharding import check_split, process_share
 from jaxnat.training.args import TrainArgs, TrainError, check_split_kwargs, default_eval_episodes, parse_env_kwargs
 from jaxnat.training.spec import RunSpec, resolve_config
 
 __all__ = ["HOST_ALGORITHMS", "PIPELINED_ALGORITHMS", "DATA_PARALLEL_ALGORITHMS", "SIDE_BY_SIDE_ALGORITHMS",
            "HOST_SEEDS", "MAX_EVAL_EPISODES", "HostBackend", "is_host_env", "new_host_spec", "check_env_parts",
-           "check_host_seeds", "check_host_devices", "check_split_envs", "observation_space", "make_learner",
+           "check_host_seeds", "check_host_devices", "observation_space", "make_learner",
            "make_train_env", "host_errors"]
 
 MAX_EVAL_EPISODES = 32  # whole Atari games are thousands of steps
@@ -174,8 +174,11 @@ def new_host_spec(args: TrainArgs, console, devices: int | None = None) -> RunSp
         console.print(f"[dim]evaluating {MAX_EVAL_EPISODES} test games per seed (not "
                       f"{eval_episodes}): whole Atari games are long[/dim]")
         eval_episodes = MAX_EVAL_EPISODES
-    if devices is not None:
-        check_split_envs(config.num_envs, devices)
+    if devices is not None:  # each device takes an equal share of the update
+        try:
+            check_split(config.num_envs, devices, "num_envs", "--num-envs ")
+        except ValueError as err:
+            raise TrainError(str(err)) from None
     return RunSpec(args.env_id, env_kwargs, args.algo, config, args.seeds, args.seed, 1, eval_episodes,
                    args.env_parts, devices=devices or 1, shard=None if devices is None else "envs",
                    host_seeds=host_seeds, config_sources=sources)
@@ -207,13 +210,6 @@ def check_host_devices(devices: int | None, shard: str | None, algo: str, host_s
     if host_seeds == "together":
         raise TrainError("--host-seeds together trains every seed on one device; with --devices the seeds train one "
                          "after another, each data parallel: give --host-seeds sequential or leave --devices out")
-
-
-def check_split_envs(num_envs: int, devices: int) -> None:
-    """A data-parallel host run splits each update's `num_envs` envs evenly over the devices."""
-    if num_envs % devices:
-        raise TrainError(f"--devices {devices} must divide num_envs={num_envs} (each device takes an equal share of "
-                         "the update): change --num-envs or --devices")
 
 
 def check_host_seeds(mode: str | None, algo: str, parts: int, devices: int | None = None) -> str:
