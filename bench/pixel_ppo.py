@@ -55,9 +55,9 @@ def ppo_config(envs_per_seed: int, updates: int, dtype: str):
     from jaxnat.reproduce.grid import PAPER_SCALE
 
     scale = PAPER_SCALE["mujoco"]
-    settings = {**scale["ppo"], "normalize_rewards": scale["normalize_rewards"]}
+    settings = {**scale["ppo"], "normalize_rewards": scale["normalize_rewards"], "dtype": dtype}
     return PPOConfig(total_timesteps=envs_per_seed * settings["num_steps"] * updates, num_envs=envs_per_seed,
-                     dtype=dtype, **settings)
+                     **settings)
 
 
 def learner_for(config, env, params, conv: str):
@@ -214,7 +214,13 @@ def main(argv=None) -> None:
     with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
         futures = [pool.submit(prepare, args, *spec) for spec in specs[1:]]
         for prepared in [first, *(future.result() for future in futures)]:
-            row = measure(args, prepared)
+            try:
+                row = measure(args, prepared)
+            except Exception as error:  # a row too big for the device is a row of the table, not the end of the run
+                if "RESOURCE_EXHAUSTED" not in str(error):
+                    raise
+                prepared.pop("programs", None)
+                row = {**prepared, "outcome": "out of device memory"}
             rows.append(row)
             print(json.dumps({k: v for k, v in row.items() if k != "top_kernels"}), flush=True)
     table = common.markdown_table(rows, [
@@ -224,9 +230,10 @@ def main(argv=None) -> None:
         ("env_sps", "env alone steps/s", ".3e"), ("train_sps", "train steps/s", ".3e"),
         ("train_over_env", "train / env", ".2f"), ("update_s", "update s", ".3f"), ("rollout_s", "rollout s", ".3f"),
         ("acting_s", "acting s", ".3f"), ("learn_s", "learn s", ".3f"),
-        ("learner_tflops", "learner TFLOP/s", ".1f"), ("end_to_end_tflops", "end-to-end TFLOP/s", ".1f")])
+        ("learner_tflops", "learner TFLOP/s", ".1f"), ("end_to_end_tflops", "end-to-end TFLOP/s", ".1f"),
+        ("outcome", "outcome", "")])
     best = {}
-    for row in rows:
+    for row in (r for r in rows if "train_sps" in r):
         key = f"{row['robot']} {row['observation']}"
         if key not in best or row["train_sps"] > best[key]["train_sps"]:
             best[key] = row

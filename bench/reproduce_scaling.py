@@ -113,6 +113,9 @@ def main(argv=None) -> int:
     for gpus, out in zip(args.gpus, outs):
         out.mkdir(parents=True, exist_ok=True)
         row = run_reproduce(args, gpus, out, gpu_ids)
+        if row["cells"] == 0:  # a speedup of two empty runs measures nothing: record nothing
+            sys.exit(f"reproduce_scaling: --gpus {gpus} trained no cell, nothing recorded: no cell matched --cells "
+                     f"or none is runnable here (missing data?); {out / 'report.md'} and {out / 'bench.log'} say why")
         returns = final_returns(out)
         if base_returns is None:
             base_returns = returns
