@@ -138,10 +138,13 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         if axis_name is not None:
             return jax.lax.scan(minibatch_step, train_state,
                                 _per_env_minibatches(data, key_or_order, config.num_minibatches, axis_name))
-        shuffled = jax.tree_util.tree_map(
-            lambda x: x[key_or_order].reshape(config.num_minibatches, -1, *x.shape[1:]), data
-        )
-        return jax.lax.scan(minibatch_step, train_state, shuffled)
+        # Each minibatch gathered from the rollout as it is needed, not a shuffled copy of the
+        # whole rollout per epoch: the same rows in the same order, one rollout's memory less
+        # (a pixel rollout is most of a large batch's memory).
+        def gathered_step(train_state, rows):
+            return minibatch_step(train_state, jax.tree_util.tree_map(lambda x: x[rows], data))
+
+        return jax.lax.scan(gathered_step, train_state, key_or_order.reshape(config.num_minibatches, -1))
 
     if axis_name is None:
         # Every epoch's order from one draw of random bits, sorted (`jax.random.permutation`'s
