@@ -16,7 +16,11 @@ together`: `make_train_env(..., seeds=S)` and `make_learner(..., seeds=S)`, one 
 `--envs-per-seed` envs per seed, every seed's emulators stepped at once, one vmapped policy
 call per step) for each seed count S, against the env alone on one batch of the same S x
 envs-per-seed envs at the same `--threads` (shared out among the seeds' batches when side by
-side); env steps/s of all seeds, and their ratio.
+side); env steps/s of all seeds, and their ratio. Beside it (`--compare-waits`, the default) the
+same training with the seeds' batches awaited each on a thread of its own
+(`PipelinedVecEnv.concurrent_waits=True`) rather than one after another on the calling thread
+(today's default), the ratio of the two, and the side-by-side env alone (its batches, random
+actions) both ways.
 
 The table gives env steps/s of both, their ratio (target: PPO >= 0.70 of the env alone), and
 where a PPO step's time goes (ms per batched step of all envs, from `learner.timings` and
@@ -57,16 +61,34 @@ from jaxnat.atari.wrappers import ClipRewardWrapper  # noqa: E402
 from jaxnat.training.host_backend import make_learner, make_train_env  # noqa: E402
 
 
-def env_alone(env, steps: int, rng) -> tuple[float, dict]:
-    """Env steps/s under uniformly random actions, and the env's step timings over them."""
-    n = int(env.single_action_space.n)
-    actions = rng.integers(0, n, (steps, env.num_envs))
-    env.step_timings.update(steps=0, ale_s=0.0, ahead_s=0.0, host_s=0.0)
+def random_rate(env, steps: int, rng) -> float:
+    """Env steps/s of `steps` batched steps under uniformly random actions."""
+    actions = rng.integers(0, int(env.single_action_space.n), (steps, env.num_envs))
     start = time.perf_counter()
     for a in actions:
         env.step(a)
-    rate = actions.size / (time.perf_counter() - start)
+    return actions.size / (time.perf_counter() - start)
+
+
+def env_alone(env, steps: int, rng) -> tuple[float, dict]:
+    """Env steps/s under uniformly random actions, and the env's step timings over them."""
+    env.step_timings.update(steps=0, ale_s=0.0, ahead_s=0.0, host_s=0.0)
+    rate = random_rate(env, steps, rng)
     return rate, dict(env.step_timings)
+
+
+def parts_rates(env_id: str, envs_per_seed: int, env_kwargs: dict, seeds: int, steps: int, rng) -> dict:
+    """The side-by-side env alone (one batch per seed, `make_train_env(..., seeds=)`) under random
+    actions, its batches awaited in turn and on threads: `{"in_turn": steps/s, "threads": steps/s}`."""
+    env = make_train_env(env_id, envs_per_seed, env_kwargs, seeds=seeds)
+    env.reset(seeds=list(range(seeds)))
+    random_rate(env, 10, rng)  # warm
+    rates = {}
+    for name, concurrent in (("in_turn", False), ("threads", True)):
+        env.concurrent_waits = concurrent
+        rates[name] = random_rate(env, steps, rng)
+    env.close()
+    return rates
 
 
 def step_timings(env) -> dict:
@@ -113,10 +135,17 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         base.reset(seed=0)
         env_alone(base, 10, rng)  # warm: threads started, numba compiled
         before, _ = env_alone(base, args.env_steps, rng)
-        env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
         config = ppo.PPOConfig(num_envs=args.envs_per_seed, num_steps=args.num_steps,
                                total_timesteps=args.envs_per_seed * args.num_steps * (args.warmup + args.updates),
                                trunk=default_trunk(base.single_observation_space))
+        threads, parts = None, {}
+        if args.compare_waits:  # the seeds' batches awaited each on a thread of its own
+            parts = parts_rates(env_id, args.envs_per_seed, env_kwargs, seeds, args.env_steps, rng)
+            env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
+            env.concurrent_waits = True
+            threads = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)[0]
+            env.close()
+        env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
         rate, timings, _, warm_s = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)
         env.close()
         after, _ = env_alone(base, args.env_steps, rng)
@@ -126,10 +155,14 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         rows.append(dict(seeds=seeds, num_envs=seeds * args.envs_per_seed, alone=alone, steps_per_s=rate,
                          ratio=rate / alone, policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
                          update_ms=1e3 * (timings["update_s"] - timings["rollout_s"]) / n, warmup_s=warm_s,
-                         alone_before=before, alone_after=after))
+                         alone_before=before, alone_after=after, threads=threads,
+                         threads_over_in_turn=None if threads is None else threads / rate,
+                         parts_in_turn=parts.get("in_turn"), parts_threads=parts.get("threads")))
     return rows, common.markdown_table(rows, [
         ("seeds", "seeds", "d"), ("num_envs", "envs (all seeds)", "d"), ("alone", "env alone steps/s", ",.0f"),
         ("steps_per_s", "PPO side by side steps/s", ",.0f"), ("ratio", "vs env alone", ".2f"),
+        ("threads", "batches awaited on threads steps/s", ",.0f"), ("threads_over_in_turn", "threads / in turn", ".2f"),
+        ("parts_in_turn", "env in batches, in turn", ",.0f"), ("parts_threads", "env in batches, threads", ",.0f"),
         ("policy_ms", "policy ms", ".2f"), ("env_ms", "env step ms", ".2f"), ("update_ms", "update ms", ".2f"),
         ("warmup_s", "warm-up s", ".1f")])
 
@@ -155,6 +188,9 @@ def main(argv=None):
                         help="time seeds side by side (as jaxnat train --host-seeds together) for these seed "
                              "counts instead of the --num-envs/--parts loops")
     parser.add_argument("--envs-per-seed", type=int, default=8, help="with --side-by-side: envs of each seed")
+    parser.add_argument("--compare-waits", action=argparse.BooleanOptionalAction, default=True,
+                        help="with --side-by-side: also train with the seeds' batches awaited each on a thread of "
+                             "its own (PipelinedVecEnv.concurrent_waits=True; the default awaits them in turn)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     compiler_options = {"xla_backend_optimization_level": 0} if args.fast_compile else None

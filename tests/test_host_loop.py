@@ -112,18 +112,15 @@ def test_truncated_steps_bootstrap_from_the_final_observation(parts):
     assert history[-1]["terminated_fraction"] == 0.0
 
 
-class Counter:
+class WholeCounter:
     """Envs whose observation counts their steps (env j of a part starts at its seed + j),
-    rewarding the action; with `step_async`/`step_wait`, logging the calls."""
+    rewarding the action; `step` only (no `step_async`/`step_wait`)."""
 
     single_observation_space = None
     single_action_space = None
 
-    def __init__(self, name, num_envs, log, halves=True):
+    def __init__(self, name, num_envs, log):
         self.name, self.num_envs, self.log, self._sent = name, num_envs, log, None
-        if not halves:
-            self.step_async = self.step_wait = None
-            del self.step_async, self.step_wait
 
     def reset(self, seed=0):
         self.count = seed + np.arange(self.num_envs)
@@ -134,6 +131,13 @@ class Counter:
         zeros = np.zeros(self.num_envs, bool)
         return self.count.copy(), np.asarray(actions, np.float32), zeros, zeros, {}
 
+    def close(self):
+        self.log.append(("close", self.name))
+
+
+class HalvesCounter(WholeCounter):
+    """`WholeCounter` with `step_async`/`step_wait`, logging the calls."""
+
     def step_async(self, actions):
         self.log.append(("send", self.name))
         self._sent = actions
@@ -143,13 +147,17 @@ class Counter:
         return self.step(self._sent)
 
 
+def counter(name, num_envs, log, halves=True):
+    return (HalvesCounter if halves else WholeCounter)(name, num_envs, log)
+
+
 @pytest.mark.parametrize("halves", [True, False])
 def test_pipelined_steps_act_on_each_part_s_latest_observation(halves):
     """Each action is computed from its part's latest observation and lands on that part;
     keys are split once per part and step; with `step_async` the next part is sent before the
     previous one is waited for (its emulation overlaps the driver's work)."""
     log = []
-    env = PipelinedVecEnv([Counter("a", 2, log, halves), Counter("b", 3, log, halves)])
+    env = PipelinedVecEnv([counter("a", 2, log, halves), counter("b", 3, log, halves)])
     obs, _ = env.reset(seed=10)
     seen = []
 
@@ -180,8 +188,41 @@ def test_pipelined_steps_act_on_each_part_s_latest_observation(halves):
         assert log[:6] == [("policy", "a"), ("policy", "b"), ("send", "a"), ("send", "b"), ("wait", "a"),
                            ("policy", "a")]
     with pytest.raises(ValueError, match="two or more"):
-        host_steps_pipelined(PipelinedVecEnv([Counter("a", 2, log)]), 1, policy, observe, 0, obs[:2],
+        host_steps_pipelined(PipelinedVecEnv([counter("a", 2, log)]), 1, policy, observe, 0, obs[:2],
                              jax.random.key(0))
+
+
+@pytest.mark.parametrize("concurrent", [True, False])
+def test_pipelined_env_step_awaits_parts_on_threads_of_their_own(concurrent):
+    """`PipelinedVecEnv.step` (one batch of every part, as seeds side by side step): every part
+    is sent its actions before any is awaited; with `concurrent_waits` each part with
+    `step_async` is awaited on a thread of its own, else all in turn on the caller's thread;
+    the outcome is the parts' outcomes in order either way."""
+    import threading
+
+    log, threads = [], {}
+
+    class Where(HalvesCounter):
+        def step_wait(self):
+            threads[self.name] = threading.current_thread()
+            return super().step_wait()
+
+    env = PipelinedVecEnv([Where("a", 2, log), Where("b", 3, log), WholeCounter("c", 1, log)],
+                          concurrent_waits=concurrent)
+    obs, _ = env.reset(seed=10)
+    actions = np.array([5, 6, 7, 8, 9, 4])
+    for step in range(2):
+        obs, reward, terminated, truncated, _ = env.step(actions)
+        np.testing.assert_array_equal(obs, 10 + np.arange(6) + step + 1)
+        np.testing.assert_array_equal(reward, actions)
+        assert not terminated.any() and not truncated.any()
+    assert [entry for entry in log if entry[0] == "send"][:2] == [("send", "a"), ("send", "b")]
+    assert log.index(("send", "b")) < min(log.index(("wait", "a")), log.index(("wait", "b")))
+    main = threading.current_thread()
+    assert set(threads) == {"a", "b"}  # "c" has no step_wait: it stepped when sent its actions
+    assert all((thread is main) != concurrent for thread in threads.values())
+    env.close()
+    assert log[-3:] == [("close", "a"), ("close", "b"), ("close", "c")]
 
 
 def test_terminal_steps_do_not_bootstrap():

@@ -128,6 +128,30 @@ def test_seeds_batches_share_the_ale_threads(monkeypatch):
         make_train_env("NaturalAtari/Breakout-v0", 4, {}, parts=2, seeds=2)
 
 
+@pytest.mark.parametrize("background", ["none", "noise"])
+def test_seeds_batches_awaited_on_threads_step_as_in_turn(background):
+    """Breakout's side-by-side env (`make_train_env(..., seeds=3)`, 2 envs a seed): with its
+    batches awaited on threads (`concurrent_waits=True`) every step's observations, rewards,
+    flags and episode info equal those of the batches awaited in turn, under one seed and
+    one action sequence."""
+    from jaxnat.training.host_backend import make_train_env
+
+    kwargs = {"obs_size": 36, "num_threads": 3, "max_episode_steps": 40, "background": background}
+    actions = np.random.default_rng(0).integers(0, 4, (60, 6))
+    runs = []
+    for concurrent in (False, True):
+        env = make_train_env("NaturalAtari/Breakout-v0", 2, kwargs, seeds=3)
+        env.concurrent_waits = concurrent
+        steps = [env.reset(seeds=[5, 6, 7])]
+        steps += [env.step(a) for a in actions]
+        env.close()
+        runs.append(steps)
+    for before, after in zip(*runs):
+        for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after)):
+            np.testing.assert_array_equal(a, b)
+    assert any(step[2].any() or step[3].any() for step in runs[0][1:])  # episodes ended on the way
+
+
 def test_host_backend_trains_every_seed_in_one_group():
     """`HostBackend` with `host_seeds="together"`: one group of every seed on one batch per seed,
     checkpointed per seed, metrics `[seeds, updates]` and test scores `[seeds]` (each seed's
