@@ -7,6 +7,7 @@ the suite keeps its one device.
     python tests/sharded_checks.py distributed DIR   # one process of a jax.distributed run
     XLA_FLAGS=--xla_force_host_platform_device_count=4 python tests/sharded_checks.py atari DIR
     python tests/sharded_checks.py atari-distributed DIR   # one process of a jax.distributed run
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 python tests/sharded_checks.py gspmd DIR
 
 The first runs every check on 4 devices and saves PPO's parameters after training on one
 device to `DIR/reference.npz`; each process of the second trains the same PPO over both
@@ -14,7 +15,8 @@ processes' devices and process 0 saves `DIR/distributed.npz`. The training check
 env (vector observations, an MLP: quick to compile) registered here as `Probe/Factored-v0`.
 The last two do the same for Natural Atari's data-parallel host learner (ale-py): one process
 steps the whole ALE batch (`DIR/atari_reference.npz`), then each of two processes steps its
-half and saves `DIR/atari_process_<i>.npz`. Each check prints `ok <name>` or raises.
+half and saves `DIR/atari_process_<i>.npz`. The last trains data-parallel PPO with the
+partitioner jaxnat uses on GPUs (GSPMD). Each check prints `ok <name>` or raises.
 """
 
 from __future__ import annotations
@@ -304,8 +306,24 @@ def check_atari_distributed(out: Path) -> None:
     print("ok atari-distributed")
 
 
+def check_gspmd() -> None:
+    """Data-parallel PPO under the GSPMD partitioner, the one `jaxnat.sharding` switches a mesh
+    of GPUs to: it compiles (XLA aborted the process compiling minibatch rows gathered inside
+    the epoch's scan under `shard_map` with it) and trains what one device does. Whole seeds on
+    devices (`--shard seeds`) are not checked here: XLA:CPU's GSPMD aborts on that program
+    whichever way the minibatches are taken, XLA:GPU's compiles it (bench/devices_matrix.py)."""
+    jax.config.update("jax_use_shardy_partitioner", False)
+    env, params = make_probe("factored")
+    one, two = (make_sharded_train("ppo", PPO, env, params, seeds=2, devices=d)(_keys(2)) for d in (1, 2))
+    _close(two[0].train_state.params, one[0].train_state.params)
+    _close(two[1], one[1])
+    print("ok gspmd")
+
+
 if __name__ == "__main__":
-    if sys.argv[1] == "distributed":
+    if sys.argv[1] == "gspmd":
+        check_gspmd()
+    elif sys.argv[1] == "distributed":
         check_distributed(Path(sys.argv[2]))
     elif sys.argv[1] == "atari":
         check_atari(Path(sys.argv[2]))

@@ -94,6 +94,16 @@ def test_on_several_devices_and_processes(tmp_path):
         np.testing.assert_allclose(distributed[name], reference[name], atol=1e-5)
 
 
+def test_data_parallel_ppo_under_gspmd(tmp_path):
+    """With the partitioner jaxnat switches a mesh of GPUs to (GSPMD), data-parallel PPO on 2
+    devices compiles and trains what 1 device does (`sharded_checks.py gspmd`). In a child
+    process: where XLA fails that compile it aborts the process."""
+    flags = f"--xla_force_host_platform_device_count=2 {FAST_XLA}"
+    done = subprocess.run([sys.executable, str(CHECKS), "gspmd", str(tmp_path)], env=_env(XLA_FLAGS=flags),
+                          capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0 and "ok gspmd" in done.stdout, f"exit {done.returncode}: {done.stderr[-2000:]}"
+
+
 def _two_processes(mode: str, tmp_path) -> None:
     """`sharded_checks.py <mode> tmp_path` as both processes of a `jax.distributed` run."""
     address = f"127.0.0.1:{_free_port()}"

@@ -65,17 +65,31 @@ def _optimizer(config: PPOConfig, num_updates: int):
                        optax.adamw(schedule, eps=1e-5, weight_decay=config.weight_decay))
 
 
-def _per_env_minibatch_rows(steps: int, envs: int, key, num_minibatches: int, axis_name):
-    """Data-parallel minibatches of time-major `[T, n, ...]` data, as `(time, env)` indices,
-    each `[num_minibatches, n * T / num_minibatches]`: each env's `T` steps shuffled with a key
-    of its own (folded from its index among every device's envs), and minibatch `m` the `m`-th
-    of `num_minibatches` equal parts of every env's steps, whatever the device count."""
+def _in_shard_map() -> bool:
+    """Whether the program being traced runs under `jax.shard_map` (its mesh axes are manual)."""
+    return bool(jax.sharding.get_abstract_mesh().manual_axes)
+
+
+def _per_env_minibatches(data, key, num_minibatches: int, axis_name):
+    """Data-parallel minibatches from time-major `[T, n, ...]` data: each env's `T` steps
+    shuffled with a key of its own (folded from its index among every device's envs), and
+    minibatch `m` the `m`-th of `num_minibatches` equal parts of every env's steps:
+    `[num_minibatches, n * T / num_minibatches, ...]`, whatever the device count.
+
+    A shuffled copy of the rollout, not indices gathered from it inside the epoch's scan as on
+    one device: under `shard_map` with the GSPMD partitioner (which `jaxnat.sharding` switches
+    to on several GPUs) XLA aborts compiling that gather in a loop, a failed check in its
+    sharding code; the copy compiles. The same rows in the same order either way."""
+    steps, envs = jax.tree_util.tree_leaves(data)[0].shape[:2]
     first = jax.lax.axis_index(axis_name) * envs
     orders = jax.vmap(lambda i: jax.random.permutation(jax.random.fold_in(key, first + i), steps))(jnp.arange(envs))
-    per = steps // num_minibatches
-    times = jnp.swapaxes(orders.reshape(envs, num_minibatches, per), 0, 1).reshape(num_minibatches, -1)
-    env_ids = jnp.broadcast_to(jnp.arange(envs)[None, :, None], (num_minibatches, envs, per)).reshape(num_minibatches, -1)
-    return times, env_ids
+
+    def split(x):
+        x = jax.vmap(lambda rollout, order: rollout[order])(jnp.swapaxes(x, 0, 1), orders)  # [n, T, ...]
+        x = x.reshape(envs, num_minibatches, steps // num_minibatches, *x.shape[2:])
+        return jnp.swapaxes(x, 0, 1).reshape(num_minibatches, -1, *x.shape[3:])
+
+    return jax.tree_util.tree_map(split, data)
 
 
 def _update(config: PPOConfig, network, train_state, transitions, advantages, targets, key, axis_name=None):
@@ -126,21 +140,25 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
         return loss, jnp.stack([policy_loss, value_loss, entropy, jnp.mean(ratio - 1.0 - log_ratio),
                                 jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps)])
 
-    def minibatch_step(train_state, rows):
-        # Each minibatch gathered from the rollout as it is needed (`rows`: indices of `data`'s
-        # leading axes), not a shuffled copy of the whole rollout per epoch: one rollout's
-        # memory less (a pixel rollout is most of a large batch's memory).
-        minibatch = jax.tree_util.tree_map(lambda x: x[rows], data)
+    def minibatch_step(train_state, minibatch):
         grads, losses = jax.grad(loss_fn, has_aux=True)(train_state.params, *minibatch)
         return train_state.apply_gradients(grads=grads), losses
 
     def epoch(train_state, key_or_order):
         if axis_name is not None:
-            steps, envs = jax.tree_util.tree_leaves(data)[0].shape[:2]
-            rows = _per_env_minibatch_rows(steps, envs, key_or_order, config.num_minibatches, axis_name)
-        else:
-            rows = key_or_order.reshape(config.num_minibatches, -1)
-        return jax.lax.scan(minibatch_step, train_state, rows)
+            return jax.lax.scan(minibatch_step, train_state,
+                                _per_env_minibatches(data, key_or_order, config.num_minibatches, axis_name))
+        if _in_shard_map():  # seeds placed on devices (`--shard seeds`): see `_per_env_minibatches`
+            shuffled = jax.tree_util.tree_map(
+                lambda x: x[key_or_order].reshape(config.num_minibatches, -1, *x.shape[1:]), data)
+            return jax.lax.scan(minibatch_step, train_state, shuffled)
+        # Each minibatch gathered from the rollout as it is needed, not a shuffled copy of the
+        # whole rollout per epoch: the same rows in the same order, one rollout's memory less
+        # (a pixel rollout is most of a large batch's memory).
+        def gathered_step(train_state, rows):
+            return minibatch_step(train_state, jax.tree_util.tree_map(lambda x: x[rows], data))
+
+        return jax.lax.scan(gathered_step, train_state, key_or_order.reshape(config.num_minibatches, -1))
 
     if axis_name is None:
         # Every epoch's order from one draw of random bits, sorted (`jax.random.permutation`'s
