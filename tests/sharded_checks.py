@@ -307,9 +307,9 @@ def check_atari_distributed(out: Path) -> None:
 
 
 def check_gspmd() -> None:
-    """Data-parallel PPO under the GSPMD partitioner, the one `jaxnat.sharding` switches a mesh
-    of GPUs to: it compiles (XLA aborted the process compiling minibatch rows gathered inside
-    the epoch's scan under `shard_map` with it) and trains what one device does. Whole seeds on
+    """Data-parallel PPO and A2C under the GSPMD partitioner, the one `jaxnat.sharding` switches a
+    mesh of GPUs to: they compile (XLA aborted the process compiling minibatch rows gathered inside
+    the epoch's scan under `shard_map` with it) and train what one device does. Whole seeds on
     devices (`--shard seeds`) are not checked here: XLA:CPU's GSPMD aborts on that program
     whichever way the minibatches are taken, XLA:GPU's compiles it (bench/devices_matrix.py)."""
     jax.config.update("jax_use_shardy_partitioner", False)
@@ -317,6 +317,11 @@ def check_gspmd() -> None:
     one, two = (make_sharded_train("ppo", PPO, env, params, seeds=2, devices=d)(_keys(2)) for d in (1, 2))
     _close(two[0].train_state.params, one[0].train_state.params)
     _close(two[1], one[1])
+    env, params = make_probe("target")  # A2C, the other data-parallel learner: Gaussian actions, normalisers
+    a2c = A2CConfig(total_timesteps=3 * 8 * 5, num_envs=8, trunk="mlp", normalize_observations=True,
+                    normalize_rewards=True)
+    one, two = (make_sharded_train("a2c", a2c, env, params, seeds=1, devices=d)(_keys(1)) for d in (1, 2))
+    _close(two[0].train_state.params, one[0].train_state.params)
     print("ok gspmd")
 
 

@@ -95,8 +95,8 @@ def test_on_several_devices_and_processes(tmp_path):
 
 
 def test_data_parallel_ppo_under_gspmd(tmp_path):
-    """With the partitioner jaxnat switches a mesh of GPUs to (GSPMD), data-parallel PPO on 2
-    devices compiles and trains what 1 device does (`sharded_checks.py gspmd`). In a child
+    """With the partitioner jaxnat switches a mesh of GPUs to (GSPMD), data-parallel PPO and A2C
+    on 2 devices compile and train what 1 device does (`sharded_checks.py gspmd`). In a child
     process: where XLA fails that compile it aborts the process."""
     flags = f"--xla_force_host_platform_device_count=2 {FAST_XLA}"
     done = subprocess.run([sys.executable, str(CHECKS), "gspmd", str(tmp_path)], env=_env(XLA_FLAGS=flags),
