@@ -124,6 +124,27 @@ def test_figure_curves_are_drawn_through_steps_without_finished_episodes(tmp_pat
     np.testing.assert_array_equal(line.get_ydata(), [2.0] * 5)
 
 
+def test_a_curve_has_one_colour_in_every_panel(tmp_path, monkeypatch):
+    """A figure's curve ("noise · PPO") keeps its colour whichever curves each panel has."""
+    from matplotlib.colors import to_hex
+    from matplotlib.figure import Figure
+
+    from jaxnat.reproduce import report
+    from jaxnat.reproduce.report import CellResult
+
+    figures = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *_, **__: figures.append(figure))
+    cell = grid.Cell("mujoco-x", "mujoco", "mujoco", "X/Y-v0", {}, "ppo", None, grid.Budget(10), {}, {})
+    empty = np.zeros((0, 2))
+    result = CellResult(cell, True, 2, np.arange(1.0, 3.0), np.ones((2, 2)), np.zeros(0), empty, empty, None, 1.0)
+    panels = {"Swimmer": [("checker · PPO", result), ("noise · PPO", result)],
+              "Hopper": [("noise · PPO", result), ("state · PPO", result)]}
+    report.plot_figure(tmp_path / "f.png", "title", panels)
+    colours = [{line.get_label(): to_hex(line.get_color()) for line in ax.lines} for ax in figures[0].axes]
+    assert colours[0]["noise · PPO (train)"] == colours[1]["noise · PPO (train)"]
+    assert len({*colours[0].values(), *colours[1].values()}) == 3  # three curves, three colours
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--profile", "smok"], "unknown --profile 'smok' (did you mean 'smoke'?)"),
     (["--only", "classify,atary"], "unknown --only name 'atary' (did you mean 'atari'?)"),

@@ -230,6 +230,14 @@ def _panels(figure: str, results: list[CellResult]) -> dict[str, list[tuple[str,
     return panels
 
 
+def curve_colors(panels: dict) -> dict:
+    """One colour per curve label over all of a figure's panels (in order of first appearance),
+    so that a curve ("noise · PPO") has the same colour in every panel, whichever curves a
+    panel has so far."""
+    labels = dict.fromkeys(label for curves in panels.values() for label, _ in curves)
+    return {label: f"C{i % 10}" for i, label in enumerate(labels)}
+
+
 def plot_figure(path: Path, title: str, panels: dict) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -242,9 +250,10 @@ def plot_figure(path: Path, title: str, panels: dict) -> None:
     fig = Figure(figsize=(4.2 * columns, 3.4 * rows + 0.6), constrained_layout=True)
     FigureCanvasAgg(fig)
     axes = np.atleast_1d(fig.subplots(rows, columns, squeeze=False)).ravel()
+    colors = curve_colors(panels)
     for ax, (panel, curves) in zip(axes, panels.items()):
-        for i, (label, r) in enumerate(curves):
-            color = f"C{i % 10}"
+        for label, r in curves:
+            color = colors[label]
             x, per_seed = binned_curve(r.steps, r.train)
             if len(x):
                 line_with_band(ax, x, *bootstrap_band(per_seed), f"{label} (train)", color=color)
