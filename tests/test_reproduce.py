@@ -2,6 +2,7 @@
 a killed cell, the bootstrap interval on hand-made data, and one-line errors for bad arguments
 (the findings' verdicts on hand-made results: test_verdicts.py)."""
 
+import collections
 import dataclasses
 import json
 
@@ -259,6 +260,9 @@ def test_cells_compiled_ahead_train_to_the_same_results(smoke, tmp_path, monkeyp
         real_init(self, spec, *args, **kwargs)
 
     monkeypatch.setattr(programs.DeviceBackend, "__init__", init)
+    # An empty program cache: a test before this one in the same process may have left these
+    # cells' programs there, and the count below is of programs built.
+    monkeypatch.setattr(programs, "_PROGRAMS", collections.OrderedDict())
     outcomes = command.run_cells(plan, Console(quiet=True), compile_ahead=True)
     assert set(outcomes.values()) == {"finished"}
     # Each cell's programs were built once, on the worker, and found there by its run.
