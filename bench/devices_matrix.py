@@ -3,8 +3,8 @@
 For each env family (Classify, Localize, PixelMuJoCo from pixels, MuJoCo from state, Natural
 Atari) x algorithm (PPO, A2C, ACKTR, DQN) x `--shard` (envs, seeds), one tiny `jaxnat train`
 run on `--devices N` in a child process; then the runs that trained are continued on 1 device
-(`--resume RUN --devices 1 --total-timesteps 2x`), as docs/api.md promises. Each row records
-the outcome (`trained`, `refused` with the one-line message, or `crashed` with the exit status
+(`--resume RUN --devices 1 --total-timesteps 2x`) and back on N devices (`--devices N`, 3x), as
+docs/api.md promises. Each row records the outcome (`trained`, `refused` with the one-line message, or `crashed` with the exit status
 and the last line of output) and the wall time. A crash is what this bench exists to catch:
 the run exits non-zero (status 1) if any row crashed or refused in more than one line.
 
@@ -62,8 +62,8 @@ def _train_argv(family: str, algo: str, shard: str, devices: int, run_dir: Path)
     return argv
 
 
-def _resume_argv(run_dir: Path, total: int) -> list[str]:
-    return [sys.executable, "-m", "jaxnat.cli", "train", "--resume", str(run_dir), "--devices", "1",
+def _resume_argv(run_dir: Path, total: int, devices: int = 1) -> list[str]:
+    return [sys.executable, "-m", "jaxnat.cli", "train", "--resume", str(run_dir), "--devices", str(devices),
             "--total-timesteps", str(total)]
 
 
@@ -88,18 +88,24 @@ def run_row(family: str, algo: str, shard: str, devices: int, env: dict, folder:
                               text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {**row, "outcome": "crashed", "message": f"no end within {timeout:.0f} s", "seconds": timeout,
-                "resume": ""}
+                "resume": "", "back": ""}
     row["outcome"], row["message"] = _outcome(done)
-    row["seconds"] = time.perf_counter() - start
     if "No module named 'ale_py'" in row["message"] or "ROM" in row["message"]:
         row["outcome"] = "skipped"
-    row["resume"] = ""
-    if row["outcome"] == "trained":
-        _, _, envs, steps = FAMILIES[family]
-        resumed = subprocess.run(_resume_argv(run_dir, 4 * envs * steps), env=env, capture_output=True, text=True,
-                                 timeout=timeout)
-        outcome, message = _outcome(resumed)
-        row["resume"] = outcome + (f": {message}" if message else "")
+    row["resume"] = row["back"] = ""
+    _, _, envs, steps = FAMILIES[family]
+    # Continued on 1 device, then back on the run's first count: each from the last checkpoint.
+    for key, total, count in (("resume", 4 * envs * steps, 1), ("back", 6 * envs * steps, devices)):
+        if row["outcome"] != "trained" or (key == "back" and not row["resume"].startswith("trained")):
+            break
+        try:
+            resumed = subprocess.run(_resume_argv(run_dir, total, count), env=env, capture_output=True, text=True,
+                                     timeout=timeout)
+            outcome, message = _outcome(resumed)
+        except subprocess.TimeoutExpired:
+            outcome, message = "crashed", f"no end within {timeout:.0f} s"
+        row[key] = outcome + (f": {message}" if message else "")
+    row["seconds"] = time.perf_counter() - start
     return row
 
 
@@ -142,13 +148,14 @@ def main() -> int:
             rows.append(row)
             print(f"{row['family']} · {row['algo']} · --shard {row['shard']}: {row['outcome']}"
                   + (f" ({row['message']})" if row["message"] else "")
-                  + (f" · resumed on 1 device: {row['resume']}" if row["resume"] else ""), flush=True)
+                  + (f" · resumed on 1 device: {row['resume']}" if row["resume"] else "")
+                  + (f" · back on {args.devices}: {row['back']}" if row["back"] else ""), flush=True)
     order = {job: i for i, job in enumerate(jobs)}
     rows.sort(key=lambda r: order[r["family"], r["algo"], r["shard"]])
     table = common.markdown_table(rows, [
         ("env", "env", ""), ("algo", "algo", ""), ("shard", "--shard", ""), ("devices", "devices", "d"),
         ("outcome", "outcome", ""), ("message", "message", ""), ("resume", "resumed on 1 device", ""),
-        ("seconds", "seconds", ".0f")])
+        ("back", f"back on {args.devices} devices", ""), ("seconds", "seconds", ".0f")])
     info = common.machine()
     simulated = info["backend"] == "cpu"
     counts = {k: sum(r["outcome"] == k for r in rows) for k in ("trained", "refused", "crashed", "skipped")}
@@ -156,10 +163,11 @@ def main() -> int:
         "setting": (f"{args.devices} simulated CPU devices: what runs and what is refused, not speed" if simulated
                     else f"{info['num_devices']} {info['device']} devices, runs on {args.devices}"),
         "outcomes": ", ".join(f"{v} {k}" for k, v in counts.items()),
-        "tiny runs": "8 envs per seed x 8 steps, 2 updates, a seed per device; resumed to twice the steps on 1 device",
+        "tiny runs": "8 envs per seed x 8 steps, 2 updates, a seed per device; resumed to twice the steps on 1 device, then to 3x on "
+                     f"{args.devices}",
     }
     common.record("devices_matrix", info, table, summary, rows, save=not args.no_record)
-    bad = [r for r in rows if r["outcome"] == "crashed" or r["resume"].startswith("crashed")]
+    bad = [r for r in rows if "crashed" in (r["outcome"], r["resume"][:7], r["back"][:7])]
     return 1 if bad else 0
 
 
