@@ -137,10 +137,10 @@ def test_iqm_matches_rliable_on_a_tiny_array():
     assert iqm.mean == pytest.approx(4.5) == metrics.aggregate_iqm(scores)
     assert mean.mean == pytest.approx(scores.mean()) and iqm.n == mean.n == 8
     # rliable's own computation, its resamples drawn from the global generator seeded alike
-    np.random.seed(3)
+    np.random.seed(aggregates.bootstrap_seed(3, "a"))
     points, intervals = library.get_interval_estimates(
         {"a": scores}, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]), reps=500,
-        random_state=np.random.RandomState(3))
+        random_state=np.random.RandomState(aggregates.bootstrap_seed(3, "a")))
     assert points["a"][0] == iqm.mean
     assert (iqm.low, iqm.high, mean.low, mean.high) == pytest.approx(
         (intervals["a"][0, 0], intervals["a"][1, 0], intervals["a"][0, 1], intervals["a"][1, 1]))
@@ -149,6 +149,10 @@ def test_iqm_matches_rliable_on_a_tiny_array():
     state = np.random.get_state()[1].copy()
     assert aggregates.interval_estimates({"a": scores}, reps=500, seed=3)["a"] == (iqm, mean)
     assert (np.random.get_state()[1] == state).all()
+    # A group's interval is its own: other groups before it (a later sitting's cells) leave it as it was.
+    others = {"0": scores * 2.0, "b": scores + 1.0}
+    assert aggregates.interval_estimates({**others, "a": scores}, reps=500, seed=3)["a"] == (iqm, mean)
+    assert aggregates.interval_estimates({"c": scores}, reps=500, seed=3)["c"] != (iqm, mean)  # keys draw apart
 
 
 def test_aggregates_group_and_leave_out(tmp_path):

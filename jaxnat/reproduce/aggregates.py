@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+import zlib
 from collections import Counter
 
 import numpy as np
@@ -42,7 +43,7 @@ import numpy as np
 from jaxnat.reproduce.labels import dataset_label
 from jaxnat.reproduce.stats import CONFIDENCE, RESAMPLES, Interval
 
-__all__ = ["MAX_RETURNS", "POOLED_FIGURES", "Aggregate", "interval_estimates", "aggregate", "aggregates_section"]
+__all__ = ["MAX_RETURNS", "POOLED_FIGURES", "Aggregate", "bootstrap_seed", "interval_estimates", "aggregate", "aggregates_section"]
 
 MAX_RETURNS = {"classify": 1.0, "localize": 1.0}  # the best episode return of each env family (docstring)
 POOLED_FIGURES = ("classify-cnn", "classify-resnet18", "localize-cnn", "localize-resnet18")
@@ -64,12 +65,19 @@ class Aggregate:
     left_out: tuple[tuple[str, str], ...] = ()  # (cell, why) of the group's cells not aggregated
 
 
+def bootstrap_seed(seed: int, key: str) -> int:
+    """The seed of `key`'s resamples: `seed` and the key's CRC-32, so that a group's interval
+    depends on its own scores only, not on which other groups a report has (a cell finished in a
+    later sitting leaves the intervals already reported as they were)."""
+    return (seed * 0x9E3779B1 + zlib.crc32(key.encode())) % 2**32
+
+
 def interval_estimates(scores: dict[str, np.ndarray], *, reps: int = RESAMPLES, seed: int = 0
                        ) -> dict[str, tuple[Interval, Interval]]:
     """`{key: [runs, tasks] scores}` -> `{key: (IQM, mean)}`, the point estimates of
     `rliable.metrics.aggregate_iqm` and `aggregate_mean` with their 95% stratified bootstrap
     intervals (`rliable.library.get_interval_estimates`, `reps` resamples from NumPy's global
-    generator seeded with `seed`, for all the keys in their order; its state is restored after)."""
+    generator seeded with `bootstrap_seed(seed, key)` for each key; its state is restored after)."""
     if not scores:
         return {}
     from rliable import library, metrics
@@ -79,20 +87,23 @@ def interval_estimates(scores: dict[str, np.ndarray], *, reps: int = RESAMPLES, 
 
     # rliable 1.2's StratifiedBootstrap draws its resamples from NumPy's global generator
     # (`update_indices` calls `np.random.choice`), whatever `random_state` says: seeded here for
-    # the call, and given back as it was.
+    # each key, and given back as it was.
     saved = np.random.get_state()
+    estimates = {}
     try:
-        np.random.seed(seed)
-        with warnings.catch_warnings():  # arch's notice that it will take a Generator instead of a RandomState
-            warnings.simplefilter("ignore", FutureWarning)
-            points, intervals = library.get_interval_estimates(
-                {k: np.asarray(v, np.float64) for k, v in scores.items()}, both, reps=reps,
-                confidence_interval_size=CONFIDENCE, random_state=np.random.RandomState(seed))
+        for key, values in scores.items():
+            key_seed = bootstrap_seed(seed, key)
+            np.random.seed(key_seed)
+            with warnings.catch_warnings():  # arch's notice that it will take a Generator instead of a RandomState
+                warnings.simplefilter("ignore", FutureWarning)
+                points, intervals = library.get_interval_estimates(
+                    {key: np.asarray(values, np.float64)}, both, reps=reps,
+                    confidence_interval_size=CONFIDENCE, random_state=np.random.RandomState(key_seed))
+            estimates[key] = tuple(Interval(float(points[key][i]), float(intervals[key][0, i]),
+                                            float(intervals[key][1, i]), int(np.size(values))) for i in range(2))
     finally:
         np.random.set_state(saved)
-    return {key: tuple(Interval(float(points[key][i]), float(intervals[key][0, i]), float(intervals[key][1, i]),
-                                int(np.size(scores[key]))) for i in range(2))
-            for key in scores}
+    return estimates
 
 
 def _normalised(result) -> tuple[np.ndarray | None, str]:
