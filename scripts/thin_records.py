@@ -5,7 +5,7 @@
 
 For each cell folder of OUT whose `summary.json` says the run is complete: its `config.json`,
 `summary.json` and `eval.jsonl` as written, and `metrics.jsonl` thinned to the columns the
-report reads (`COLUMNS`), into DEST/<cell>/. Checkpoints, logs and curves stay behind: a pixel
+report reads and the policy's entropy (`COLUMNS`), into DEST/<cell>/. Checkpoints, logs and curves stay behind: a pixel
 cell's checkpoints are tens of MB, its thinned records a few hundred kB. OUT's `timings.jsonl`
 rows of the copied cells are appended to DEST/timings.jsonl. `jaxnat reproduce --out DEST
 --report-only` then writes the report from DEST, and a later `jaxnat reproduce --out DEST`
@@ -24,8 +24,9 @@ import shutil
 import sys
 from pathlib import Path
 
-# The columns of `metrics.jsonl` that `jaxnat reproduce --report-only` reads.
-COLUMNS = ("update", "seed", "env_steps", "episode_return", "episodes")
+# The columns of `metrics.jsonl` that `jaxnat reproduce --report-only` reads, and the entropy: a
+# cell that did not learn shows in it whether its policy widened or collapsed.
+COLUMNS = ("update", "seed", "env_steps", "episode_return", "episodes", "entropy")
 KEPT = ("config.json", "summary.json", "eval.jsonl")
 
 

@@ -25,7 +25,7 @@ def _cell(out: Path, name: str, complete: bool) -> None:
     (folder / "summary.json").write_text(json.dumps({"complete": complete}))
     (folder / "eval.jsonl").write_text('{"update": 0, "test_return": 1.0}\n')
     rows = [{"update": 1, "seed": s, "env_steps": 64, "episode_return": 0.5 + s, "episodes": 3, "loss": 0.1,
-             "approx_kl": 0.01} for s in range(2)] + [{"chunk": 1, "seconds": 2.0}]
+             "approx_kl": 0.01, "entropy": 8.5} for s in range(2)] + [{"chunk": 1, "seconds": 2.0}]
     (folder / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
 
 
@@ -42,8 +42,8 @@ def test_finished_cells_thinned_with_their_timings(thin, tmp_path, capsys):
     assert sorted(p.name for p in (dest / "mujoco-a").iterdir()) == ["config.json", "eval.jsonl", "metrics.jsonl",
                                                                      "summary.json"]
     rows = [json.loads(line) for line in (dest / "mujoco-a" / "metrics.jsonl").read_text().splitlines()]
-    assert rows == [{"update": 1, "seed": s, "env_steps": 64, "episode_return": 0.5 + s, "episodes": 3}
-                    for s in range(2)]
+    assert rows == [{"update": 1, "seed": s, "env_steps": 64, "episode_return": 0.5 + s, "episodes": 3,
+                     "entropy": 8.5} for s in range(2)]
     assert (dest / "mujoco-a" / "eval.jsonl").read_text() == (out / "mujoco-a" / "eval.jsonl").read_text()
     assert [json.loads(r)["cell"] for r in (dest / "timings.jsonl").read_text().splitlines()] == ["mujoco-a"]
 
