@@ -205,3 +205,18 @@ def test_verdict_noise_control_reads_localisation_alone(tmp_path):
     text = write_report(grid.Plan(profile, ("localize",), 3, tmp_path, cells), {}).read_text()
     row = next(line for line in text.splitlines() if line.startswith("| (not in the paper; jaxnat's control)"))
     assert row.split(" | ")[1:3] == ["**reproduced**", "0.01%"]
+
+
+def test_constant_reference_is_gated_too():
+    """jaxnat's sight finding puts each PixelMuJoCo policy above the constant-observation cell,
+    the best state-independent policy: a constant cell that did not learn is not that reference."""
+    def mujoco(observation, mean, untrained=0.0):
+        return _result("mujoco", "mujoco", "a2c", mean, untrained=untrained, robot="Swimmer", observation=observation)
+
+    noise = mujoco("noise", 14.0)
+    assert _judge("_sight_helps", [noise, mujoco("constant", 4.0)]).verdict == "reproduced"
+    verdict = _judge("_sight_helps", [noise, mujoco("constant", 4.0, untrained=4.0)])
+    assert verdict.verdict == "not shown" and "constant" in verdict.numbers and "did not learn" in verdict.numbers
+    # The policy above is still gated first.
+    assert _judge("_sight_helps", [mujoco("noise", 14.0, untrained=14.0), mujoco("constant", 4.0)]
+                  ).verdict == "not shown"

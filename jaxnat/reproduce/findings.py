@@ -168,8 +168,8 @@ def _sight_helps(results) -> Verdict:
     for observation in ("checker", "video", "noise"):
         pairs = _pairs(results, _is("mujoco", observation=observation), _is("mujoco", observation="constant"),
                        ("robot",))
-        comparisons += [ordered(f"{a.cell.labels['robot']} {_up(a)}", (observation, a), ("constant", b))
-                        for a, b in pairs]
+        comparisons += [ordered(f"{a.cell.labels['robot']} {_up(a)}", (observation, a), ("constant", b),
+                                gate_low=True) for a, b in pairs]
     return judge("PixelMuJoCo against the constant-observation reference", comparisons)
 
 

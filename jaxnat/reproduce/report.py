@@ -493,7 +493,12 @@ def _findings_lines(rows: list[tuple]) -> list[str]:
              "table), its mean over seeds with a 95% bootstrap interval over seeds. "
              "Verdicts: reproduced (95% intervals apart, in the paper's order), contradicted "
              "(apart, the reverse order), inconclusive (intervals overlap), not shown (the cell the comparison "
-             "needs did not beat its untrained policy), not run; rules in `jaxnat/reproduce/verdicts.py`.", "",
+             "needs did not beat its untrained policy), not run. A claim against a number (\"close to 1\") is "
+             "reproduced when the interval is at or above it; \"as good a policy\" is reproduced when the other "
+             "policy's mean is at or above the lower bound of the reference's interval. A claim is "
+             "contradicted when any of its comparisons is, reproduced when every one shown is, else "
+             "inconclusive (not shown when a part of it has none shown); the comparisons column gives each "
+             "one. Rules in `jaxnat/reproduce/verdicts.py`.", "",
              "| the paper's claim | verdict | share of the paper's budget | comparisons |", "|---|---|---|---|"]
     for finding, verdict in rows:
         lines.append(f"| {finding.claim} | **{verdict.verdict}** | {_share(verdict)} | {verdict.numbers} |")

@@ -20,7 +20,10 @@ task's best return (1), as the report's aggregates are (`normalised`).
   intervals say. That cell is `high`, the one the paper says does better (it must have learned
   something to be better at it); `low` need not learn, as the paper's own claims include
   policies that "fail completely" (Atari with video), and the noise control's noise cell is
-  meant not to learn. Claims of one cell against a number gate that cell.
+  meant not to learn. Claims of one cell against a number gate that cell. A `low` cell that is a
+  reference, not a policy the paper describes, is gated too (`ordered(..., gate_low=True)`):
+  PixelMuJoCo's constant-observation cell stands for the best state-independent policy, which a
+  constant cell that did not learn is not.
 
 Two claims are not orderings. Against a number ("close to 1": `at_least`): reproduced when the
 interval is at or above it, contradicted when below, inconclusive when across it. Of equality
@@ -104,9 +107,12 @@ def learned(result, at: float | None = None) -> str | None:
     return f"{result.cell.name} did not learn: {got} not above its untrained policy's {untrained}"
 
 
-def _compare(label: str, text: str, gated, cells, outcome) -> Comparison:
-    """`outcome()` unless `gated` (the cell that must have learned, and at which step) did not learn."""
+def _compare(label: str, text: str, gated, cells, outcome, also_gated=None) -> Comparison:
+    """`outcome()` unless `gated` (the cell that must have learned, and at which step), or
+    `also_gated` (another such pair), did not learn."""
     why = learned(*gated)
+    if why is None and also_gated is not None:
+        why = learned(*also_gated)
     if why is None and not all(np.isfinite(_value(r, gated[1]).mean) for r in cells):
         why = "a cell has no training return"
     if why is not None:
@@ -115,10 +121,12 @@ def _compare(label: str, text: str, gated, cells, outcome) -> Comparison:
     return Comparison(result, f"{label}: {text} ({result})", tuple(cells))
 
 
-def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: float | None = None) -> Comparison:
+def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: float | None = None,
+            gate_low: bool = False) -> Comparison:
     """The paper puts `high` above `low`; each is `(name, result)`. `at`: judged at this env step.
     `top` (the task's best return): compare the scores normalised between each cell's untrained
-    policy (0) and `top` (1), for cells whose returns are on different scales (`normalised`)."""
+    policy (0) and `top` (1), for cells whose returns are on different scales (`normalised`).
+    `gate_low`: `low` is a reference that must have learned too."""
     (hn, hr), (ln, lr) = high, low
     if top is not None:
         missing = next((r for r in (hr, lr) if r.untrained is None), None)
@@ -135,7 +143,8 @@ def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: f
         return "reproduced" if h.low > lo.high else "contradicted" if lo.low > h.high else "inconclusive"
 
     scale = "" if top is None else f" (normalised: the untrained policy at 0, the best return, {top:g}, at 1)"
-    return _compare(label, f"{hn} {h} vs {ln} {lo}{scale}", (hr, at), (hr, lr), outcome)
+    return _compare(label, f"{hn} {h} vs {ln} {lo}{scale}", (hr, at), (hr, lr), outcome,
+                    (lr, at) if gate_low else None)
 
 
 def normalised(result, top: float, at: float | None = None) -> Interval:
