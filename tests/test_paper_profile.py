@@ -198,6 +198,13 @@ def test_calibration_status_opens_the_report_with_each_profile_cell_against_the_
     a2c = dataclasses.replace(authors.cell, algo="a2c")
     line = calibration.calibration_status([dataclasses.replace(authors, cell=a2c)])[2]
     assert line == "> - classify A2C: the profile trains at the authors' batch: 0.7 [0.65, 0.75]."
+    # A group and algorithm of the grid's calibration with no cell run yet is named, not left out.
+    grid_cells = [c for c in grid.build_grid(grid.PROFILES["paper"], ("calibration",))]
+    lines = calibration.calibration_status([authors, profile], grid_cells)
+    assert "> - mujoco A2C: not calibrated yet (none of its calibration cells has run): its verdicts depend " \
+           "on the batch." in lines
+    assert not any(line.startswith("> - classify PPO: not calibrated") for line in lines)
+    assert calibration.calibration_status([], grid_cells) == []  # no calibration run: no banner
 
 
 @pytest.fixture(scope="module")

@@ -185,7 +185,8 @@ def aggregates_section(rows: list[Aggregate], finished) -> list[str]:
              "(`jaxnat/reproduce/aggregates.py` says why these groups and scores). Classification and localisation: "
              "the return normalised between the cell's untrained policy (0) and the task's maximum return (1), "
              "pooled over the cells of the paper's figures per algorithm. Natural Atari and PixelMuJoCo: the raw "
-             "return (no maximum is known), one cell per group.", "",
+             "return (no maximum is known), one cell per group: its mean is the cell's own, and its interval "
+             "comes from rliable's resamples, not the final table's, so the two may differ in the last digits.", "",
              "| experiment | group | algorithm | score | cells x seeds | IQM [95% CI] | mean [95% CI] |",
              "|---|---|---|---|---|---|---|"]
     for row in (r for r in rows if r.cells):  # a group whose cells were all left out: listed below

@@ -71,12 +71,14 @@ def _groups(results: list) -> dict[tuple[str, str], list]:
     return groups
 
 
-def calibration_status(results: list) -> list[str]:
+def calibration_status(results: list, cells: tuple = ()) -> list[str]:
     """The report's opening lines on the calibration, when it ran: per group and algorithm, where
     the profile's cell sits against the authors' band, or what is missing to say. A verdict
-    about an algorithm whose profile cell is not inside the band depends on the batch."""
+    about an algorithm whose profile cell is not inside the band depends on the batch. `cells`:
+    the grid's; a group and algorithm of its calibration with no cell run yet is named too."""
     lines = []
-    for (group, algo), rows in _groups(results).items():
+    groups = _groups(results)
+    for (group, algo), rows in groups.items():
         by = {r.cell.labels["variant"]: r for r in rows if r.complete}
         chosen = profile_variant(group, algo)
         profile, authors = by.get(chosen), by.get(AUTHORS)
@@ -94,6 +96,10 @@ def calibration_status(results: list) -> list[str]:
         said_already = {chosen, AUTHORS} if profile is not None and authors is not None else {chosen}
         others = "; ".join(f"{variant} {r.final_train}" for variant, r in by.items() if variant not in said_already)
         lines.append(f"- {group} {algo.upper()}: {said}" + (f" (other batches: {others})" if others else "") + ".")
+    if lines:
+        pending = dict.fromkeys((c.labels["group"], c.algo) for c in cells if c.experiment == CALIBRATION)
+        lines += [f"- {group} {algo.upper()}: not calibrated yet (none of its calibration cells has run): its "
+                  "verdicts depend on the batch." for group, algo in pending if (group, algo) not in groups]
     if not lines:
         return []
     return ["> **Calibration of the batch** (the same cell at matched env steps, `--only calibration`; the paper "

@@ -379,7 +379,7 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
     aggregates = aggregate(findings_cells)
     lines = [f"# Reproduction of Zhang, Wu and Pineau (2018): profile `{plan.profile.name}`", ""]
     lines += budget_banner(findings_cells)
-    lines += calibration_status(results)
+    lines += calibration_status(results, plan.cells)
     saved = [r.cell.name for r in results]
     per_cell = [_run_versions(out / name) for name in saved] if saved else [_versions()]
     versions = versions_line(per_cell)
@@ -401,7 +401,9 @@ def write_report(plan, outcomes: dict[str, str]) -> Path:
         if any(t.get("overlapped") for t in timings):
             lines += [f"| elapsed (streams of cells side by side: overlapping times counted once) | "
                       f"{_elapsed(timings):.0f} |"]
-        lines += [""]
+        lines += ["", "Seconds of each cell's whole process (compiling, training, evaluating, test play) from the "
+                  "out folder's `timings.jsonl`; `results.json`'s `wall_time_s` is the training run's own time, "
+                  "without what comes before and after it.", ""]
 
     lines += departures_section(plan.profile, plan.cells)
     lines += data_section(results)

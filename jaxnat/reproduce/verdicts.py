@@ -142,7 +142,7 @@ def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: f
     def outcome():
         return "reproduced" if h.low > lo.high else "contradicted" if lo.low > h.high else "inconclusive"
 
-    scale = "" if top is None else f" (normalised: the untrained policy at 0, the best return, {top:g}, at 1)"
+    scale = "" if top is None else f" (normalised: untrained policy = 0, best return {top:g} = 1)"
     return _compare(label, f"{hn} {h} vs {ln} {lo}{scale}", (hr, at), (hr, lr), outcome,
                     (lr, at) if gate_low else None)
 
