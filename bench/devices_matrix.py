@@ -4,8 +4,8 @@ For each env family (Classify, Localize, PixelMuJoCo from pixels, MuJoCo from st
 Atari) x algorithm (PPO, A2C, ACKTR, DQN) x `--shard` (envs, seeds), one tiny `jaxnat train`
 run on `--devices N` in a child process; then the runs that trained are continued on 1 device
 (`--resume RUN --devices 1 --total-timesteps 2x`) and back on N devices (`--devices N`, 3x), as
-docs/api.md promises. Each row records the outcome (`trained`, `refused` with the one-line message, or `crashed` with the exit status
-and the last line of output) and the wall time. A crash is what this bench exists to catch:
+docs/api.md promises. Each row records the outcome (`trained`, `refused` with the one-line
+message, or `crashed` with the exit status and the last line of output) and the wall time. A crash is what this bench exists to catch:
 the run exits non-zero (status 1) if any row crashed or refused in more than one line.
 
     python bench/devices_matrix.py                         # 2 devices, every family and algorithm
@@ -163,8 +163,8 @@ def main() -> int:
         "setting": (f"{args.devices} simulated CPU devices: what runs and what is refused, not speed" if simulated
                     else f"{info['num_devices']} {info['device']} devices, runs on {args.devices}"),
         "outcomes": ", ".join(f"{v} {k}" for k, v in counts.items()),
-        "tiny runs": "8 envs per seed x 8 steps, 2 updates, a seed per device; resumed to twice the steps on 1 device, then to 3x on "
-                     f"{args.devices}",
+        "tiny runs": ("8 envs per seed x 8 steps, 2 updates, a seed per device; resumed to twice the steps on "
+                      f"1 device, then to 3x on {args.devices}"),
     }
     common.record("devices_matrix", info, table, summary, rows, save=not args.no_record)
     bad = [r for r in rows if "crashed" in (r["outcome"], r["resume"][:7], r["back"][:7])]

@@ -5,9 +5,9 @@
 
 For each cell folder of OUT whose `summary.json` says the run is complete: its `config.json`,
 `summary.json` and `eval.jsonl` as written, and `metrics.jsonl` thinned to the columns the
-report reads and the policy's entropy (`COLUMNS`), into DEST/<cell>/. Checkpoints, logs and curves stay behind: a pixel
-cell's checkpoints are tens of MB, its thinned records a few hundred kB. OUT's `timings.jsonl`
-rows of the copied cells are appended to DEST/timings.jsonl. `jaxnat reproduce --out DEST
+report reads and the policy's entropy (`COLUMNS`), into DEST/<cell>/. Checkpoints, logs and
+curves stay behind: a pixel cell's checkpoints are tens of MB, its thinned records a few
+hundred kB. OUT's `timings.jsonl` rows of the copied cells are appended to DEST/timings.jsonl. `jaxnat reproduce --out DEST
 --report-only` then writes the report from DEST, and a later `jaxnat reproduce --out DEST`
 skips those cells (docs/reproduction/paper/SITTINGS.md packs DEST as `records.tar.xz`).
 

@@ -43,7 +43,8 @@ import numpy as np
 from jaxnat.reproduce.labels import dataset_label
 from jaxnat.reproduce.stats import CONFIDENCE, RESAMPLES, Interval
 
-__all__ = ["MAX_RETURNS", "POOLED_FIGURES", "Aggregate", "bootstrap_seed", "interval_estimates", "aggregate", "aggregates_section"]
+__all__ = ["MAX_RETURNS", "POOLED_FIGURES", "Aggregate", "bootstrap_seed", "interval_estimates", "aggregate",
+           "aggregates_section"]
 
 MAX_RETURNS = {"classify": 1.0, "localize": 1.0}  # the best episode return of each env family (docstring)
 POOLED_FIGURES = ("classify-cnn", "classify-resnet18", "localize-cnn", "localize-resnet18")

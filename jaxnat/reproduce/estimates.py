@@ -33,10 +33,10 @@ COMPILE_S = {"cpu": {"classify": 15, "localize": 45, "atari": 15, "mujoco": 60},
 # cells at the authors' batch (their times: bench/results/reproduce_cost.md); at 512 envs and for
 # PPO the rate model alone holds. Device cells only; the CPU rates are per env step.
 UPDATE_S = {"a2c": 0.0018, "acktr": 0.026}
-# PixelMuJoCo's A2C, per update: its float32 trunk and its evaluations (every `eval_every`
-# updates, which at 5-step rollouts come 3.2x as often per env step as PPO's) beyond the rate
-# model, which PPO's cells fitted. Fitted to the paper profile's ninth sitting (6 A2C cells on
-# H200s: bench/results/reproduce_cost.md), where the rate model alone undercounted them 1.0-1.9x.
+# Per update, where a family's algorithm differs from `UPDATE_S`: PixelMuJoCo's A2C pays its
+# float32 trunk and its evaluations (every `eval_every` updates, which 5-step rollouts make 3.2x
+# as frequent per env step as PPO's) beyond the rate model, which PPO's cells fitted. Fitted to
+# the paper profile's ninth sitting (bench/results/reproduce_cost.md).
 FAMILY_UPDATE_S = {("mujoco", "a2c"): 0.1}
 # Seconds a GPU spends per PPO optimizer step (updates x epochs x minibatches), beyond the rate
 # model: the paper profile's classification PPO at 512 x 32 took about twice as long with the
@@ -70,11 +70,11 @@ def detect_platform() -> str:
 
 def estimate_seconds(cell: Cell, seeds: int, platform: str) -> float:
     """A rough wall time of `cell` (compile + training + evaluation), for the ETA; on a GPU a
-    device cell's updates add `UPDATE_S` each, and PPO's optimizer steps `MINIBATCH_S` each."""
+    device cell's updates add `UPDATE_S` (or `FAMILY_UPDATE_S`) each, and PPO's optimizer steps
+    `MINIBATCH_S` each."""
     steps = cell.budget.total_timesteps * seeds
     seconds = COMPILE_S[platform][_family(cell)] + steps / rate(cell, seeds, platform)
-    if platform == "gpu" and not cell.host and (cell.algo in UPDATE_S or cell.algo in MINIBATCH_S
-                                                or (_family(cell), cell.algo) in FAMILY_UPDATE_S):
+    if platform == "gpu" and not cell.host and (cell.algo in UPDATE_S or cell.algo in MINIBATCH_S):
         config = ALGORITHMS[cell.algo].config()
         batch = cell.overrides.get("num_envs", config.num_envs) * cell.overrides.get("num_steps", config.num_steps)
         updates = cell.budget.total_timesteps / batch

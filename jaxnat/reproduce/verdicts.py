@@ -107,13 +107,12 @@ def learned(result, at: float | None = None) -> str | None:
     return f"{result.cell.name} did not learn: {got} not above its untrained policy's {untrained}"
 
 
-def _compare(label: str, text: str, gated, cells, outcome, also_gated=None) -> Comparison:
-    """`outcome()` unless `gated` (the cell that must have learned, and at which step), or
-    `also_gated` (another such pair), did not learn."""
-    why = learned(*gated)
-    if why is None and also_gated is not None:
-        why = learned(*also_gated)
-    if why is None and not all(np.isfinite(_value(r, gated[1]).mean) for r in cells):
+def _compare(label: str, text: str, gates, cells, outcome) -> Comparison:
+    """`outcome()` unless a cell of `gates` (`(cell, env step)` pairs: the cells that must have
+    learned, and at which step) did not learn."""
+    at = gates[0][1]
+    why = next((why for why in (learned(*gate) for gate in gates) if why is not None), None)
+    if why is None and not all(np.isfinite(_value(r, at).mean) for r in cells):
         why = "a cell has no training return"
     if why is not None:
         return Comparison("not shown", f"{label}: {text} (not shown: {why})", tuple(cells))
@@ -143,8 +142,8 @@ def ordered(label: str, high: tuple, low: tuple, at: float | None = None, top: f
         return "reproduced" if h.low > lo.high else "contradicted" if lo.low > h.high else "inconclusive"
 
     scale = "" if top is None else f" (normalised: untrained policy = 0, best return {top:g} = 1)"
-    return _compare(label, f"{hn} {h} vs {ln} {lo}{scale}", (hr, at), (hr, lr), outcome,
-                    (lr, at) if gate_low else None)
+    gates = ((hr, at), (lr, at)) if gate_low else ((hr, at),)
+    return _compare(label, f"{hn} {h} vs {ln} {lo}{scale}", gates, (hr, lr), outcome)
 
 
 def normalised(result, top: float, at: float | None = None) -> Interval:
@@ -162,7 +161,7 @@ def at_least(label: str, result, threshold: float, reading: str = "") -> Compari
     def outcome():
         return "reproduced" if got.low >= threshold else "contradicted" if got.high < threshold else "inconclusive"
 
-    return _compare(label, f"{got} vs {threshold:g}{reading}", (result, None), (result,), outcome)
+    return _compare(label, f"{got} vs {threshold:g}{reading}", ((result, None),), (result,), outcome)
 
 
 def as_good(label: str, reference: tuple, other: tuple) -> Comparison:
@@ -175,7 +174,7 @@ def as_good(label: str, reference: tuple, other: tuple) -> Comparison:
     def outcome():
         return "reproduced" if got.mean >= ref.low else "contradicted" if got.high < ref.low else "inconclusive"
 
-    return _compare(label, f"{rn} {ref} vs {on} {got}", (rr, None), (rr, orr), outcome)
+    return _compare(label, f"{rn} {ref} vs {on} {got}", ((rr, None),), (rr, orr), outcome)
 
 
 def checkpoint_steps(*results) -> list[tuple[int, float | None]]:
