@@ -12,15 +12,13 @@ video; also none / noise) at `--threads` ALE threads:
   policy call overlaps the other parts' emulation; every part has `--threads` ALE threads).
 
 With `--side-by-side 1 5 10`, instead: `jaxnat train`'s seeds side by side (`--host-seeds
-together`: `make_train_env(..., seeds=S)` and `make_learner(..., seeds=S)`, one batch of
-`--envs-per-seed` envs per seed, every seed's emulators stepped at once, one vmapped policy
-call per step) for each seed count S, against the env alone on one batch of the same S x
-envs-per-seed envs at the same `--threads` (shared out among the seeds' batches when side by
-side); env steps/s of all seeds, and their ratio. Beside it (`--compare-waits`, the default) the
-same training with the seeds' batches awaited each on a thread of its own
-(`PipelinedVecEnv.concurrent_waits=True`) rather than one after another on the calling thread
-(today's default), the ratio of the two, and the side-by-side env alone (its batches, random
-actions) both ways.
+together`: `make_train_env(..., seeds=S)` and `make_learner(..., seeds=S)`, one ALE batch of
+S x `--envs-per-seed` envs, each seed's slice reset as its batch alone, one vmapped policy call
+per step) for each seed count S, against the env alone on one batch of the same envs at the
+same `--threads`; env steps/s of all seeds, and their ratio. Beside it (`--compare-batches`,
+the default) the layout the learner had before: one ALE batch per seed (a `PipelinedVecEnv`
+of S parts, every part's emulators stepped at once, the `--threads` shared out among them),
+trained and stepped alone under random actions, and the ratio of the one batch to it.
 
 The table gives env steps/s of both, their ratio (target: PPO >= 0.70 of the env alone), and
 where a PPO step's time goes (ms per batched step of all envs, from `learner.timings` and
@@ -57,7 +55,8 @@ import jaxnat  # noqa: E402
 from jaxnat.agents import ppo  # noqa: E402
 from jaxnat.agents.networks import default_trunk  # noqa: E402
 from jaxnat.agents.rollout import stack_seeds  # noqa: E402
-from jaxnat.atari.wrappers import ClipRewardWrapper  # noqa: E402
+from jaxnat.atari.chunks import default_threads  # noqa: E402
+from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv  # noqa: E402
 from jaxnat.training.host_backend import make_learner, make_train_env  # noqa: E402
 
 
@@ -77,18 +76,14 @@ def env_alone(env, steps: int, rng) -> tuple[float, dict]:
     return rate, dict(env.step_timings)
 
 
-def parts_rates(env_id: str, envs_per_seed: int, env_kwargs: dict, seeds: int, steps: int, rng) -> dict:
-    """The side-by-side env alone (one batch per seed, `make_train_env(..., seeds=)`) under random
-    actions, its batches awaited in turn and on threads: `{"in_turn": steps/s, "threads": steps/s}`."""
-    env = make_train_env(env_id, envs_per_seed, env_kwargs, seeds=seeds)
-    env.reset(seeds=list(range(seeds)))
-    random_rate(env, 10, rng)  # warm
-    rates = {}
-    for name, concurrent in (("in_turn", False), ("threads", True)):
-        env.concurrent_waits = concurrent
-        rates[name] = random_rate(env, steps, rng)
-    env.close()
-    return rates
+def batch_per_seed(env_id: str, envs_per_seed: int, env_kwargs: dict, seeds: int):
+    """The side-by-side env as the learner had it before one ALE batch held every seed: a
+    `PipelinedVecEnv` of one batch per seed, the ALE threads shared out among them."""
+    threads = int(env_kwargs.get("num_threads", 0)) or default_threads(seeds * envs_per_seed)
+    shares = [max(1, threads // seeds + (i < threads % seeds)) for i in range(seeds)]
+    return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, envs_per_seed, split="train",
+                                                              **{**env_kwargs, "num_threads": share}))
+                            for share in shares])
 
 
 def step_timings(env) -> dict:
@@ -138,12 +133,13 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         config = ppo.PPOConfig(num_envs=args.envs_per_seed, num_steps=args.num_steps,
                                total_timesteps=args.envs_per_seed * args.num_steps * (args.warmup + args.updates),
                                trunk=default_trunk(base.single_observation_space))
-        threads, parts = None, {}
-        if args.compare_waits:  # the seeds' batches awaited each on a thread of its own
-            parts = parts_rates(env_id, args.envs_per_seed, env_kwargs, seeds, args.env_steps, rng)
-            env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
-            env.concurrent_waits = True
-            threads = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)[0]
+        per_seed, per_seed_alone = None, None
+        if args.compare_batches:  # the layout before: one ALE batch per seed
+            env = batch_per_seed(env_id, args.envs_per_seed, env_kwargs, seeds)
+            env.reset(seeds=list(range(seeds)))
+            random_rate(env, 10, rng)  # warm
+            per_seed_alone = random_rate(env, args.env_steps, rng)
+            per_seed = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)[0]
             env.close()
         env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
         rate, timings, _, warm_s = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)
@@ -155,14 +151,14 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         rows.append(dict(seeds=seeds, num_envs=seeds * args.envs_per_seed, alone=alone, steps_per_s=rate,
                          ratio=rate / alone, policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
                          update_ms=1e3 * (timings["update_s"] - timings["rollout_s"]) / n, warmup_s=warm_s,
-                         alone_before=before, alone_after=after, threads=threads,
-                         threads_over_in_turn=None if threads is None else threads / rate,
-                         parts_in_turn=parts.get("in_turn"), parts_threads=parts.get("threads")))
+                         alone_before=before, alone_after=after, per_seed=per_seed,
+                         one_over_per_seed=None if per_seed is None else rate / per_seed,
+                         per_seed_alone=per_seed_alone))
     return rows, common.markdown_table(rows, [
         ("seeds", "seeds", "d"), ("num_envs", "envs (all seeds)", "d"), ("alone", "env alone steps/s", ",.0f"),
         ("steps_per_s", "PPO side by side steps/s", ",.0f"), ("ratio", "vs env alone", ".2f"),
-        ("threads", "batches awaited on threads steps/s", ",.0f"), ("threads_over_in_turn", "threads / in turn", ".2f"),
-        ("parts_in_turn", "env in batches, in turn", ",.0f"), ("parts_threads", "env in batches, threads", ",.0f"),
+        ("per_seed", "PPO, a batch per seed steps/s", ",.0f"), ("one_over_per_seed", "one batch / batch per seed", ".2f"),
+        ("per_seed_alone", "env alone, a batch per seed", ",.0f"),
         ("policy_ms", "policy ms", ".2f"), ("env_ms", "env step ms", ".2f"), ("update_ms", "update ms", ".2f"),
         ("warmup_s", "warm-up s", ".1f")])
 
@@ -188,9 +184,9 @@ def main(argv=None):
                         help="time seeds side by side (as jaxnat train --host-seeds together) for these seed "
                              "counts instead of the --num-envs/--parts loops")
     parser.add_argument("--envs-per-seed", type=int, default=8, help="with --side-by-side: envs of each seed")
-    parser.add_argument("--compare-waits", action=argparse.BooleanOptionalAction, default=True,
-                        help="with --side-by-side: also train with the seeds' batches awaited each on a thread of "
-                             "its own (PipelinedVecEnv.concurrent_waits=True; the default awaits them in turn)")
+    parser.add_argument("--compare-batches", action=argparse.BooleanOptionalAction, default=True,
+                        help="with --side-by-side: also train (and step alone) the seeds on one ALE batch per seed, "
+                             "the layout before one batch held them all")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     compiler_options = {"xla_backend_optimization_level": 0} if args.fast_compile else None
@@ -220,7 +216,8 @@ def main(argv=None):
                    f"{args.num_steps} steps per env per update, {args.warmup} warm-up + {args.updates} timed updates"
                    + (", xla_backend_optimization_level=0" if args.fast_compile else ""),
             "columns": "env steps/s of all seeds; the env alone steps the same envs as one batch (random actions), "
-                       "before and after (mean); ms per batched step of all envs",
+                       "before and after (mean); 'a batch per seed': the same seeds on one ALE batch each, the "
+                       "threads shared out (the learner's layout before); ms per batched step of all envs",
             "bench seconds": f"{time.perf_counter() - started:.0f}",
             "video sources": args.video_sources or "opencv-doc",
         }

@@ -1,5 +1,6 @@
 """Seeds side by side on the host (`--host-seeds together`, issue #42): the on-policy host
-learners with `seeds=S` train every seed from one stacked state on one batch of all their envs,
+learners with `seeds=S` train every seed from one stacked state on one batch of all their envs
+(one ALE batch, each seed's envs reset as its batch alone: `NaturalAtariVecEnv.reset(seeds=)`),
 and each seed's result is its run alone; `jaxnat train` checkpoints each seed's slice where a
 one-seed run would, so `--resume`, `load_policy` and `jaxnat eval` read them as before.
 
@@ -59,7 +60,7 @@ def _assert_same_run(alone, alone_history, side, side_history, index):
 @pytest.mark.parametrize("algo", ["ppo", "a2c", "acktr"])
 def test_seeds_side_by_side_learn_as_each_seed_alone_on_probes(algo):
     """On a probe (mlp trunk, fast): two seeds side by side (a `PipelinedVecEnv` of one batch per
-    seed) end with each seed's params, optimizer state, key and update count of that seed's
+    seed, which the learner takes as one batch of both seeds' envs) end with each seed's params, optimizer state, key and update count of that seed's
     learner alone, given the same key; the metrics are each seed's."""
     config = (ACKTRConfig(num_envs=4, num_steps=8, trunk="mlp") if algo == "acktr" else CONFIGS[algo])
     config = config.replace(total_timesteps=config.num_envs * config.num_steps * 3)
@@ -91,7 +92,7 @@ def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background):
         alone.append(make_learner("ppo", config, env, FAST).train(jax.random.key(seed)))
         env.close()
     env = make_train_env(env_id, 2, kwargs, seeds=len(SEEDS))
-    assert [part.num_envs for part in env.parts] == [2, 2]
+    assert env.num_envs == 4 and not hasattr(env, "parts")  # one ALE batch of every seed's envs
     state, history = make_learner("ppo", config, env, FAST, seeds=len(SEEDS)).train(
         stack_seeds([jax.random.key(seed) for seed in SEEDS]))
     env.close()
@@ -102,54 +103,25 @@ def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background):
         _assert_same_run(alone_state, alone_history, state, history, index)
 
 
-def test_seeds_batches_share_the_ale_threads(monkeypatch):
-    """`make_train_env(..., seeds=S)`: one batch of `num_envs` per seed, the run's ALE threads
-    (`num_threads`; 0: one per env of all the batches, at most one per CPU) shared out among
-    them, at least one each; the other kwargs as given."""
+def test_seeds_side_by_side_make_one_batch_of_all_their_envs(monkeypatch):
+    """`make_train_env(..., seeds=S)`: one batch of S x `num_envs` envs of the train split, the
+    other kwargs (ALE threads included) as given, rewards clipped; not with parts."""
     import jaxnat
-    from jaxnat.atari.chunks import default_threads
+    from jaxnat.atari.wrappers import ClipRewardWrapper
     from jaxnat.training.host_backend import make_train_env
 
     made = []
 
     def make_vec(env_id, num_envs, **kwargs):
-        made.append(kwargs)
+        made.append((num_envs, kwargs))
         return HostProbe("sign", num_envs)
 
     monkeypatch.setattr(jaxnat, "make_vec", make_vec)
-    for threads, seeds, shares in ((5, 2, [3, 2]), (1, 3, [1, 1, 1]), (0, 2, None)):
-        made.clear()
-        env = make_train_env("NaturalAtari/Breakout-v0", 4, {"num_threads": threads, "obs_size": 36}, seeds=seeds)
-        assert isinstance(env, PipelinedVecEnv) and [p.num_envs for p in env.parts] == [4] * seeds
-        assert all(k["split"] == "train" and k["obs_size"] == 36 for k in made)
-        got = [k["num_threads"] for k in made]
-        assert got == shares if shares else sum(got) == max(seeds, default_threads(4 * seeds))
+    env = make_train_env("NaturalAtari/Breakout-v0", 4, {"num_threads": 5, "obs_size": 36}, seeds=3)
+    assert isinstance(env, ClipRewardWrapper) and env.num_envs == 12
+    assert made == [(12, {"split": "train", "num_threads": 5, "obs_size": 36})]
     with pytest.raises(ValueError, match="leave parts and devices out"):
         make_train_env("NaturalAtari/Breakout-v0", 4, {}, parts=2, seeds=2)
-
-
-@pytest.mark.parametrize("background", ["none", "noise"])
-def test_seeds_batches_awaited_on_threads_step_as_in_turn(background):
-    """Breakout's side-by-side env (`make_train_env(..., seeds=3)`, 2 envs a seed): with its
-    batches awaited on threads (`concurrent_waits=True`) every step's observations, rewards,
-    flags and episode info equal those of the batches awaited in turn, under one seed and
-    one action sequence."""
-    from jaxnat.training.host_backend import make_train_env
-
-    kwargs = {"obs_size": 36, "num_threads": 3, "max_episode_steps": 40, "background": background}
-    actions = np.random.default_rng(0).integers(0, 4, (60, 6))
-    runs = []
-    for concurrent in (False, True):
-        env = make_train_env("NaturalAtari/Breakout-v0", 2, kwargs, seeds=3)
-        env.concurrent_waits = concurrent
-        steps = [env.reset(seeds=[5, 6, 7])]
-        steps += [env.step(a) for a in actions]
-        env.close()
-        runs.append(steps)
-    for before, after in zip(*runs):
-        for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after)):
-            np.testing.assert_array_equal(a, b)
-    assert any(step[2].any() or step[3].any() for step in runs[0][1:])  # episodes ended on the way
 
 
 def test_host_backend_trains_every_seed_in_one_group():
@@ -166,7 +138,7 @@ def test_host_backend_trains_every_seed_in_one_group():
                                   host_seeds="together"), FAST)
     try:
         assert backend.groups == [[5, 6, 7]] and backend.checkpoints_per_seed
-        assert [part.num_envs for part in backend.env.parts] == [2, 2, 2] and backend.learner.seeds == 3
+        assert backend.env.num_envs == 6 and backend.learner.seeds == 3
         assert backend.checkpoint_dir([6]) == "checkpoints/seed_6"
         state = backend.init([5, 6, 7])
         assert backend.update_of(state) == 0
@@ -182,7 +154,7 @@ def test_host_backend_trains_every_seed_in_one_group():
     sequential = HostBackend(RunSpec("NaturalAtari/Breakout-v0", kwargs, "ppo", config, 2, 0, 1, 2), FAST)
     try:
         assert sequential.groups == [[0], [1]] and not sequential.checkpoints_per_seed
-        assert not isinstance(sequential.env, PipelinedVecEnv) and sequential.learner.seeds is None
+        assert sequential.env.num_envs == 2 and sequential.learner.seeds is None
     finally:
         sequential.close()
 
@@ -306,7 +278,7 @@ def test_resume_keeps_the_way_seeds_train():
 
 def test_learner_api_refuses_bad_combinations():
     """One-line `ValueError`s: seeds side by side with devices, DQN side by side, and an env
-    that is not one part of `num_envs` envs per seed."""
+    that is not one batch of `num_envs` envs per seed (or of one part per seed)."""
     from jaxnat.training.host_backend import make_learner
 
     config = CONFIGS["ppo"]
@@ -317,10 +289,13 @@ def test_learner_api_refuses_bad_combinations():
         on_policy_host_learner(config, env, FAST, devices=1, rule=ppo.RULE, seeds=2)
     with pytest.raises(ValueError, match="dqn's host learner trains one seed at a time"):
         make_learner("dqn", config, env, FAST, seeds=2)
-    with pytest.raises(ValueError, match=r"one part of config.num_envs=4 envs per seed .* parts have \[4, 4\] envs"):
+    with pytest.raises(ValueError, match=r"one batch of seeds x config.num_envs = 3 x 4 envs .* has \[4, 4\] envs"):
         on_policy_host_learner(config, env, FAST, rule=ppo.RULE, seeds=3)
-    with pytest.raises(ValueError, match=r"parts have \[4\] envs"):
+    with pytest.raises(ValueError, match=r"= 2 x 4 envs .*; the env has 4 envs$"):
         on_policy_host_learner(config, HostProbe("sign", 4), FAST, rule=ppo.RULE, seeds=2)
+    with pytest.raises(ValueError, match=r"the env has \[2, 6\] envs"):  # parts: one per seed
+        on_policy_host_learner(config, PipelinedVecEnv([HostProbe("sign", 2), HostProbe("sign", 6)]), FAST,
+                               rule=ppo.RULE, seeds=2)
 
 
 def test_seeds_at_different_updates_are_refused():

@@ -537,6 +537,28 @@ def test_host_sampler_is_reproducible_under_its_seed(small_bank):
         natural.HostVideoSampler(small_bank, 0)
 
 
+def test_host_sampler_seeded_per_group_draws_as_each_group_alone(small_bank):
+    """`HostVideoSampler(seed=[...])` (and `seed([...])`): the batch as equal groups, each
+    drawing its videos and starts, hand-overs and partial resets included, exactly as a sampler
+    of its envs alone seeded with its seed; per-env dials follow their envs; groups that do not
+    divide the batch are a one-line error."""
+    dial = dict(frame_rate=[1, 2, 1, 3, 0, 1], num_videos=[2, 1, 2, 2, 1, 2])
+    whole = natural.HostVideoSampler(small_bank, 6, seed=[4, 9, 4], **dial)
+    lone = [natural.HostVideoSampler(small_bank, 2, seed=s, frame_rate=dial["frame_rate"][2 * g:2 * g + 2],
+                                     num_videos=dial["num_videos"][2 * g:2 * g + 2]) for g, s in enumerate([4, 9, 4])]
+    masks = np.random.default_rng(0).random((10, 6)) < 0.3
+    for mask in masks:
+        np.testing.assert_array_equal(whole.step(), np.concatenate([s.step() for s in lone]))
+        np.testing.assert_array_equal(whole.reset(mask), np.concatenate([s.reset(m) for s, m in
+                                                                         zip(lone, np.split(mask, 3))]))
+    whole.seed([1, 2, 3])
+    for s, seed in zip(lone, [1, 2, 3]):
+        s.seed(seed)
+    np.testing.assert_array_equal(whole.reset(), np.concatenate([s.reset() for s in lone]))
+    with pytest.raises(ValueError, match="4 groups do not divide num_envs=6"):
+        whole.seed([1, 2, 3, 4])
+
+
 def test_a_bank_names_its_data_by_content_hash(videos, monkeypatch, tmp_path):
     """`FrameBank.manifest()`: per video its file name, the SHA-256 of the file's bytes and the
     frames held, in bank order, the same from the cache; `bank_manifests` finds the banks in a

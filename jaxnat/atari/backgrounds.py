@@ -11,7 +11,9 @@
   `[n, H, W]`, for the frames that ended their episodes) where a reset changes them, else None;
 - `frames()`: this step's gray backgrounds of the whole batch, `uint8[B, H, W]`, or None
   (black); waits for draws still running;
-- `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`;
+- `seed(seed)`: restart the random draws (videos, offsets, noise) from `seed`, or from one seed
+  per group (a sequence: the batch as that many equal groups of envs, each drawing what a
+  batch of its envs alone seeded so draws, as the seeds of a run side by side on one batch);
 - `close()`.
 
 Backgrounds are gray levels (through the compositor's grayscale law: the compositor composites
@@ -28,7 +30,7 @@ import numpy as np
 
 from jaxnat.atari.compositor import GrayNoiseSampler, grayscale
 from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
-from jaxnat.natural.sampler import per_env_values
+from jaxnat.natural.sampler import per_env_values, seed_groups
 
 __all__ = ["BACKGROUNDS", "BACKGROUND_KWARGS", "make_background"]
 
@@ -50,7 +52,7 @@ class NoBackground:
     def frames(self) -> np.ndarray | None:
         return None
 
-    def seed(self, seed: int) -> None:
+    def seed(self, seed) -> None:
         pass
 
     def close(self) -> None:
@@ -100,10 +102,10 @@ class NoiseBackground(NoBackground):
         for i in range(lo, hi):
             self._samplers[i].sample(self.buffer.shape[1:], self._rngs[i], out=self.buffer[i])
 
-    def seed(self, seed: int) -> None:
+    def seed(self, seed) -> None:
         self.frames()  # never reseed under running draws
-        streams = np.random.SeedSequence(seed).spawn(len(self.buffer))
-        self._rngs = [np.random.default_rng(s) for s in streams]
+        seeds, size = seed_groups(seed, len(self.buffer))
+        self._rngs = [np.random.default_rng(stream) for s in seeds for stream in np.random.SeedSequence(s).spawn(size)]
 
 
 class BankBackground(NoBackground):
@@ -150,8 +152,8 @@ class BankBackground(NoBackground):
     def frames(self) -> np.ndarray:
         return self.buffer[..., 0]
 
-    def seed(self, seed: int) -> None:
-        self._sampler.rng = np.random.default_rng(seed)  # the env's reset() then redraws videos
+    def seed(self, seed) -> None:
+        self._sampler.seed(seed)  # the env's reset() then redraws videos
 
 
 def make_background(kind: str, num_envs: int, shape: tuple[int, int], *, split: str = "train", sources=None,

@@ -19,6 +19,7 @@ from jaxnat.atari.chunks import ChunkRunner, default_threads
 from jaxnat.atari.compositor import FrameStack, composite_and_resize, composite_gray
 from jaxnat.atari.games import rom_id, rom_path
 from jaxnat.natural.noise import DEFAULT_NOISE
+from jaxnat.natural.sampler import seed_groups
 
 __all__ = ["NaturalAtariVecEnv", "PREPROCESSINGS", "SCREEN_SHAPE"]
 
@@ -191,7 +192,7 @@ class NaturalAtariVecEnv:
         self.pool = pool
         self.obs_size = (obs_size, obs_size) if isinstance(obs_size, int) else tuple(obs_size)
         self.max_episode_steps = int(max_episode_steps)
-        self._seed = int(seed)
+        self._seeds = [int(seed)]  # the next reset's seed of each group of envs (see reset)
         # Nothing to composite: ALE resizes in its threads, as ale-py's own preprocessing.
         self._ale_resizes = background == "none" and pool == "gray"
         ale_shape = self.obs_size if self._ale_resizes else SCREEN_SHAPE
@@ -226,7 +227,7 @@ class NaturalAtariVecEnv:
         self._runner = ChunkRunner(self.num_envs, max(1, chunks))
         self._background = make_background(
             background, self.num_envs, SCREEN_SHAPE, split=split, sources=video_sources,
-            seed=self._seed, noise=noise, noise_sigma=noise_sigma, runner=self._runner,
+            seed=self._seeds[0], noise=noise, noise_sigma=noise_sigma, runner=self._runner,
             **({"video_alpha": video_alpha, "frame_rate": frame_rate, "num_videos": num_videos}
                if background in ("video", "image") else {}),
         )
@@ -247,16 +248,26 @@ class NaturalAtariVecEnv:
         self._pending = None  # step_async's timestamps until step_wait
 
     # -- the batched API ------------------------------------------------------------------
-    def reset(self, *, seed: int | None = None):
+    def reset(self, *, seed: int | None = None, seeds=None):
         """Reset every env. `seed` seeds env `i`'s emulator with `seed + i` and restarts the
         background draws from `seed`; without it, the first reset uses the constructor's seed
-        and later ones continue the random streams (new games, new videos)."""
-        if seed is not None:
-            self._seed = int(seed)
-            self._background.seed(self._seed)
-        seed = self._seed
-        self._seed += self.num_envs  # a later reset() without a seed starts new games
-        raw, info = self._ale.reset(seed=seed)
+        and later ones continue the random streams (new games, new videos).
+
+        `seeds` (G of them, G dividing `num_envs`): the batch as G equal groups of `n` envs,
+        each reset as a batch of `n` envs of its own reset with `seed=seeds[g]` (group `g`'s
+        env `j` is emulator `g * n + j`, seeded `seeds[g] + j`; its backgrounds draw from
+        `seeds[g]`), and later resets without a seed continue each group's streams: the seeds
+        of a run side by side, each playing the games of its run alone, on one ALE batch."""
+        if seed is not None and seeds is not None:
+            raise ValueError("reset takes seed (one batch) or seeds (one per group), not both")
+        if seed is not None or seeds is not None:
+            self._seeds = seed_groups(int(seed) if seeds is None else seeds, self.num_envs)[0]
+            self._background.seed(self._seeds)
+        size = self.num_envs // len(self._seeds)
+        ale_seed = (self._seeds[0] if len(self._seeds) == 1
+                    else np.concatenate([np.arange(s, s + size) for s in self._seeds]))
+        self._seeds = [s + size for s in self._seeds]  # a later reset() without a seed starts new games
+        raw, info = self._ale.reset(seed=ale_seed)
         self._background.reset(None)
         self._stack.allocate(self.num_envs, self.obs_size)
         obs, _ = self._observe(raw[:, 0], np.ones(self.num_envs, bool), None)

@@ -8,8 +8,6 @@ and a batch made of parts that the host driver steps in turn.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import jax
 import numpy as np
 
@@ -106,12 +104,10 @@ class PipelinedVecEnv:
     around it) also overlap one part's host pass with the next part's emulation.
     """
 
-    def __init__(self, parts, concurrent_waits: bool = False):
+    def __init__(self, parts):
         if len(parts) < 1:
             raise ValueError("PipelinedVecEnv needs at least one part")
         self.parts = list(parts)
-        self.concurrent_waits = bool(concurrent_waits)  # `step`: see there
-        self._waits = None  # the threads `step` awaits the parts on, made at its first use
         sizes = [int(part.num_envs) for part in self.parts]
         self.offsets = list(np.cumsum([0, *sizes]))
         self.num_envs = int(self.offsets[-1])
@@ -140,11 +136,7 @@ class PipelinedVecEnv:
 
     def step(self, actions):
         """Every part steps; the parts with `step_async` get their actions before any outcome
-        is awaited, so that their emulators run at once; then they are awaited in turn. With
-        `concurrent_waits` two or more such parts are awaited on threads, one per part, so that
-        the parts' host passes (which release the GIL) run at once rather than one after another
-        (off by default until a many-core host shows it pays: `bench/atari_training.py
-        --side-by-side` times both). Each part's outcome is its own either way."""
+        is awaited, so that their emulators run at once; then they are awaited in turn."""
         sent = []
         for part, a in zip(self.parts, self.split(np.asarray(actions))):
             if hasattr(part, "step_async"):
@@ -152,20 +144,11 @@ class PipelinedVecEnv:
                 sent.append(None)
             else:
                 sent.append(part.step(a))
-        waiting = [i for i, out in enumerate(sent) if out is None]
-        if self.concurrent_waits and len(waiting) > 1:
-            if self._waits is None:
-                self._waits = ThreadPoolExecutor(len(self.parts), thread_name_prefix="jaxnat-parts")
-            futures = {i: self._waits.submit(self.parts[i].step_wait) for i in waiting}
-            sent = [futures[i].result() if out is None else out for i, out in enumerate(sent)]
         outs = [part.step_wait() if out is None else out for part, out in zip(self.parts, sent)]
         obs, reward, terminated, truncated = (np.concatenate([out[i] for out in outs]) for i in range(4))
         return obs, reward, terminated, truncated, _concat_infos([out[4] for out in outs])
 
     def close(self) -> None:
-        if self._waits is not None:
-            self._waits.shutdown()
-            self._waits = None
         for part in self.parts:
             part.close()
 

@@ -23,7 +23,7 @@ from flax import struct
 from jaxnat.natural.bank import FrameBank
 
 __all__ = ["VideoCursor", "cursor_reset", "cursor_step", "cursor_frame", "cursor_index",
-           "HostVideoSampler", "per_env_values"]
+           "HostVideoSampler", "per_env_values", "seed_groups"]
 
 
 @struct.dataclass
@@ -71,6 +71,18 @@ def cursor_frame(bank: FrameBank, cursor: VideoCursor) -> jax.Array:
     return jnp.asarray(bank.frames)[cursor_index(bank, cursor)]
 
 
+def seed_groups(seed, num_envs: int) -> tuple[list, int]:
+    """`seed` of a batch of `num_envs` host envs as `(seeds, size)`: one int (or None) seeds the
+    whole batch, `([seed], num_envs)`; a sequence of G seeds makes the batch G equal groups of
+    `size` envs, group `g` (envs `g * size ..`) seeded by `seeds[g]` as a batch of its own. A
+    one-line `ValueError` where G does not divide `num_envs`."""
+    seeds = [seed] if seed is None or np.ndim(seed) == 0 else [int(s) for s in seed]
+    if not seeds or num_envs % len(seeds):
+        raise ValueError(f"seed: one int, or one per group of equal size; {len(seeds)} groups do not "
+                         f"divide num_envs={num_envs}")
+    return seeds, num_envs // len(seeds)
+
+
 def per_env_values(name: str, value, num_envs: int, *, low: float, high: float | None = None,
                    whole: bool = False):
     """`value` (one number, or one per env) checked to be finite and in [low, high] (and a whole
@@ -101,7 +113,8 @@ class HostVideoSampler:
 
     `frames()` returns the current frames without moving. `out=` (an array of the right shape
     and dtype) avoids allocating a new batch each step. Random draws come from
-    `np.random.default_rng(seed)`.
+    `np.random.default_rng(seed)`; `seed` may also be one seed per group, the batch then being
+    that many equal groups of envs, each drawing as a sampler of its envs alone would (`seed`).
 
     `frame_rate` (a whole number >= 0, or one per env) is the frames a step moves on (0 freezes
     the frame; a video that ends inside a jump hands over to a new one at its first frame);
@@ -122,26 +135,43 @@ class HostVideoSampler:
             counts = np.broadcast_to(per_env_values("num_videos", num_videos, num_envs, low=1,
                                                     high=bank.num_videos, whole=True), (num_envs,))
             self.num_videos = None if np.all(counts == bank.num_videos) else counts.astype(np.int64)
-        self.rng = np.random.default_rng(seed)
         self.video = np.zeros(num_envs, np.int64)
         self.offset = np.zeros(num_envs, np.int64)
+        self.seed(seed)
         self.reset()
 
-    def _draw_videos(self, index: np.ndarray) -> np.ndarray:
-        if self.num_videos is None:
-            return self.rng.integers(0, self.bank.num_videos, size=index.size)
-        return self.rng.integers(0, self.num_videos[index])
+    def seed(self, seed) -> None:
+        """Restart the random draws from `seed` (an int or None) for the whole batch, or from one
+        seed per group (a sequence of G): the batch as G equal groups of envs, group `g`
+        drawing from `np.random.default_rng(seed[g])` exactly as a sampler of its envs alone
+        seeded so (the seeds of a run side by side on one batch). Later `reset` calls redraw."""
+        seeds, size = seed_groups(seed, self.num_envs)
+        self._groups = [(np.random.default_rng(s), g * size, (g + 1) * size) for g, s in enumerate(seeds)]
+
+    def _draw(self, index: np.ndarray, video: bool) -> np.ndarray:
+        """One draw per env of `index` (sorted), each from its group's generator, the group's
+        envs in order: video ids (`video`) or uniform floats in [0, 1)."""
+        out = np.empty(index.size, np.int64 if video else np.float64)
+        for rng, lo, hi in self._groups:
+            first, last = np.searchsorted(index, (lo, hi))
+            own = index[first:last]
+            if not video:
+                out[first:last] = rng.random(own.size)
+            elif self.num_videos is None:
+                out[first:last] = rng.integers(0, self.bank.num_videos, size=own.size)
+            else:
+                out[first:last] = rng.integers(0, self.num_videos[own])
+        return out
 
     def reset(self, mask: np.ndarray | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Re-draw video and start for the envs where `mask` is True (all when None); return
         every env's current frame."""
         index = (np.arange(self.num_envs) if mask is None
                  else np.flatnonzero(np.asarray(mask, bool).reshape(self.num_envs)))
-        video = self._draw_videos(index)
+        video = self._draw(index, video=True)
         self.video[index] = video
         # floor(u * length) is uniform over [0, length) for each env's own length.
-        self.offset[index] = (self.rng.random(index.size) * self.bank.lengths[video]).astype(
-            np.int64)
+        self.offset[index] = (self._draw(index, video=False) * self.bank.lengths[video]).astype(np.int64)
         return self.frames(out)
 
     def step(self, out: np.ndarray | None = None) -> np.ndarray:
@@ -151,7 +181,7 @@ class HostVideoSampler:
         self.offset += self.frame_rate
         ended = np.flatnonzero(self.offset >= self.bank.lengths[self.video])
         if ended.size:
-            self.video[ended] = self._draw_videos(ended)
+            self.video[ended] = self._draw(ended, video=True)
             self.offset[ended] = 0
         return self.frames(out)
 

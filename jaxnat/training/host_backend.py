@@ -6,8 +6,8 @@ use the agents' host learners (`rollout.host_steps`) on rewards clipped to [-1, 
 whole games with unclipped rewards. The seeds train (`--host-seeds`, the spec's `host_seeds`):
 
 - together (PPO, A2C, ACKTR; their default): one group of every seed, side by side on one
-  batch of all their envs (`make_train_env(..., seeds=S)`: a `PipelinedVecEnv` of one part
-  per seed, every part's emulators stepped at once), one vmapped policy call per env step and
+  batch of all their envs (`make_train_env(..., seeds=S)`: one ALE batch, seed `s`'s envs a
+  slice of it reset as that seed's batch alone), one vmapped policy call per env step and
   one vmapped update for all of them (`on_policy_host_learner(..., seeds=S)`); each seed keeps
   its own keys and games, so its training is its run alone to float tolerance (its test games
   are not: one test env, never reseeded, serves every evaluation in the order they run);
@@ -54,7 +54,6 @@ import numpy as np
 import jaxnat
 from jaxnat.agents import ALGORITHMS
 from jaxnat.agents.rollout import evaluate_host, seed_slice, stack_seeds
-from jaxnat.atari.chunks import default_threads
 from jaxnat.atari.wrappers import ClipRewardWrapper, PipelinedVecEnv
 from jaxnat.datasets import DatasetFormatError, DatasetNotFoundError
 from jaxnat.registration import MissingDependencyError, UnknownEnvError
@@ -104,18 +103,15 @@ def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1,
     `devices` (for `make_learner(..., devices=)`) only this process's share of the `num_envs`
     envs (`jaxnat.sharding.process_share`; all of them in one process).
 
-    `seeds` (S, for `make_learner(..., seeds=S)`): a `PipelinedVecEnv` of S batches of
-    `num_envs` envs, one per seed, emulated at once: the ALE threads (`num_threads`, 0: one per
-    env of all S batches, at most one per CPU) are shared out among them, at least one each
-    (neither observations nor rewards depend on the threads); not with `parts` or `devices`."""
+    `seeds` (S, for `make_learner(..., seeds=S)`): one batch of S * `num_envs` envs, seed `s`'s
+    envs `s * num_envs ..` (the learner resets it with `reset(seeds=...)`: each seed's slice as
+    that seed's batch alone, its games and backgrounds included), so all the seeds' envs share
+    one ALE batch and its threads (`num_threads`, 0: one per env, at most one per CPU) and one
+    host pass a step; not with `parts` or `devices`."""
     if seeds is not None:
         if parts != 1 or devices is not None:
-            raise ValueError("seeds side by side step one batch per seed: leave parts and devices out")
-        threads = int(env_kwargs.get("num_threads", 0)) or default_threads(seeds * num_envs)
-        shares = [max(1, threads // seeds + (i < threads % seeds)) for i in range(seeds)]
-        return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs, split="train",
-                                                                  **{**env_kwargs, "num_threads": share}))
-                                for share in shares])
+            raise ValueError("seeds side by side step one batch of all their envs: leave parts and devices out")
+        return ClipRewardWrapper(jaxnat.make_vec(env_id, seeds * num_envs, split="train", **env_kwargs))
     if devices is not None:
         num_envs = process_share(num_envs, devices)[1]
     if parts < 1 or num_envs % parts:

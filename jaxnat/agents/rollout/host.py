@@ -7,8 +7,8 @@ Python loop of updates that makes a `HostLearner` of an algorithm's update.
 and hands back the records as a list, one per step.
 
 A learner of several seeds side by side (`host_updates(..., seeds=S)`) holds their states
-stacked (`rollout.stacked`) and steps one batch of every seed's envs (a `PipelinedVecEnv`, one
-part per seed), its keys split per seed (`stacked.split_keys`) so that each seed draws what it
+stacked (`rollout.stacked`) and steps one batch of every seed's envs (seed `s`'s a slice reset
+as its batch alone: `NaturalAtariVecEnv.reset(seeds=...)`), its keys split per seed (`stacked.split_keys`) so that each seed draws what it
 draws training alone.
 """
 
@@ -63,17 +63,20 @@ class HostLearner(NamedTuple):
     seeds: int | None = None  # None: one seed; S: S seeds side by side (see above)
 
 
-def check_host_batch(config, env, memory: int = 0, share: tuple[int, int] | None = None) -> int:
+def check_host_batch(config, env, memory: int = 0, share: tuple[int, int] | None = None,
+                     seeds: int | None = None) -> int:
     """The run's update count; `config.num_envs` must equal `env.num_envs` (a host-batched env
     is built with its batch size), or with `share` (`(first, size)`, a data-parallel run's
-    `jaxnat.sharding.process_share`) `size`; the policy must be feed-forward (`memory` 0)."""
+    `jaxnat.sharding.process_share`) `size`, or with `seeds` (side by side) `env.num_envs /
+    seeds`; the policy must be feed-forward (`memory` 0)."""
     if share is not None and share[1] != env.num_envs:
         first, size = share
         raise ValueError(f"config.num_envs={config.num_envs} is split over the devices: this process steps envs "
                          f"{first}..{first + size - 1} ({size}) but the env has {env.num_envs} (build it with "
                          "jaxnat.sharding.process_share)")
-    if share is None and config.num_envs != env.num_envs:
-        raise ValueError(f"config.num_envs={config.num_envs} but the env has {env.num_envs} envs")
+    if share is None and config.num_envs * (seeds or 1) != env.num_envs:
+        each = "" if seeds is None else f" for each of {seeds} seeds"
+        raise ValueError(f"config.num_envs={config.num_envs}{each} but the env has {env.num_envs} envs")
     if memory:
         raise ValueError(f"memory={memory}: recurrent policies train on jitted envs only; a host-batched env "
                          "(Natural Atari) takes a feed-forward policy (memory=0) and frame stacking")
@@ -222,9 +225,9 @@ def host_updates(env, network, num_updates: int, init_learner: Callable, update:
     as that batch's).
 
     `seeds` (S): S seeds side by side, `init_learner` and `update` taking and giving their
-    stacked learner states and keys; `env` a `PipelinedVecEnv` of one part per seed, which a
-    run resets with each seed's own game seed (`reset(seeds=...)`, drawn as one seed's run
-    draws it), so seed `s`'s games are those of its run alone. Every seed is at the same
+    stacked learner states and keys; `env` one batch of every seed's envs, which a run resets
+    with each seed's own game seed (`reset(seeds=...)`, drawn as one seed's run draws it), so
+    seed `s`'s games are those of its run alone. Every seed is at the same
     update (a state whose seeds are not is refused)."""
     timings = {} if timings is None else timings
     shape = () if seeds is None else (seeds,)

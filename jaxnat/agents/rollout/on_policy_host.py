@@ -56,26 +56,27 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
     the step keys follow). Its random draws are not the default learner's (`devices=None`,
     unchanged).
 
-    `seeds` (S): S seeds side by side (`HostLearner.seeds`), on a `PipelinedVecEnv` of S parts
-    of `config.num_envs` envs, part `s` seed `s`'s batch (`host_backend.make_train_env(...,
-    seeds=S)`), stepped as one batch (every part's emulators at once, not in turn). Per env
+    `seeds` (S): S seeds side by side (`HostLearner.seeds`), on one batch of S *
+    `config.num_envs` envs, seed `s`'s envs `s * num_envs ..`, whose `reset(seeds=...)` resets
+    each seed's envs as a batch of their own (`host_backend.make_train_env(..., seeds=S)`: one
+    ALE batch; or a `PipelinedVecEnv` of one part per seed), stepped as one batch. Per env
     step one policy call acts for every seed, per update one update trains them all (both
-    `jax.vmap`ped over the stacked states); the keys are split per seed and each part is
-    reset with its seed's game seed, so seed `s` trains as the one-seed learner on its own
-    batch given `init` its key `s` (to float tolerance: vmapped programs may round otherwise).
-    One device: not with `devices`."""
+    `jax.vmap`ped over the stacked states); the keys are split per seed and each seed's envs
+    are reset with its game seed, so seed `s` trains as the one-seed learner on its own batch
+    given `init` its key `s` (to float tolerance: vmapped programs may round otherwise). One
+    device: not with `devices`."""
     check_ranges(config)
     options = rule.network_options(config)
     if seeds is not None:
         if devices is not None:
             raise ValueError("seeds side by side train on one device: leave devices out, or train one seed at a time "
                              "data parallel")
-        _check_seed_parts(env, seeds, config.num_envs)
+        _check_seed_batch(env, seeds, config.num_envs)
     mesh = None if devices is None else device_mesh(devices)
     if mesh is not None:
         rule = rule.averaged(AXIS)
     share = None if mesh is None else process_share(config.num_envs, mesh)
-    num_updates = check_host_batch(config, env if seeds is None else env.parts[0], options.get("memory", 0), share)
+    num_updates = check_host_batch(config, env, options.get("memory", 0), share, seeds)
     observation_space = env.single_observation_space
     if config.normalize_observations or config.normalize_rewards:  # (None, the default, is off here)
         raise ValueError("normalize_observations and normalize_rewards apply to jitted envs; a host-batched "
@@ -141,13 +142,14 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
                         0 if share is None else share[0], seeds)
 
 
-def _check_seed_parts(env, seeds: int, num_envs: int) -> None:
-    """A `ValueError` unless `env` is `seeds` parts of `num_envs` envs (one batch per seed)."""
+def _check_seed_batch(env, seeds: int, num_envs: int) -> None:
+    """A `ValueError` unless `env` holds `seeds` x `num_envs` envs (a `PipelinedVecEnv` of
+    parts: one part of `num_envs` per seed)."""
     sizes = [int(part.num_envs) for part in getattr(env, "parts", [env])]
-    if seeds < 1 or sizes != [num_envs] * seeds:
-        raise ValueError(f"seeds={seeds} side by side take a PipelinedVecEnv of one part of config.num_envs="
-                         f"{num_envs} envs per seed (host_backend.make_train_env(..., seeds={seeds})); the env's "
-                         f"parts have {sizes} envs")
+    if seeds < 1 or int(env.num_envs) != seeds * num_envs or (len(sizes) > 1 and sizes != [num_envs] * seeds):
+        raise ValueError(f"seeds={seeds} side by side take one batch of seeds x config.num_envs = "
+                         f"{seeds} x {num_envs} envs (host_backend.make_train_env(..., seeds={seeds})); the env "
+                         f"has {sizes if len(sizes) > 1 else env.num_envs} envs")
 
 
 def _seed_programs(config, network, rule: UpdateRule, observation_space, num_updates: int, jit: Callable,
