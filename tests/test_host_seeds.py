@@ -57,6 +57,21 @@ def _assert_same_run(alone, alone_history, side, side_history, index):
             np.testing.assert_allclose(row[name][index], value, atol=1e-4, rtol=1e-4)
 
 
+def test_split_keys_splits_one_key_or_each_seed_s_key_as_its_own():
+    """`split_keys`: one key splits as `jax.random.split`; stacked keys `[S]` each as that
+    seed's key alone, so a seed's stream side by side is its stream alone."""
+    from jaxnat.agents.rollout.stacked import split_keys
+
+    key = jax.random.key(3)
+    expected = jax.random.key_data(jax.random.split(key))
+    np.testing.assert_array_equal(np.stack([jax.random.key_data(k) for k in split_keys(key)]), expected)
+    keys = stack_seeds([jax.random.key(seed) for seed in SEEDS])
+    both = [jax.random.key_data(k) for k in split_keys(keys)]
+    for index, seed in enumerate(SEEDS):
+        np.testing.assert_array_equal(np.stack([k[index] for k in both]),
+                                      jax.random.key_data(jax.random.split(jax.random.key(seed))))
+
+
 @pytest.mark.parametrize("algo", ["ppo", "a2c", "acktr"])
 def test_seeds_side_by_side_learn_as_each_seed_alone_on_probes(algo):
     """On a probe (mlp trunk, fast): two seeds side by side (a `PipelinedVecEnv` of one batch per

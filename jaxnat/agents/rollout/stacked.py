@@ -30,6 +30,14 @@ def stack_seeds(trees):
     return jax.tree.map(lambda *leaves: jnp.stack(leaves), *trees)
 
 
+# Jitted, so that the host loops' split per env step is one dispatch: unjitted, the split and
+# the two rows taken from it are three (bench/results/host_overhead.md).
+@jax.jit
+def _split_one(key):
+    pair = jax.random.split(key)
+    return pair[0], pair[1]
+
+
 @jax.jit
 def _split_each(keys):
     pairs = jax.vmap(jax.random.split)(keys)
@@ -39,10 +47,7 @@ def _split_each(keys):
 def split_keys(key) -> tuple:
     """`(key, subkey)`: `jax.random.split(key)` for one key; for stacked keys `[S]`, each row
     split as that seed's own key would be (`(keys, subkeys)`, each `[S]`)."""
-    if key.shape == ():
-        key, subkey = jax.random.split(key)
-        return key, subkey
-    return _split_each(key)
+    return _split_one(key) if key.shape == () else _split_each(key)
 
 
 def over_seeds(fn: Callable, seeds: int) -> Callable:
