@@ -18,7 +18,11 @@ per step) for each seed count S, against the env alone on one batch of the same 
 same `--threads`; env steps/s of all seeds, and their ratio. Beside it (`--compare-batches`,
 the default) the layout the learner had before: one ALE batch per seed (a `PipelinedVecEnv`
 of S parts, every part's emulators stepped at once, the `--threads` shared out among them),
-trained and stepped alone under random actions, and the ratio of the one batch to it.
+trained and stepped alone under random actions, and the ratio of the one batch to it; and for
+each `--parts` above 1 (that divides `--envs-per-seed`), the seeds side by side in that many
+pipelined parts (`--host-seeds together --env-parts P`: each part one ALE batch holding
+envs-per-seed / P envs of every seed, stepped in turn so that one part's policy call overlaps
+the other parts' emulation).
 
 The table gives env steps/s of both, their ratio (target: PPO >= 0.70 of the env alone), and
 where a PPO step's time goes (ms per batched step of all envs, from `learner.timings` and
@@ -125,6 +129,9 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
     """`--side-by-side`: per seed count, the env alone on all the seeds' envs as one batch, then
     PPO training them side by side; (rows, table)."""
     rows = []
+    # `--parts` above 1: also every seed's envs in that many pipelined parts (each must divide
+    # the envs of a seed)
+    pipelined_parts = [parts for parts in args.parts if parts > 1 and args.envs_per_seed % parts == 0]
     for seeds in args.side_by_side:
         base = jaxnat.make_vec(env_id, seeds * args.envs_per_seed, split="train", **env_kwargs)
         base.reset(seed=0)
@@ -144,12 +151,19 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         env = make_train_env(env_id, args.envs_per_seed, env_kwargs, seeds=seeds)
         rate, timings, _, warm_s = train_rate(env, config, args.warmup, args.updates, compiler_options, seeds=seeds)
         env.close()
+        pipelined = {}
+        for parts in pipelined_parts:  # every seed's envs in that many parts stepped in turn
+            env = make_train_env(env_id, args.envs_per_seed, env_kwargs, parts, seeds=seeds)
+            pipelined[f"parts_{parts}"] = train_rate(env, config, args.warmup, args.updates, compiler_options,
+                                                     seeds=seeds)[0]
+            env.close()
         after, _ = env_alone(base, args.env_steps, rng)
         base.close()
         alone = (before + after) / 2
         n = timings["steps"]
         rows.append(dict(seeds=seeds, num_envs=seeds * args.envs_per_seed, alone=alone, steps_per_s=rate,
-                         ratio=rate / alone, policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
+                         ratio=rate / alone, **pipelined,
+                         **{f"{name}_ratio": value / alone for name, value in pipelined.items()}, policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
                          update_ms=1e3 * (timings["update_s"] - timings["rollout_s"]) / n, warmup_s=warm_s,
                          alone_before=before, alone_after=after, per_seed=per_seed,
                          one_over_per_seed=None if per_seed is None else rate / per_seed,
@@ -159,6 +173,9 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         ("steps_per_s", "PPO side by side steps/s", ",.0f"), ("ratio", "vs env alone", ".2f"),
         ("per_seed", "PPO, a batch per seed steps/s", ",.0f"), ("one_over_per_seed", "one batch / batch per seed", ".2f"),
         ("per_seed_alone", "env alone, a batch per seed", ",.0f"),
+        *[column for parts in pipelined_parts for column in (
+            (f"parts_{parts}", f"PPO in {parts} parts steps/s", ",.0f"),
+            (f"parts_{parts}_ratio", f"{parts} parts vs env alone", ".2f"))],
         ("policy_ms", "policy ms", ".2f"), ("env_ms", "env step ms", ".2f"), ("update_ms", "update ms", ".2f"),
         ("warmup_s", "warm-up s", ".1f")])
 
@@ -217,7 +234,8 @@ def main(argv=None):
                    + (", xla_backend_optimization_level=0" if args.fast_compile else ""),
             "columns": "env steps/s of all seeds; the env alone steps the same envs as one batch (random actions), "
                        "before and after (mean); 'a batch per seed': the same seeds on one ALE batch each, the "
-                       "threads shared out (the learner's layout before); ms per batched step of all envs",
+                       "threads shared out (the learner's layout before); 'in P parts': every seed's envs in P pipelined "
+                       "parts (--host-seeds together --env-parts P); ms per batched step of all envs",
             "bench seconds": f"{time.perf_counter() - started:.0f}",
             "video sources": args.video_sources or "opencv-doc",
         }

@@ -613,6 +613,38 @@ def test_pipelined_parts_reset_with_their_own_seeds_replay_lone_batches():
         env.close()
 
 
+def test_pipelined_parts_of_groups_replay_each_group_s_batch_in_parts():
+    """`PipelinedVecEnv(parts, groups=G)` (seeds side by side in pipelined parts): each part
+    holds an equal slice of every group; `reset(seeds=...)` and the same actions replay, for
+    group `g`, the lone batch in the same parts reset with `seed=seeds[g]`."""
+    from jaxnat.atari.wrappers import PipelinedVecEnv
+
+    def make(n):
+        return NaturalAtariVecEnv("Breakout", n, background="noise", num_threads=1, obs_size=36)
+
+    seeds = [7, 11]
+    side = PipelinedVecEnv([make(4), make(4)], groups=2)  # part p: envs p*2, p*2+1 of each group
+    lone = [PipelinedVecEnv([make(2), make(2)]) for _ in seeds]
+
+    def regroup(outs):  # each group's envs, part after part, from the lone batches
+        return np.concatenate([x[lo:lo + 2] for lo in (0, 2) for x in outs])
+
+    first = side.reset(seeds=seeds)[0]
+    np.testing.assert_array_equal(first, regroup([env.reset(seed=s)[0] for env, s in zip(lone, seeds)]))
+    for a in np.random.default_rng(2).integers(0, 4, (15, 8)):
+        got = side.step(a)
+        parts = a.reshape(2, 2, 2)  # part, group, env
+        expected = [env.step(parts[:, g].reshape(-1)) for g, env in enumerate(lone)]
+        for i in range(4):
+            np.testing.assert_array_equal(got[i], regroup([out[i] for out in expected]))
+    with pytest.raises(ValueError, match=r"one per group \(2\), got 3"):
+        side.reset(seeds=[1, 2, 3])
+    with pytest.raises(ValueError, match=r"groups=2: every part must hold an equal slice of each group; .* \[4, 3\]"):
+        PipelinedVecEnv([make(4), make(3)], groups=2)
+    for env in (*lone, side):
+        env.close()
+
+
 @pytest.mark.parametrize("background", ["none", "noise", "video"])
 def test_one_batch_reset_with_seeds_per_group_replays_lone_batches(clips, background):
     """`NaturalAtariVecEnv.reset(seeds=...)` (the seeds of a run side by side on one ALE batch):

@@ -89,12 +89,13 @@ def test_seeds_side_by_side_learn_as_each_seed_alone_on_probes(algo):
         _assert_same_run(alone_state, alone_history, state, history, index)
 
 
-@pytest.mark.parametrize("background", ["none", "noise"])
-def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background):
+@pytest.mark.parametrize("background, parts", [("none", 1), ("noise", 1), ("noise", 2)])
+def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background, parts):
     """Breakout on the host, as `jaxnat train` builds it (`host_backend.make_train_env` and
     `make_learner`): PPO on 2 seeds side by side, 2 envs each, ends with each seed's state of
-    its run alone (the same game seeds: each part resets as that seed's lone batch, its noise
-    background included) to `TOLERANCE`."""
+    its run alone (the same game seeds: each seed's envs reset as that seed's lone batch, its
+    noise background included) to `TOLERANCE`; in 2 pipelined parts (one env of each seed a
+    part), each seed's run alone in 2 parts."""
     pytest.importorskip("ale_py")
     from jaxnat.training.host_backend import make_learner, make_train_env
 
@@ -103,11 +104,12 @@ def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background):
     config = ppo.PPOConfig(total_timesteps=2 * 8 * 2, num_envs=2, num_steps=8, num_minibatches=2, trunk="atari")
     alone = []
     for seed in SEEDS:
-        env = make_train_env(env_id, 2, kwargs)
+        env = make_train_env(env_id, 2, kwargs, parts)
         alone.append(make_learner("ppo", config, env, FAST).train(jax.random.key(seed)))
         env.close()
-    env = make_train_env(env_id, 2, kwargs, seeds=len(SEEDS))
-    assert env.num_envs == 4 and not hasattr(env, "parts")  # one ALE batch of every seed's envs
+    env = make_train_env(env_id, 2, kwargs, parts, seeds=len(SEEDS))
+    # one ALE batch of every seed's envs, or one per part
+    assert env.num_envs == 4 and len(getattr(env, "parts", [env])) == parts
     state, history = make_learner("ppo", config, env, FAST, seeds=len(SEEDS)).train(
         stack_seeds([jax.random.key(seed) for seed in SEEDS]))
     env.close()
@@ -120,7 +122,8 @@ def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background):
 
 def test_seeds_side_by_side_make_one_batch_of_all_their_envs(monkeypatch):
     """`make_train_env(..., seeds=S)`: one batch of S x `num_envs` envs of the train split, the
-    other kwargs (ALE threads included) as given, rewards clipped; not with parts."""
+    other kwargs (ALE threads included) as given, rewards clipped; with `parts` P, P such
+    batches of S x `num_envs / P` (a `PipelinedVecEnv` of `groups=S`); not with devices."""
     import jaxnat
     from jaxnat.atari.wrappers import ClipRewardWrapper
     from jaxnat.training.host_backend import make_train_env
@@ -135,8 +138,14 @@ def test_seeds_side_by_side_make_one_batch_of_all_their_envs(monkeypatch):
     env = make_train_env("NaturalAtari/Breakout-v0", 4, {"num_threads": 5, "obs_size": 36}, seeds=3)
     assert isinstance(env, ClipRewardWrapper) and env.num_envs == 12
     assert made == [(12, {"split": "train", "num_threads": 5, "obs_size": 36})]
-    with pytest.raises(ValueError, match="leave parts and devices out"):
-        make_train_env("NaturalAtari/Breakout-v0", 4, {}, parts=2, seeds=2)
+    made.clear()
+    env = make_train_env("NaturalAtari/Breakout-v0", 4, {"num_threads": 5}, parts=2, seeds=3)
+    assert isinstance(env, PipelinedVecEnv) and env.groups == 3 and [p.num_envs for p in env.parts] == [6, 6]
+    assert made == [(6, {"split": "train", "num_threads": 5})] * 2
+    with pytest.raises(ValueError, match="seeds side by side step one batch of all their envs on one device"):
+        make_train_env("NaturalAtari/Breakout-v0", 4, {}, devices=1, seeds=2)
+    with pytest.raises(ValueError, match="parts=3 must be >= 1 and divide num_envs=4"):
+        make_train_env("NaturalAtari/Breakout-v0", 4, {}, parts=3, seeds=2)
 
 
 def test_host_backend_trains_every_seed_in_one_group():
@@ -243,8 +252,8 @@ def test_jaxnat_train_seeds_together_checkpoints_per_seed_and_resumes(tmp_path, 
 
 def test_host_seeds_defaults_and_records():
     """Unset, `--host-seeds` is together for the on-policy learners on one batch, sequential for
-    DQN and with env parts (which pipeline one seed's batch); a run spec written before the
-    setting reads as None (sequential)."""
+    DQN and with env parts (as runs with parts trained before); together with parts is taken as
+    asked; a run spec written before the setting reads as None (sequential)."""
     from jaxnat.training import RunSpec
     from jaxnat.training.host_backend import SIDE_BY_SIDE_ALGORITHMS, check_host_seeds
 
@@ -253,6 +262,7 @@ def test_host_seeds_defaults_and_records():
         ["together"] * 3 + ["sequential"]
     assert check_host_seeds(None, "ppo", 2) == "sequential"
     assert check_host_seeds("sequential", "ppo", 1) == "sequential"
+    assert check_host_seeds("together", "ppo", 2) == "together"
     saved = RunSpec("NaturalAtari/Breakout-v0", {}, "ppo", ppo.PPOConfig(trunk="atari"), 2, 0, 1, 10,
                     host_seeds="together").to_json()
     assert RunSpec.from_json(saved).host_seeds == "together"
@@ -263,8 +273,6 @@ def test_host_seeds_defaults_and_records():
 @pytest.mark.parametrize("argv, message", [
     (["--algo", "dqn", "--host-seeds", "together"],
      "--host-seeds together applies to ppo, a2c, acktr: dqn's host learner trains one seed at a time"),
-    (["--host-seeds", "together", "--env-parts", "2"],
-     "--host-seeds together steps every seed's envs as one batch and --env-parts 2 pipelines one seed's batch"),
     (["--host-seeds", "both"], "--host-seeds takes together or sequential, got 'both'"),
     (["--env-id", "Classify/Digits-v0", "--host-seeds", "sequential"],
      "--host-seeds applies to host-batched envs (NaturalAtari/*); Classify/Digits-v0 is a JAX env"),

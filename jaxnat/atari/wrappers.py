@@ -102,13 +102,24 @@ class PipelinedVecEnv:
     action is still chosen by the current policy on the latest observation (exact on-policy
     steps). Parts with `step_async`/`step_wait` (`NaturalAtariVecEnv`, and the wrappers here
     around it) also overlap one part's host pass with the next part's emulation.
+
+    `groups` (G, for the seeds of a run side by side in pipelined parts): every part holds an
+    equal slice of each of G groups of envs (part `p`'s envs `g * k .. g * k + k - 1` are envs
+    `p * k ..` of group `g`, `k` a part's envs per group), and `reset(seeds=...)` takes one
+    seed per group: each group's envs reset as one batch of their own reset with its seed
+    would, in parts (part `p` resets its groups with `reset(seeds=[seeds[g] + p * k ...])`,
+    which its envs must take: `NaturalAtariVecEnv.reset(seeds=)`).
     """
 
-    def __init__(self, parts):
+    def __init__(self, parts, groups: int | None = None):
         if len(parts) < 1:
             raise ValueError("PipelinedVecEnv needs at least one part")
         self.parts = list(parts)
         sizes = [int(part.num_envs) for part in self.parts]
+        if groups is not None and (groups < 1 or len(set(sizes)) != 1 or sizes[0] % groups):
+            raise ValueError(f"groups={groups}: every part must hold an equal slice of each group; the parts have "
+                             f"{sizes} envs")
+        self.groups = groups
         self.offsets = list(np.cumsum([0, *sizes]))
         self.num_envs = int(self.offsets[-1])
         self.single_observation_space = self.parts[0].single_observation_space
@@ -122,13 +133,18 @@ class PipelinedVecEnv:
         """Reset every part: with `seed`, as one batch (emulator `j` gets `seed + j`); with `seeds`
         (one per part), part `i` as a batch of its own reset with `seeds[i]` (its emulator `j`
         gets `seeds[i] + j`): parts that each replay another run's batch, such as the seeds of
-        a run trained side by side."""
+        a run trained side by side; with `groups`, one per group (see the class)."""
         if seeds is not None:
             if seed is not None:
                 raise ValueError("reset takes seed (one batch) or seeds (one per part), not both")
-            if len(seeds) != len(self.parts):
-                raise ValueError(f"seeds: one per part ({len(self.parts)}), got {len(seeds)}")
-            options = [{"seed": int(s)} for s in seeds]
+            count, per = (len(self.parts), "part") if self.groups is None else (self.groups, "group")
+            if len(seeds) != count:
+                raise ValueError(f"seeds: one per {per} ({count}), got {len(seeds)}")
+            if self.groups is None:
+                options = [{"seed": int(s)} for s in seeds]
+            else:
+                k = self.parts[0].num_envs // self.groups
+                options = [{"seeds": [int(s) + p * k for s in seeds]} for p in range(len(self.parts))]
         else:
             options = [{} if seed is None else {"seed": int(seed) + int(offset)} for offset in self.offsets[:-1]]
         outs = [part.reset(**kwargs) for part, kwargs in zip(self.parts, options)]

@@ -107,7 +107,8 @@ def _print_config(console, spec: RunSpec, run_dir: Path) -> None:
     table.add_row("seeds", f"{spec.seed_values}{how}")
     table.add_row("updates", f"{spec.num_updates} x {spec.steps_per_update} env steps per seed")
     if spec.env_parts > 1:
-        parts = f"{spec.env_parts} of {spec.config.num_envs // spec.env_parts} envs, stepped in turn"
+        each = " of each seed" if spec.host_seeds == "together" else ""
+        parts = f"{spec.env_parts} of {spec.config.num_envs // spec.env_parts} envs{each}, stepped in turn"
         table.add_row("env parts", parts)
     if spec.shard is not None:
         split = (f"{spec.config.num_envs // spec.devices} envs of each seed per device, gradients averaged"

@@ -25,8 +25,10 @@ each seed's slice of their stacked state, so `--resume`, `jaxnat.trained.load_po
 `--env-parts N` (PPO, A2C) trains on a `PipelinedVecEnv` of N equal parts, which the learner
 steps in turn (`rollout.host_steps_pipelined`): the policy's call for one part overlaps the
 emulation of the others. The actions are sampled with other keys than in one batch, so a run
-with parts differs from the one-batch run (N=1, the default, is that run unchanged). Parts
-pipeline one seed's batch: such a run trains its seeds one after another.
+with parts differs from the one-batch run (N=1, the default, is that run unchanged). With
+`--host-seeds together` as well, each part holds `num_envs / N` envs of every seed (one ALE
+batch), so each seed trains as its run alone in N parts; unset, `--host-seeds` is sequential
+with parts (as every run with parts trained before side by side could be pipelined).
 
 Several devices: `jaxnat train --devices N` (PPO, A2C; `check_host_devices`) trains each seed
 in turn with its update data parallel over N devices of the process (`make_learner(...,
@@ -107,15 +109,20 @@ def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1,
     envs `s * num_envs ..` (the learner resets it with `reset(seeds=...)`: each seed's slice as
     that seed's batch alone, its games and backgrounds included), so all the seeds' envs share
     one ALE batch and its threads (`num_threads`, 0: one per env, at most one per CPU) and one
-    host pass a step; not with `parts` or `devices`."""
-    if seeds is not None:
-        if parts != 1 or devices is not None:
-            raise ValueError("seeds side by side step one batch of all their envs: leave parts and devices out")
-        return ClipRewardWrapper(jaxnat.make_vec(env_id, seeds * num_envs, split="train", **env_kwargs))
+    host pass a step. With `parts` > 1 as well: a `PipelinedVecEnv(groups=S)` of that many
+    such batches, each holding `num_envs / parts` envs of every seed (seed `s`'s envs in part
+    after part, as its batch alone in parts); not with `devices`."""
+    if seeds is not None and devices is not None:
+        raise ValueError("seeds side by side step one batch of all their envs on one device: leave devices out")
     if devices is not None:
         num_envs = process_share(num_envs, devices)[1]
     if parts < 1 or num_envs % parts:
         raise ValueError(f"parts={parts} must be >= 1 and divide num_envs={num_envs}")
+    if seeds is not None:
+        if parts == 1:
+            return ClipRewardWrapper(jaxnat.make_vec(env_id, seeds * num_envs, split="train", **env_kwargs))
+        return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, seeds * num_envs // parts, split="train",
+                                                                  **env_kwargs)) for _ in range(parts)], groups=seeds)
     if parts == 1:
         return ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs, split="train", **env_kwargs))
     return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs // parts, split="train",
@@ -211,8 +218,8 @@ def check_host_devices(devices: int | None, shard: str | None, algo: str, host_s
 def check_host_seeds(mode: str | None, algo: str, parts: int, devices: int | None = None) -> str:
     """`--host-seeds` resolved: `together` or `sequential` as given, else together for the
     `SIDE_BY_SIDE_ALGORITHMS` on one batch (`--env-parts 1`) on one device, and sequential
-    otherwise; together with an algorithm that cannot, or with parts (which pipeline one seed's
-    batch), is refused."""
+    otherwise (runs written before seeds could be pipelined side by side keep training as they
+    did); together with an algorithm that cannot is refused."""
     if mode is None:
         return ("together" if algo in SIDE_BY_SIDE_ALGORITHMS and parts == 1 and devices is None
                 else "sequential")
@@ -221,9 +228,6 @@ def check_host_seeds(mode: str | None, algo: str, parts: int, devices: int | Non
     if mode == "together" and algo not in SIDE_BY_SIDE_ALGORITHMS:
         raise TrainError(f"--host-seeds together applies to {', '.join(SIDE_BY_SIDE_ALGORITHMS)}: {algo}'s host "
                          "learner trains one seed at a time (--host-seeds sequential)")
-    if mode == "together" and parts > 1:
-        raise TrainError(f"--host-seeds together steps every seed's envs as one batch and --env-parts {parts} "
-                         "pipelines one seed's batch: give --env-parts 1, or --host-seeds sequential")
     return mode
 
 
@@ -255,9 +259,8 @@ class HostBackend:
         devices = spec.devices if spec.shard == "envs" else None  # data parallel over this process's devices
         check_split_kwargs(spec.env_kwargs)
         with host_errors(spec.env_id):
-            self.env = (make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, seeds=seeds)
-                        if self.side_by_side else
-                        make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts, devices))
+            self.env = make_train_env(spec.env_id, spec.config.num_envs, spec.env_kwargs, spec.env_parts, devices,
+                                      seeds)
             # No more test envs than test games: the first games to end are the short ones, so
             # many envs would bias the scores (and step emulators whose games are never counted).
             self.test_env = jaxnat.make_vec(spec.env_id, min(spec.config.num_envs, spec.eval_episodes), split="test",

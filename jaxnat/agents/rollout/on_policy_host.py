@@ -64,7 +64,10 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
     `jax.vmap`ped over the stacked states); the keys are split per seed and each seed's envs
     are reset with its game seed, so seed `s` trains as the one-seed learner on its own batch
     given `init` its key `s` (to float tolerance: vmapped programs may round otherwise). One
-    device: not with `devices`."""
+    device: not with `devices`. In pipelined parts: a `PipelinedVecEnv` with `groups=S`
+    (`make_train_env(..., parts=P, seeds=S)`: each part an equal slice of every seed's envs),
+    stepped in turn as above with one policy call per part for every seed, so seed `s` trains
+    as the one-seed learner on its own batch in the same parts."""
     check_ranges(config)
     options = rule.network_options(config)
     if seeds is not None:
@@ -100,9 +103,13 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
         stacked_policy = jit(over_seeds(act, seeds))
         policy = lambda params, obs, key, first=None: stacked_policy(params, obs, key)  # noqa: E731
         value_of = jit(over_seeds(functools.partial(final_value, network), seeds))
-        init, learn, local_params = _seed_programs(config, network, rule, observation_space, num_updates, jit, seeds)
     parts = getattr(env, "parts", None)
-    pipelined = seeds is None and parts is not None and len(parts) > 1
+    # Parts are stepped in turn; of seeds side by side only parts holding a slice of every
+    # seed's envs (`groups`), not one part per seed, which step as one batch.
+    pipelined = parts is not None and len(parts) > 1 and (seeds is None or getattr(env, "groups", None) == seeds)
+    if seeds is not None:
+        init, learn, local_params = _seed_programs(config, network, rule, observation_space, num_updates, jit, seeds,
+                                                   len(parts) if pipelined else 1)
     offsets = env.offsets[:-1] if pipelined else [0]
     # Each part's first env in the whole batch (data parallel), or None: the default sampling.
     starts = [None if share is None else share[0] + int(offset) for offset in offsets]
@@ -144,24 +151,30 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
 
 def _check_seed_batch(env, seeds: int, num_envs: int) -> None:
     """A `ValueError` unless `env` holds `seeds` x `num_envs` envs (a `PipelinedVecEnv` of
-    parts: one part of `num_envs` per seed)."""
+    parts: one part of `num_envs` per seed, or parts of `groups=seeds`)."""
     sizes = [int(part.num_envs) for part in getattr(env, "parts", [env])]
-    if seeds < 1 or int(env.num_envs) != seeds * num_envs or (len(sizes) > 1 and sizes != [num_envs] * seeds):
+    grouped = getattr(env, "groups", None) == seeds
+    if seeds < 1 or int(env.num_envs) != seeds * num_envs or (len(sizes) > 1 and not grouped
+                                                              and sizes != [num_envs] * seeds):
         raise ValueError(f"seeds={seeds} side by side take one batch of seeds x config.num_envs = "
                          f"{seeds} x {num_envs} envs (host_backend.make_train_env(..., seeds={seeds})); the env "
                          f"has {sizes if len(sizes) > 1 else env.num_envs} envs")
 
 
 def _seed_programs(config, network, rule: UpdateRule, observation_space, num_updates: int, jit: Callable,
-                   seeds: int):
+                   seeds: int, parts: int = 1):
     """`_host_programs`' `(init, learn, local_params)` of `seeds` seeds side by side: `init(keys
     [S])` and `learn(train_state, transitions, keys [S])` vmapped over the stacked train
     states, the transitions of the seeds' envs side by side `[T, S * n, ...]` (seed `s`'s envs
-    `s * n ..`) regrouped per seed inside the program; `local_params` the stacked params."""
+    `s * n ..`; in `parts` pipelined parts, part after part, each holding `n / parts` envs of
+    every seed: `[T, P * S * n / P, ...]`) regrouped per seed inside the program, each seed's
+    envs in the order of its batch alone (part by part); `local_params` the stacked params."""
     make_state = jit(jax.vmap(lambda key: rule.train_state(config, network, observation_space, num_updates, key)))
 
-    def per_seed(x):  # [T, S * n, ...] -> [S, T, n, ...]
-        return jnp.moveaxis(x.reshape(x.shape[0], seeds, x.shape[1] // seeds, *x.shape[2:]), 1, 0)
+    def per_seed(x):  # [T, P * S * k, ...] -> [S, T, P * k, ...]
+        steps, envs = x.shape[:2]
+        x = jnp.moveaxis(x.reshape(steps, parts, seeds, envs // (parts * seeds), *x.shape[2:]), 2, 0)
+        return x.reshape(seeds, steps, envs // seeds, *x.shape[4:])
 
     @jit
     def learn(train_state, transitions: Transition, keys):
