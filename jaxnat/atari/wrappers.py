@@ -136,7 +136,7 @@ class PipelinedVecEnv:
         a run trained side by side; with `groups`, one per group (see the class)."""
         if seeds is not None:
             if seed is not None:
-                raise ValueError("reset takes seed (one batch) or seeds (one per part), not both")
+                raise ValueError("reset takes seed (one batch) or seeds (one per part or group), not both")
             count, per = (len(self.parts), "part") if self.groups is None else (self.groups, "group")
             if len(seeds) != count:
                 raise ValueError(f"seeds: one per {per} ({count}), got {len(seeds)}")

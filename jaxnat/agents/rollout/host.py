@@ -8,8 +8,8 @@ and hands back the records as a list, one per step.
 
 A learner of several seeds side by side (`host_updates(..., seeds=S)`) holds their states
 stacked (`rollout.stacked`) and steps one batch of every seed's envs (seed `s`'s a slice reset
-as its batch alone: `NaturalAtariVecEnv.reset(seeds=...)`), its keys split per seed (`stacked.split_keys`) so that each seed draws what it
-draws training alone.
+as its batch alone: `NaturalAtariVecEnv.reset(seeds=...)`), its keys split per seed
+(`stacked.split_keys`) so that each seed draws what it draws training alone.
 """
 
 from __future__ import annotations
