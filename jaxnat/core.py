@@ -174,7 +174,10 @@ class HostBatchedEnv(Protocol):
     bootstrap a truncated episode from it). `info` also carries PureJaxRL's episode keys
     (`returned_episode`, `returned_episode_returns`, `returned_episode_lengths`), per env.
     Spaces are those of one env (`single_observation_space`, `single_action_space`, jaxnat
-    spaces). `close()` frees the host resources (emulators, decoder threads).
+    spaces). `close()` frees the host resources (emulators, decoder threads). To train seeds
+    side by side on one batch (`jaxnat train --host-seeds together`) an env also takes
+    `reset(seeds=[...])`: the batch as equal groups, each reset as a batch of its own
+    (`NaturalAtariVecEnv` does).
     """
 
     num_envs: int

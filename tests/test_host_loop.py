@@ -397,7 +397,7 @@ def test_jaxnat_train_env_parts_pipelines_records_and_resumes(tmp_path, monkeypa
     assert calls == [2]  # one update, two parts of one env
     config = json.loads((run_dir / "config.json").read_text())
     assert config["spec"]["env_parts"] == 2 and config["args"]["env_parts"] == 2
-    assert config["spec"]["host_seeds"] == "sequential"  # parts pipeline one seed's batch
+    assert config["spec"]["host_seeds"] == "sequential"  # unset with parts, as such runs trained before
     assert main(["--resume", str(run_dir), "--env-parts", "1"]) == 2
     assert main(["--resume", str(run_dir), "--env-parts", "2"], compiler_options=FAST) == 0
     assert calls == [2, 2]

@@ -122,8 +122,9 @@ def test_seeds_side_by_side_train_breakout_as_each_seed_alone(background, parts)
 
 def test_seeds_side_by_side_make_one_batch_of_all_their_envs(monkeypatch):
     """`make_train_env(..., seeds=S)`: one batch of S x `num_envs` envs of the train split, the
-    other kwargs (ALE threads included) as given, rewards clipped; with `parts` P, P such
-    batches of S x `num_envs / P` (a `PipelinedVecEnv` of `groups=S`); not with devices."""
+    other kwargs (ALE threads included) as given, a per-env dial's values for every seed,
+    rewards clipped; with `parts` P, P such batches of S x `num_envs / P` (a
+    `PipelinedVecEnv` of `groups=S`); not with devices."""
     import jaxnat
     from jaxnat.atari.wrappers import ClipRewardWrapper
     from jaxnat.training.host_backend import make_train_env
@@ -142,6 +143,13 @@ def test_seeds_side_by_side_make_one_batch_of_all_their_envs(monkeypatch):
     env = make_train_env("NaturalAtari/Breakout-v0", 4, {"num_threads": 5}, parts=2, seeds=3)
     assert isinstance(env, PipelinedVecEnv) and env.groups == 3 and [p.num_envs for p in env.parts] == [6, 6]
     assert made == [(6, {"split": "train", "num_threads": 5})] * 2
+    made.clear()  # a per-env dial follows its envs: each batch the values of the envs it holds, for every seed
+    make_train_env("NaturalAtari/Breakout-v0", 4, {"video_alpha": [0.1, 0.2, 0.3, 0.4], "frame_rate": 2}, seeds=3)
+    make_train_env("NaturalAtari/Breakout-v0", 4, {"video_alpha": [0.1, 0.2, 0.3, 0.4]}, parts=2, seeds=3)
+    assert [kwargs["video_alpha"] for _, kwargs in made] == [[0.1, 0.2, 0.3, 0.4] * 3, [0.1, 0.2] * 3, [0.3, 0.4] * 3]
+    assert made[0][1]["frame_rate"] == 2
+    with pytest.raises(ValueError, match=r"video_alpha: one value for every env or one per env of a seed \(4\), got 12"):
+        make_train_env("NaturalAtari/Breakout-v0", 4, {"video_alpha": [0.5] * 12}, seeds=3)
     with pytest.raises(ValueError, match="seeds side by side step one batch of all their envs on one device"):
         make_train_env("NaturalAtari/Breakout-v0", 4, {}, devices=1, seeds=2)
     with pytest.raises(ValueError, match="parts=3 must be >= 1 and divide num_envs=4"):
@@ -149,7 +157,8 @@ def test_seeds_side_by_side_make_one_batch_of_all_their_envs(monkeypatch):
 
 
 def test_host_backend_trains_every_seed_in_one_group():
-    """`HostBackend` with `host_seeds="together"`: one group of every seed on one batch per seed,
+    """`HostBackend` with `host_seeds="together"`: one group of every seed on one ALE batch (in
+    env parts: a part of every seed's envs each),
     checkpointed per seed, metrics `[seeds, updates]` and test scores `[seeds]` (each seed's
     own params, scored with its own evaluation key); sequential: a group per seed."""
     pytest.importorskip("ale_py")
@@ -162,7 +171,8 @@ def test_host_backend_trains_every_seed_in_one_group():
                                   host_seeds="together"), FAST)
     try:
         assert backend.groups == [[5, 6, 7]] and backend.checkpoints_per_seed
-        assert backend.env.num_envs == 6 and backend.learner.seeds == 3
+        assert backend.env.num_envs == 6 and not isinstance(backend.env, PipelinedVecEnv)
+        assert backend.learner.seeds == 3
         assert backend.checkpoint_dir([6]) == "checkpoints/seed_6"
         state = backend.init([5, 6, 7])
         assert backend.update_of(state) == 0
@@ -175,10 +185,18 @@ def test_host_backend_trains_every_seed_in_one_group():
         assert scores["greedy_return"].shape == scores["sampled_return"].shape == (3,)
     finally:
         backend.close()
+    pipelined = HostBackend(RunSpec("NaturalAtari/Breakout-v0", kwargs, "ppo", config, 3, 5, 1, 2, env_parts=2,
+                                    host_seeds="together"), FAST)
+    try:  # together in 2 parts: each part one ALE batch of one env of every seed
+        assert pipelined.groups == [[5, 6, 7]] and pipelined.learner.seeds == 3
+        assert pipelined.env.groups == 3 and [part.num_envs for part in pipelined.env.parts] == [3, 3]
+    finally:
+        pipelined.close()
     sequential = HostBackend(RunSpec("NaturalAtari/Breakout-v0", kwargs, "ppo", config, 2, 0, 1, 2), FAST)
     try:
         assert sequential.groups == [[0], [1]] and not sequential.checkpoints_per_seed
-        assert sequential.env.num_envs == 2 and sequential.learner.seeds is None
+        assert sequential.env.num_envs == 2 and not isinstance(sequential.env, PipelinedVecEnv)
+        assert sequential.learner.seeds is None
     finally:
         sequential.close()
 
@@ -301,7 +319,7 @@ def test_resume_keeps_the_way_seeds_train():
 
 def test_learner_api_refuses_bad_combinations():
     """One-line `ValueError`s: seeds side by side with devices, DQN side by side, and an env
-    that is not one batch of `num_envs` envs per seed (or of one part per seed)."""
+    that is not one batch of seeds x `num_envs` envs (or parts: one per seed, or of `groups`)."""
     from jaxnat.training.host_backend import make_learner
 
     config = CONFIGS["ppo"]
@@ -319,6 +337,8 @@ def test_learner_api_refuses_bad_combinations():
     with pytest.raises(ValueError, match=r"the env has \[2, 6\] envs"):  # parts: one per seed
         on_policy_host_learner(config, PipelinedVecEnv([HostProbe("sign", 2), HostProbe("sign", 6)]), FAST,
                                rule=ppo.RULE, seeds=2)
+    with pytest.raises(ValueError, match=r"the env has 8 envs"):  # one part of both seeds: neither layout
+        on_policy_host_learner(config, PipelinedVecEnv([HostProbe("sign", 8)]), FAST, rule=ppo.RULE, seeds=2)
 
 
 def test_seeds_at_different_updates_are_refused():

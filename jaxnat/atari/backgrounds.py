@@ -32,11 +32,13 @@ from jaxnat.atari.compositor import GrayNoiseSampler, grayscale
 from jaxnat.natural.noise import DEFAULT_NOISE, noise_law
 from jaxnat.natural.sampler import per_env_values, seed_groups
 
-__all__ = ["BACKGROUNDS", "BACKGROUND_KWARGS", "make_background"]
+__all__ = ["BACKGROUNDS", "BACKGROUND_KWARGS", "PER_ENV_KWARGS", "make_background"]
 
 BACKGROUNDS = ("none", "noise", "video", "image")
 # The env kwargs that only a background other than "none" takes (its source and its dial).
 BACKGROUND_KWARGS = ("video_sources", "noise", "noise_sigma", "video_alpha", "frame_rate", "num_videos")
+# Of those, the dial: one value for every env, or a sequence of one per env of the batch.
+PER_ENV_KWARGS = ("noise_sigma", "video_alpha", "frame_rate", "num_videos")
 
 
 class NoBackground:

@@ -111,22 +111,35 @@ def make_train_env(env_id: str, num_envs: int, env_kwargs: dict, parts: int = 1,
     one ALE batch and its threads (`num_threads`, 0: one per env, at most one per CPU) and one
     host pass a step. With `parts` > 1 as well: a `PipelinedVecEnv(groups=S)` of that many
     such batches, each holding `num_envs / parts` envs of every seed (seed `s`'s envs in part
-    after part, as its batch alone in parts); not with `devices`."""
+    after part, as its batch alone in parts); not with `devices`.
+
+    A per-env dial in `env_kwargs` (`PER_ENV_KWARGS`: a sequence of one value per env of the
+    `num_envs`) follows its envs: each batch gets the values of the envs it holds, for every
+    seed it holds."""
+    from jaxnat.atari.backgrounds import PER_ENV_KWARGS  # the atari extra's (OpenCV)
+
     if seeds is not None and devices is not None:
         raise ValueError("seeds side by side step one batch of all their envs on one device: leave devices out")
+    for name in PER_ENV_KWARGS:
+        if np.ndim(env_kwargs.get(name)) == 1 and len(env_kwargs[name]) != num_envs:
+            raise ValueError(f"{name}: one value for every env or one per env of a seed ({num_envs}), got "
+                             f"{len(env_kwargs[name])}")
+    first = 0
     if devices is not None:
-        num_envs = process_share(num_envs, devices)[1]
+        first, num_envs = process_share(num_envs, devices)
     if parts < 1 or num_envs % parts:
         raise ValueError(f"parts={parts} must be >= 1 and divide num_envs={num_envs}")
-    if seeds is not None:
-        if parts == 1:
-            return ClipRewardWrapper(jaxnat.make_vec(env_id, seeds * num_envs, split="train", **env_kwargs))
-        return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, seeds * num_envs // parts, split="train",
-                                                                  **env_kwargs)) for _ in range(parts)], groups=seeds)
+    copies, size = seeds or 1, num_envs // parts
+
+    def batch(lo: int):  # envs lo .. lo + size - 1 (of the run's num_envs) of every seed, one ALE batch
+        kwargs = {name: (np.tile(np.asarray(value)[lo:lo + size], copies).tolist()
+                         if name in PER_ENV_KWARGS and np.ndim(value) == 1 else value)
+                  for name, value in env_kwargs.items()}
+        return ClipRewardWrapper(jaxnat.make_vec(env_id, copies * size, split="train", **kwargs))
+
     if parts == 1:
-        return ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs, split="train", **env_kwargs))
-    return PipelinedVecEnv([ClipRewardWrapper(jaxnat.make_vec(env_id, num_envs // parts, split="train",
-                                                              **env_kwargs)) for _ in range(parts)])
+        return batch(first)
+    return PipelinedVecEnv([batch(first + p * size) for p in range(parts)], groups=seeds)
 
 
 def make_learner(algo: str, config, env, compiler_options: dict | None = None, devices=None,
@@ -316,7 +329,7 @@ class HostBackend:
 
     def data_manifest(self) -> dict:
         """The background's videos or photos (`natural.bank_manifests`), per split (a pipelined
-        env's parts, or the seeds' batches, hold the same bank: its first part's)."""
+        env's parts hold the same bank: its first part's)."""
         from jaxnat.natural import bank_manifests
 
         return {"train": bank_manifests(getattr(self.env, "parts", [self.env])[0]),

@@ -59,7 +59,7 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
     `seeds` (S): S seeds side by side (`HostLearner.seeds`), on one batch of S *
     `config.num_envs` envs, seed `s`'s envs `s * num_envs ..`, whose `reset(seeds=...)` resets
     each seed's envs as a batch of their own (`host_backend.make_train_env(..., seeds=S)`: one
-    ALE batch; or a `PipelinedVecEnv` of one part per seed), stepped as one batch. Per env
+    ALE batch; also taken: a `PipelinedVecEnv` of one part per seed), stepped as one batch. Per env
     step one policy call acts for every seed, per update one update trains them all (both
     `jax.vmap`ped over the stacked states); the keys are split per seed and each seed's envs
     are reset with its game seed, so seed `s` trains as the one-seed learner on its own batch
@@ -152,10 +152,10 @@ def on_policy_host_learner(config, env, compiler_options: dict | None = None, de
 def _check_seed_batch(env, seeds: int, num_envs: int) -> None:
     """A `ValueError` unless `env` holds `seeds` x `num_envs` envs (a `PipelinedVecEnv` of
     parts: one part of `num_envs` per seed, or parts of `groups=seeds`)."""
-    sizes = [int(part.num_envs) for part in getattr(env, "parts", [env])]
-    grouped = getattr(env, "groups", None) == seeds
-    if seeds < 1 or int(env.num_envs) != seeds * num_envs or (len(sizes) > 1 and not grouped
-                                                              and sizes != [num_envs] * seeds):
+    parts = getattr(env, "parts", None)
+    sizes = [int(part.num_envs) for part in parts or [env]]
+    in_parts = parts is not None and getattr(env, "groups", None) != seeds and sizes != [num_envs] * seeds
+    if seeds < 1 or int(env.num_envs) != seeds * num_envs or in_parts:
         raise ValueError(f"seeds={seeds} side by side take one batch of seeds x config.num_envs = "
                          f"{seeds} x {num_envs} envs (host_backend.make_train_env(..., seeds={seeds})); the env "
                          f"has {sizes if len(sizes) > 1 else env.num_envs} envs")
