@@ -22,13 +22,13 @@ the last one is done, each seed's policy plays `eval_episodes` whole games on th
 each seed's slice of their stacked state, so `--resume`, `jaxnat.trained.load_policy` and
 `jaxnat eval` read either the same way), `--resume`, the summary.
 
-`--env-parts N` (PPO, A2C) trains on a `PipelinedVecEnv` of N equal parts, which the learner
+`--env-parts N` (PPO, A2C, ACKTR) trains on a `PipelinedVecEnv` of N equal parts, which the learner
 steps in turn (`rollout.host_steps_pipelined`): the policy's call for one part overlaps the
 emulation of the others. The actions are sampled with other keys than in one batch, so a run
 with parts differs from the one-batch run (N=1, the default, is that run unchanged). With
 `--host-seeds together` as well, each part holds `num_envs / N` envs of every seed (one ALE
 batch), so each seed trains as its run alone in N parts; unset, `--host-seeds` is sequential
-with parts (as every run with parts trained before side by side could be pipelined).
+with parts, as runs with parts trained before.
 
 Several devices: `jaxnat train --devices N` (PPO, A2C; `check_host_devices`) trains each seed
 in turn with its update data parallel over N devices of the process (`make_learner(...,
