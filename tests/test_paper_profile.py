@@ -193,7 +193,7 @@ def test_calibration_status_opens_the_report_with_each_profile_cell_against_the_
     assert (f"> - classify PPO: the profile's batch ({chosen}) 0.4 [0.35, 0.45] is below the authors' "
             "0.7 [0.65, 0.75].") in lines
     alone = calibration.calibration_status([authors])
-    assert any(f"the profile's batch ({chosen}) has not run (other batches: authors 0.7" in line for line in alone)
+    assert any(f"the profile's batch ({chosen}) has not run (other cells: authors 0.7" in line for line in alone)
     assert calibration.calibration_status([]) == []
     a2c = dataclasses.replace(authors.cell, algo="a2c")
     line = calibration.calibration_status([dataclasses.replace(authors, cell=a2c)])[2]

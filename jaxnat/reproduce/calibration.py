@@ -95,7 +95,7 @@ def calibration_status(results: list, cells: tuple = ()) -> list[str]:
             said = f"{name} {profile.final_train} is {band_position(profile, authors)} the authors' {authors.final_train}"
         said_already = {chosen, AUTHORS} if profile is not None and authors is not None else {chosen}
         others = "; ".join(f"{variant} {r.final_train}" for variant, r in by.items() if variant not in said_already)
-        lines.append(f"- {group} {algo.upper()}: {said}" + (f" (other batches: {others})" if others else "") + ".")
+        lines.append(f"- {group} {algo.upper()}: {said}" + (f" (other cells: {others})" if others else "") + ".")
     if lines:
         pending = dict.fromkeys((c.labels["group"], c.algo) for c in cells if c.experiment == CALIBRATION)
         lines += [f"- {group} {algo.upper()}: not calibrated yet (none of its calibration cells has run): its "
