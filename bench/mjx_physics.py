@@ -13,6 +13,10 @@ Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper an
   raw, the same random actions and batch sizes) in the same run, when brax is importable
   (an optional bench dependency; the table says when it is absent), and each jaxnat row's
   ratio to Brax's env steps/s at the same size;
+- with `--warp`, MuJoCo Warp (MJX's `impl="warp"`: the optional `mujoco-warp` and `warp-lang`
+  packages) stepping each `--physics` setting's model raw, at every size: MuJoCo C's
+  algorithms as GPU kernels, through `mjx.step` under `vmap` (the table says when they are not
+  importable); contact and constraint capacities from a MuJoCo C rollout, with room to spare;
 - MuJoCo C's own `mj_step` on one CPU core (Gymnasium's physics), and the ratio;
 - how far MJX rollouts drift from MuJoCo C (max |qpos| error after 10 and `--drift-steps` env
   steps from the same state under the same random actions; CPU runs only, unless
@@ -23,6 +27,7 @@ Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper an
     python bench/mjx_physics.py                    # GPU: the sizes above
     python bench/mjx_physics.py --sizes 16 64      # CPU (default there: 64)
     python bench/mjx_physics.py --robots Ant --no-autoreset --other-ls 0   # one robot, fewer compiles
+    python bench/mjx_physics.py --robots HalfCheetah --physics fast --warp --no-brax   # and MuJoCo Warp
 """
 
 from __future__ import annotations
@@ -106,6 +111,56 @@ def physics_rollout(env, params, num_envs: int, num_steps: int):
     return jax.jit(run)
 
 
+def warp_capacity(env, episodes: int = 3, steps: int = 300) -> tuple[int, int]:
+    """The most contacts and constraints of one MuJoCo C world under random actions, doubled:
+    MuJoCo Warp allocates them up front (contacts across all worlds, constraints per world) and
+    drops what does not fit."""
+    model, data = env.model, mujoco.MjData(env.model)
+    rng = np.random.default_rng(0)
+    contacts = constraints = 1
+    for _ in range(episodes):
+        mujoco.mj_resetData(model, data)
+        for _ in range(steps):
+            data.ctrl[:] = rng.uniform(*model.actuator_ctrlrange.T)
+            mujoco.mj_step(model, data, nstep=env.frame_skip)
+            contacts, constraints = max(contacts, data.ncon), max(constraints, data.nefc)
+    return 2 * contacts, 2 * constraints
+
+
+def warp_rollout(env, num_envs: int, num_steps: int):
+    """As `physics_rollout`, with MuJoCo Warp stepping `env`'s model (`env.frame_skip` x
+    `mjx.step` an env step, from `qpos0` with the env's reset noise, zero velocity), or a
+    one-line reason it cannot run."""
+    try:
+        from mujoco import mjx  # noqa: PLC0415
+        model = mjx.put_model(env.model, impl="warp")
+    except (ImportError, RuntimeError) as err:
+        return None, f"MuJoCo Warp not usable ({err.__class__.__name__}: pip install mujoco-warp)"
+    contacts, constraints = warp_capacity(env)
+    low, high = (jnp.asarray(x, jnp.float32) for x in env.model.actuator_ctrlrange.T)
+    scale = float(env.default_params.reset_noise_scale)
+    step = jax.vmap(mjx.step, in_axes=(None, 0))
+
+    def reset(key):
+        data = mjx.make_data(env.model, impl="warp", naconmax=num_envs * contacts, njmax=constraints)
+        noise = jax.random.uniform(key, data.qpos.shape, minval=-scale, maxval=scale)
+        return data.replace(qpos=jnp.asarray(env.model.qpos0, jnp.float32) + noise)
+
+    def run(key, params):
+        del params
+        data = jax.vmap(reset)(jax.random.split(key, num_envs))
+
+        def body(data, key):
+            data = data.replace(ctrl=jax.random.uniform(key, (num_envs, env.model.nu), minval=low, maxval=high))
+            data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: step(model, d), data)
+            return data, data.qpos[:, 0].sum()
+
+        data, positions = jax.lax.scan(body, data, jax.random.split(key, num_steps))
+        return positions.sum(), data
+
+    return jax.jit(run), None
+
+
 def mujoco_c_steps_per_second(env, seconds: float = 2.0) -> float:
     """Env steps/s of MuJoCo C (`frame_skip` x `mj_step`) on one core, random actions."""
     model = env.model
@@ -169,6 +224,8 @@ def main(argv=None):
                         help="also the autoresetting env at the largest size")
     parser.add_argument("--brax", action=argparse.BooleanOptionalAction, default=True,
                         help="also Brax's MJX envs (if brax is importable)")
+    parser.add_argument("--warp", action="store_true",
+                        help="also MuJoCo Warp on each --physics setting's model (if importable)")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
 
@@ -193,6 +250,8 @@ def main(argv=None):
         for setting in args.physics:
             env, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics=setting)
             variants.append(("jaxnat", f"raw, {setting}", env, sizes))
+            if args.warp:
+                variants.append(("warp", f"raw, {setting}, MuJoCo Warp", env, sizes))
         if args.autoreset:
             variants.append(("jaxnat", "autoreset, default", jaxnat.make(f"MuJoCo/{name}-v0")[0],
                              sizes[-1:]))
@@ -215,7 +274,13 @@ def main(argv=None):
                 substeps = env.frame_skip
                 forwards = 4 if env.model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 else 1
             for num_envs in env_sizes:
-                if side == "brax":
+                if side == "warp":
+                    run, why = warp_rollout(env, num_envs, num_steps)
+                    if run is None:
+                        rows.append({"robot": name, "side": side, "variant": f"{label}: {why}"})
+                        print(f"  {name} {label}: {why}", flush=True)
+                        break
+                elif side == "brax":
                     run = brax_rollout(env, num_envs, num_steps)
                 else:
                     run = physics_rollout(env, params, num_envs, num_steps)
@@ -233,7 +298,7 @@ def main(argv=None):
                     "sps": sps, "physics_sps": sps * substeps, "compile_s": compile_s,
                     "c_sps": c_sps, "vs_c": sps / c_sps,
                     "vs_brax": (sps / brax_sps[num_envs]
-                                if side == "jaxnat" and num_envs in brax_sps else None),
+                                if side != "brax" and num_envs in brax_sps else None),
                 }
                 if side == "jaxnat" and label.endswith(", default"):
                     row.update({
@@ -265,6 +330,8 @@ def main(argv=None):
         "brax": "Brax's MJX envs, raw (no wrappers), their own models and settings (Euler; "
                 "Ant: 1 Newton iteration, 4 line-search steps, feet-only contacts); / Brax: "
                 "env steps/s over Brax's at the same size",
+        "warp": "MuJoCo Warp rows (--warp): MJX's impl='warp' on the same model and options as "
+                "the jaxnat row of that setting, raw, random actions; / Brax as for jaxnat's",
         "drift": "max |qpos| error of MJX (float32) vs MuJoCo C (float64) after N env steps, "
                  "same reset state and actions; C-C': MuJoCo C vs MuJoCo C started with qpos "
                  "moved by 1e-7 (chaos: rounding amplified)",
