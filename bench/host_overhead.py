@@ -11,10 +11,19 @@ policy (mlp on 4 features), so that what it measures is dispatch and Python, not
   jitted dispatch), `jax.device_put` of an observation batch (`--num-envs` x the given shape),
   and the policy call with the actions fetched;
 - the loop: the PPO host learner's `timings` (policy round trip, env step, `observe`) per
-  batched step, for one seed and for `--seeds` side by side (`--num-envs` envs each).
+  batched step, for one seed and for `--seeds` side by side (`--num-envs` envs each);
+- the policy's round trip with Natural Atari's frames (uint8 84x84x4) and the paper's trunk
+  ("atari", float32, 4 actions), as the loop makes it (key split, frames to the device, the
+  jitted call, actions back), for each seed count three ways over the same envs: the seeds
+  vmapped (the learner's `over_seeds`: XLA batches the convolutions over the seeds' weights),
+  one seed's weights on all the envs (the same arithmetic with no vmap), and the seeds one
+  after another in one jitted call; and the learner's way with the frames already on the
+  device (what the transfer costs). Where the vmapped round trip exceeds the other two, the
+  batched convolutions, not the host, hold Natural Atari's policy call.
 
     python bench/host_overhead.py                      # 8 envs, 5 seeds
     python bench/host_overhead.py --num-envs 8 --seeds 5 10 --no-record
+    python bench/host_overhead.py --no-trunk          # the null env's pieces and loop only
 """
 
 from __future__ import annotations
@@ -35,7 +44,7 @@ from jaxnat import spaces  # noqa: E402
 from jaxnat.agents import distributions, ppo  # noqa: E402
 from jaxnat.agents.networks import make_actor_critic  # noqa: E402
 from jaxnat.agents.rollout import on_policy_host_learner, stack_seeds  # noqa: E402
-from jaxnat.agents.rollout.stacked import split_keys  # noqa: E402
+from jaxnat.agents.rollout.stacked import over_seeds, split_keys  # noqa: E402
 
 OBS = (4,)  # the null env's observation: a tiny policy, so the loop's cost is dispatch, not compute
 
@@ -101,6 +110,49 @@ def pieces(num_envs: int, reps: int) -> list[dict]:
     return [dict(piece=name, us=per_call_us(fn, reps)) for name, fn in rows]
 
 
+def trunk_round_trips(num_envs: int, seed_counts: list[int], reps: int) -> list[dict]:
+    """Microseconds per policy round trip with the Atari trunk, for each seed count and way of
+    computing it (see the module doc): `num_envs` envs per seed."""
+    frame_space = spaces.Box(0, 255, (84, 84, 4), np.uint8)
+    network = make_actor_critic(frame_space, spaces.Discrete(4), "atari")
+
+    def act(params, obs, key):
+        logits, value = network.apply(params, obs)
+        action = distributions.sample(key, logits)
+        return action, (distributions.log_prob(logits, action), value)
+
+    rows = []
+    for seeds in seed_counts:
+        keys = jax.random.split(jax.random.key(0), seeds)
+        params = jax.vmap(lambda k: network.init(k, jnp.zeros((1, 84, 84, 4), jnp.uint8)))(keys)
+        one = jax.tree.map(lambda x: x[0], params)
+        frames = np.random.default_rng(0).integers(0, 256, (seeds * num_envs, 84, 84, 4), np.uint8)
+
+        def in_turn(params, obs, keys):
+            outs = [act(jax.tree.map(lambda x, s=s: x[s], params), obs[s * num_envs:(s + 1) * num_envs], keys[s])
+                    for s in range(seeds)]
+            return jax.tree.map(lambda *xs: jnp.concatenate(xs), *outs)
+
+        ways = [("seeds vmapped (the learner's)", jax.jit(over_seeds(act, seeds)), params, keys),
+                ("one seed's weights on all envs", jax.jit(act), one, keys[0]),
+                ("seeds in turn in one call", jax.jit(in_turn), params, keys)]
+        state = {"key": keys}
+        on_device = jax.device_put(frames)
+
+        def round_trip(call, weights, key, resident=False):
+            def fn():
+                state["key"], _ = split_keys(state["key"])
+                obs = on_device if resident else jax.device_put(frames)
+                np.asarray(call(weights, obs, key)[0])
+            return fn
+
+        cases = [(name, round_trip(call, w, k)) for name, call, w, k in ways]
+        cases.append(("seeds vmapped, frames already on the device", round_trip(*ways[0][1:], resident=True)))
+        for name, fn in cases:
+            rows.append(dict(seeds=seeds, envs=seeds * num_envs, way=name, us=per_call_us(fn, reps)))
+    return rows
+
+
 def loop(num_envs: int, seeds: int | None, num_steps: int, updates: int) -> dict:
     """ms per batched step of the PPO host learner's loop on the null env (after one warm-up
     update, which compiles)."""
@@ -129,18 +181,25 @@ def main(argv=None):
     parser.add_argument("--num-steps", type=int, default=128)
     parser.add_argument("--updates", type=int, default=3, help="timed updates of the loop")
     parser.add_argument("--reps", type=int, default=2000, help="calls per piece")
+    parser.add_argument("--trunk-reps", type=int, default=300, help="calls per round trip with the Atari trunk")
+    parser.add_argument("--trunk", action=argparse.BooleanOptionalAction, default=True,
+                        help="also the round trips with the Atari trunk")
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     info = common.machine()
     started = time.perf_counter()
     piece_rows = pieces(args.num_envs, args.reps)
     loop_rows = [loop(args.num_envs, seeds, args.num_steps, args.updates) for seeds in (None, *args.seeds)]
+    trunk_rows = trunk_round_trips(args.num_envs, [1, *args.seeds], args.trunk_reps) if args.trunk else []
     base, jitted = piece_rows[0]["us"], piece_rows[1]["us"]
     table = (common.markdown_table(piece_rows, [("piece", "piece of a host step", "s"), ("us", "us per call", ".1f")])
              + "\n\n" + common.markdown_table(loop_rows, [
                  ("seeds", "seeds", "d"), ("envs", "envs (all seeds)", "d"), ("policy_ms", "policy ms", ".3f"),
                  ("env_ms", "env step ms", ".3f"), ("observe_ms", "observe ms", ".3f"),
-                 ("step_ms", "whole step ms", ".3f")]))
+                 ("step_ms", "whole step ms", ".3f")])
+             + ("\n\n" + common.markdown_table(trunk_rows, [
+                 ("seeds", "seeds", "d"), ("envs", "envs (all seeds)", "d"), ("way", "policy with the Atari trunk", "s"),
+                 ("us", "us per round trip", ".1f")]) if trunk_rows else ""))
     summary = {
         "env": "a null host env (numpy zeros, no emulation), uint8[4] observations, mlp policy: dispatch, not compute",
         "loop": f"PPO host learner, {args.num_envs} envs per seed x {args.num_steps} steps, 1 warm-up + "
@@ -148,7 +207,10 @@ def main(argv=None):
         "split_keys / unjitted split": f"{jitted / base:.2f}",
         "bench seconds": f"{time.perf_counter() - started:.0f}",
     }
-    common.record("host_overhead", info, table, summary, [*piece_rows, *loop_rows],
+    if trunk_rows:
+        summary["trunk"] = (f"the paper's Atari trunk (float32) on uint8[84, 84, 4] frames, 4 actions, {args.num_envs} envs "
+                            f"per seed; a round trip: key split, frames to the device, the call, actions to the host")
+    common.record("host_overhead", info, table, summary, [*piece_rows, *loop_rows, *trunk_rows],
                   save=not args.no_record)
 
 
