@@ -286,7 +286,15 @@ def main(argv=None):
                     run = physics_rollout(env, params, num_envs, num_steps)
                 key = jax.random.key(0)
                 t0 = time.perf_counter()
-                jax.block_until_ready(run(key, params))
+                try:
+                    jax.block_until_ready(run(key, params))
+                except Exception as err:  # noqa: BLE001  Warp's kernels are new here: a failed size is a row
+                    if side != "warp":
+                        raise
+                    why = f"failed: {err.__class__.__name__}: {str(err).splitlines()[0][:200] if str(err) else ''}"
+                    rows.append({"robot": name, "side": side, "envs": num_envs, "variant": f"{label}: {why}"})
+                    print(f"  {name} {label} {num_envs} envs: {why}", flush=True)
+                    continue
                 compile_s = time.perf_counter() - t0
                 seconds = common.median_seconds(lambda: jax.block_until_ready(run(key, params)), 3)
                 sps = num_envs * num_steps / seconds
