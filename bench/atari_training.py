@@ -163,7 +163,8 @@ def side_by_side(args, env_id: str, env_kwargs: dict, compiler_options, rng) -> 
         n = timings["steps"]
         rows.append(dict(seeds=seeds, num_envs=seeds * args.envs_per_seed, alone=alone, steps_per_s=rate,
                          ratio=rate / alone, **pipelined,
-                         **{f"{name}_ratio": value / alone for name, value in pipelined.items()}, policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
+                         **{f"{name}_ratio": value / alone for name, value in pipelined.items()},
+                         policy_ms=1e3 * timings["policy_s"] / n, env_ms=1e3 * timings["env_s"] / n,
                          update_ms=1e3 * (timings["update_s"] - timings["rollout_s"]) / n, warmup_s=warm_s,
                          alone_before=before, alone_after=after, per_seed=per_seed,
                          one_over_per_seed=None if per_seed is None else rate / per_seed,
