@@ -18,8 +18,10 @@ policy (mlp on 4 features), so that what it measures is dispatch and Python, not
   vmapped (the learner's `over_seeds`: XLA batches the convolutions over the seeds' weights),
   one seed's weights on all the envs (the same arithmetic with no vmap), and the seeds one
   after another in one jitted call; and the learner's way with the frames already on the
-  device (what the transfer costs). Where the vmapped round trip exceeds the other two, the
-  batched convolutions, not the host, hold Natural Atari's policy call.
+  device (what the transfer costs), and the learner's way with each `--convs` implementation
+  of the convolutions (`jaxnat.agents.conv`: the same function). Where the vmapped round
+  trip exceeds the other two, the batched convolutions, not the host, hold Natural Atari's
+  policy call.
 
     python bench/host_overhead.py                      # 8 envs, 5 seeds
     python bench/host_overhead.py --num-envs 8 --seeds 5 10 --no-record
@@ -42,6 +44,7 @@ import common  # noqa: E402
 
 from jaxnat import spaces  # noqa: E402
 from jaxnat.agents import distributions, ppo  # noqa: E402
+from jaxnat.agents.conv import IMPLEMENTATIONS  # noqa: E402
 from jaxnat.agents.networks import make_actor_critic  # noqa: E402
 from jaxnat.agents.rollout import on_policy_host_learner, stack_seeds  # noqa: E402
 from jaxnat.agents.rollout.stacked import over_seeds, split_keys  # noqa: E402
@@ -110,16 +113,22 @@ def pieces(num_envs: int, reps: int) -> list[dict]:
     return [dict(piece=name, us=per_call_us(fn, reps)) for name, fn in rows]
 
 
-def trunk_round_trips(num_envs: int, seed_counts: list[int], reps: int) -> list[dict]:
+def trunk_round_trips(num_envs: int, seed_counts: list[int], reps: int, convs=()) -> list[dict]:
     """Microseconds per policy round trip with the Atari trunk, for each seed count and way of
-    computing it (see the module doc): `num_envs` envs per seed."""
+    computing it (see the module doc): `num_envs` envs per seed; `convs`: conv implementations
+    (`jaxnat.agents.conv.IMPLEMENTATIONS`) also timed the learner's way beside "auto"."""
     frame_space = spaces.Box(0, 255, (84, 84, 4), np.uint8)
-    network = make_actor_critic(frame_space, spaces.Discrete(4), "atari")
 
-    def act(params, obs, key):
-        logits, value = network.apply(params, obs)
-        action = distributions.sample(key, logits)
-        return action, (distributions.log_prob(logits, action), value)
+    def actor(conv):
+        network = make_actor_critic(frame_space, spaces.Discrete(4), "atari", conv=conv)
+
+        def act(params, obs, key):
+            logits, value = network.apply(params, obs)
+            action = distributions.sample(key, logits)
+            return action, (distributions.log_prob(logits, action), value)
+        return network, act
+
+    network, act = actor("auto")
 
     rows = []
     for seeds in seed_counts:
@@ -148,6 +157,9 @@ def trunk_round_trips(num_envs: int, seed_counts: list[int], reps: int) -> list[
 
         cases = [(name, round_trip(call, w, k)) for name, call, w, k in ways]
         cases.append(("seeds vmapped, frames already on the device", round_trip(*ways[0][1:], resident=True)))
+        for conv in convs:  # the same weights, each conv implementation (one function: conv.py)
+            cases.append((f"seeds vmapped, conv={conv}",
+                          round_trip(jax.jit(over_seeds(actor(conv)[1], seeds)), params, keys)))
         for name, fn in cases:
             rows.append(dict(seeds=seeds, envs=seeds * num_envs, way=name, us=per_call_us(fn, reps)))
     return rows
@@ -182,6 +194,8 @@ def main(argv=None):
     parser.add_argument("--updates", type=int, default=3, help="timed updates of the loop")
     parser.add_argument("--reps", type=int, default=2000, help="calls per piece")
     parser.add_argument("--trunk-reps", type=int, default=300, help="calls per round trip with the Atari trunk")
+    parser.add_argument("--convs", nargs="*", default=["im2col", "native", "s2d"], choices=IMPLEMENTATIONS,
+                        help="conv implementations also timed the learner's way (none: only the default)")
     parser.add_argument("--trunk", action=argparse.BooleanOptionalAction, default=True,
                         help="also the round trips with the Atari trunk")
     parser.add_argument("--no-record", action="store_true")
@@ -190,7 +204,8 @@ def main(argv=None):
     started = time.perf_counter()
     piece_rows = pieces(args.num_envs, args.reps)
     loop_rows = [loop(args.num_envs, seeds, args.num_steps, args.updates) for seeds in (None, *args.seeds)]
-    trunk_rows = trunk_round_trips(args.num_envs, [1, *args.seeds], args.trunk_reps) if args.trunk else []
+    trunk_rows = (trunk_round_trips(args.num_envs, [1, *args.seeds], args.trunk_reps, args.convs)
+                  if args.trunk else [])
     base, jitted = piece_rows[0]["us"], piece_rows[1]["us"]
     table = (common.markdown_table(piece_rows, [("piece", "piece of a host step", "s"), ("us", "us per call", ".1f")])
              + "\n\n" + common.markdown_table(loop_rows, [
