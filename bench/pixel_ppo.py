@@ -43,6 +43,8 @@ sys.path.insert(0, __import__("os").path.dirname(__file__))
 import common  # noqa: E402
 from continuous_control import random_box_rollout  # noqa: E402
 
+from jaxnat.agents.conv import IMPLEMENTATIONS  # noqa: E402
+
 ROBOTS = ("HalfCheetah", "Hopper", "Swimmer", "Ant")
 OBSERVATIONS = {"checker": {"observation": "pixels", "floor": "checker"},
                 "video": {"observation": "pixels", "floor": "video"},
@@ -195,7 +197,7 @@ def main(argv=None) -> None:
     parser.add_argument("--total-envs", nargs="+", type=int, default=[1024, 4096, 16384])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--dtypes", nargs="+", default=["float32", "bfloat16"], choices=["float32", "bfloat16"])
-    parser.add_argument("--convs", nargs="+", default=["native", "s2d"], choices=["auto", "im2col", "native", "s2d"])
+    parser.add_argument("--convs", nargs="+", default=["native", "s2d"], choices=IMPLEMENTATIONS)
     parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
     parser.add_argument("--physics", default="fast", choices=["fast", "default"])
     parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,

@@ -9,6 +9,11 @@ over its weights into one *grouped* convolution, several times slower than the f
 - `"native"`: XLA's own convolution, with a batching rule that runs one convolution per weight
   set when the weights are vmapped and folds the batch into the convolution's batch when only
   the inputs are; chosen on GPU, where im2col's patch copies cost more.
+- `"grouped"`: `"s2d"`'s rewrite, then XLA's convolution with XLA's own batching rule: under
+  `vmap` over the weights, one grouped convolution for all the weight sets (the form the
+  module's first paragraph says is slow for training batches; a candidate where the batch
+  per weight set is a handful of envs, as Natural Atari's acting call, where one kernel a
+  layer beats one per seed: `bench/host_overhead.py` times both).
 - `"s2d"`: a strided convolution whose kernel is a multiple of its stride rewritten as a stride-1
   convolution on the space-to-depth input (`space_to_depth`): the Atari trunk's first layer,
   8x8 stride 4 over 4 channels, becomes 2x2 stride 1 over 64 channels, the same sums in the
@@ -30,7 +35,7 @@ import jax.numpy as jnp
 
 __all__ = ["IMPLEMENTATIONS", "conv2d", "im2col_patches", "space_to_depth"]
 
-IMPLEMENTATIONS = ("auto", "im2col", "native", "s2d")
+IMPLEMENTATIONS = ("auto", "im2col", "native", "s2d", "grouped")
 _DIMENSIONS = ("NHWC", "HWIO", "NHWC")
 
 
@@ -55,19 +60,21 @@ def space_to_depth(x, block: int):
     return jnp.moveaxis(x, -4, -3).reshape(*lead, h // block, w // block, block * block * c)
 
 
-def _s2d(x, kernel, stride: int):
+def _s2d(x, kernel, stride: int, conv=None):
     """A VALID convolution with `kernel` a multiple of `stride`, as a stride-1 convolution on
     `space_to_depth(x, stride)` (output pixel (i, j) reads input rows stride*i + p, p < kh,
-    which are rows i + P of the tiled input, P < kh / stride)."""
+    which are rows i + P of the tiled input, P < kh / stride). `conv(x, kernel, stride)`
+    computes the convolutions (default: `"native"`'s)."""
+    conv = conv or (lambda x, kernel, stride: _native(int(stride))(x, kernel))
     kh, kw, cin, cout = kernel.shape
     if stride == 1 or kh % stride or kw % stride:
-        return _native(int(stride))(x, kernel)
+        return conv(x, kernel, stride)
     oh, ow = (x.shape[-3] - kh) // stride + 1, (x.shape[-2] - kw) // stride + 1
     # The rows and columns the convolution reads (a multiple of the stride); the rest are cut.
     x = x[..., : stride * (oh - 1) + kh, : stride * (ow - 1) + kw, :]
     tiled = kernel.reshape(kh // stride, stride, kw // stride, stride, cin, cout)
     tiled = jnp.transpose(tiled, (0, 2, 1, 3, 4, 5)).reshape(kh // stride, kw // stride, stride * stride * cin, cout)
-    return _native(1)(space_to_depth(x, stride), tiled)
+    return conv(space_to_depth(x, stride), tiled, 1)
 
 
 def _im2col(x, kernel, stride: int):
@@ -129,7 +136,7 @@ def _native(stride: int):
 def conv2d(x, kernel, stride: int, implementation: str = "auto"):
     """VALID convolution of `x` `[..., H, W, C]` with an HWIO `kernel`, any leading dims.
 
-    `implementation`: `"im2col"`, `"native"`, `"s2d"` or `"auto"` (im2col on CPU, s2d
+    `implementation`: `"im2col"`, `"native"`, `"s2d"`, `"grouped"` or `"auto"` (im2col on CPU, s2d
     elsewhere); see the module docstring for why each exists."""
     if implementation not in IMPLEMENTATIONS:
         raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
@@ -139,4 +146,6 @@ def conv2d(x, kernel, stride: int, implementation: str = "auto"):
         return _im2col(x, kernel, stride)
     if implementation == "s2d":
         return _s2d(x, kernel, int(stride))
+    if implementation == "grouped":
+        return _s2d(x, kernel, int(stride), _xla_conv)
     return _native(int(stride))(x, kernel)
