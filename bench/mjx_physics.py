@@ -18,7 +18,8 @@ Measures, in one run on the default JAX backend, for Ant, HalfCheetah, Hopper an
   algorithms as GPU kernels, through `mjx.step` under `vmap` (the table says when they are not
   importable); contact and constraint capacities from a MuJoCo C rollout, with room to spare;
 - MuJoCo C's own `mj_step` on one CPU core (Gymnasium's physics), and the ratio;
-- how far MJX rollouts drift from MuJoCo C (max |qpos| error after 10 and `--drift-steps` env
+- how far MJX rollouts (each raw `--physics` setting; with `--warp`, MuJoCo Warp's too, 4
+  worlds under `vmap`) drift from MuJoCo C (max |qpos| error after 10 and `--drift-steps` env
   steps from the same state under the same random actions; CPU runs only, unless
   `--drift-steps` is given), next to how far MuJoCo C drifts from itself when its initial
   `qpos` is moved by 1e-7 (float32's resolution): contact-rich robots are chaotic, so a drift
@@ -161,6 +162,47 @@ def warp_rollout(env, num_envs: int, num_steps: int):
     return jax.jit(run), None
 
 
+def warp_drift_from_mujoco_c(env, num_steps: int, checkpoints, worlds: int = 4) -> dict[str, float]:
+    """Max |qpos| difference between MuJoCo Warp (float32, `worlds` worlds under `vmap`) and
+    MuJoCo C (float64) after each checkpoint step, from the same reset states (`qpos0` plus
+    the env's reset noise, zero velocity) under the same random actions: `{"warp@t": error}`,
+    empty when Warp cannot run."""
+    try:
+        from mujoco import mjx  # noqa: PLC0415
+        model = mjx.put_model(env.model, impl="warp")
+    except (ImportError, RuntimeError):
+        return {}
+    contacts, constraints = warp_capacity(env)
+    rng = np.random.default_rng(0)
+    scale = float(env.default_params.reset_noise_scale)
+    qpos0 = (env.model.qpos0 + rng.uniform(-scale, scale, (worlds, env.model.nq))).astype(np.float32)
+    actions = rng.uniform(*env.model.actuator_ctrlrange.T, size=(num_steps, worlds, env.model.nu))
+    step = jax.vmap(mjx.step, in_axes=(None, 0))
+
+    def run(qpos, actions):
+        data = jax.vmap(lambda q: mjx.make_data(env.model, impl="warp", naconmax=worlds * contacts,
+                                                njmax=constraints).replace(qpos=q))(qpos)
+
+        def body(data, action):
+            data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: step(model, d), data.replace(ctrl=action))
+            return data, data.qpos
+
+        return jax.lax.scan(body, data, actions)[1]
+
+    qpos = np.asarray(jax.jit(run)(jnp.asarray(qpos0), jnp.asarray(actions, jnp.float32)))
+    errors = {}
+    for world in range(worlds):
+        data = mujoco.MjData(env.model)
+        data.qpos[:] = qpos0[world]
+        for t in range(num_steps):
+            data.ctrl[:] = actions[t, world]
+            mujoco.mj_step(env.model, data, nstep=env.frame_skip)
+            if t + 1 in checkpoints:
+                error = float(np.abs(qpos[t, world] - data.qpos).max())
+                errors[f"warp@{t + 1}"] = max(errors.get(f"warp@{t + 1}", 0.0), error)
+    return errors
+
+
 def mujoco_c_steps_per_second(env, seconds: float = 2.0) -> float:
     """Env steps/s of MuJoCo C (`frame_skip` x `mj_step`) on one core, random actions."""
     model = env.model
@@ -241,17 +283,20 @@ def main(argv=None):
     for name in args.robots:
         raw, params = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False)
         c_sps = mujoco_c_steps_per_second(raw)
-        drift = {}
-        if drift_steps:
-            drift = drift_from_mujoco_c(raw, params, drift_steps, {10, drift_steps})
+        drift = {}  # physics setting -> MJX's (and C's chaos) errors against MuJoCo C
         # (side, label, env, sizes): each size and variant is a separate compile, so the
         # variants beyond the physics settings run at the largest size only.
         variants = []
+        warp_drift = {}  # physics setting -> Warp's errors against MuJoCo C
         for setting in args.physics:
             env, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics=setting)
             variants.append(("jaxnat", f"raw, {setting}", env, sizes))
+            if drift_steps:
+                drift[setting] = drift_from_mujoco_c(env, params, drift_steps, {10, drift_steps})
             if args.warp:
                 variants.append(("warp", f"raw, {setting}, MuJoCo Warp", env, sizes))
+                if drift_steps:
+                    warp_drift[setting] = warp_drift_from_mujoco_c(env, drift_steps, {10, drift_steps})
         if args.autoreset:
             variants.append(("jaxnat", "autoreset, default", jaxnat.make(f"MuJoCo/{name}-v0")[0],
                              sizes[-1:]))
@@ -308,11 +353,15 @@ def main(argv=None):
                     "vs_brax": (sps / brax_sps[num_envs]
                                 if side != "brax" and num_envs in brax_sps else None),
                 }
-                if side == "jaxnat" and label.endswith(", default"):
+                if side == "jaxnat" and label.startswith("raw, ") and label[5:] in drift:
+                    errors = drift[label[5:]]
                     row.update({
-                        "drift_10": drift.get("mjx@10"), "drift_n": drift.get(f"mjx@{drift_steps}"),
-                        "c_drift_10": drift.get("c@10"), "c_drift_n": drift.get(f"c@{drift_steps}"),
+                        "drift_10": errors.get("mjx@10"), "drift_n": errors.get(f"mjx@{drift_steps}"),
+                        "c_drift_10": errors.get("c@10"), "c_drift_n": errors.get(f"c@{drift_steps}"),
                     })
+                if side == "warp":
+                    errors = warp_drift.get(label.split(", ")[1], {})
+                    row.update({"drift_10": errors.get("warp@10"), "drift_n": errors.get(f"warp@{drift_steps}")})
                 rows.append(row)
                 ratio = f", {row['vs_brax']:.2f}x Brax" if row["vs_brax"] is not None else ""
                 print(f"  {name} {side} {label} {num_envs} envs: {sps:.3e} env steps/s "
@@ -342,7 +391,8 @@ def main(argv=None):
                 "the jaxnat row of that setting, raw, random actions; / Brax as for jaxnat's",
         "drift": "max |qpos| error of MJX (float32) vs MuJoCo C (float64) after N env steps, "
                  "same reset state and actions; C-C': MuJoCo C vs MuJoCo C started with qpos "
-                 "moved by 1e-7 (chaos: rounding amplified)",
+                 "moved by 1e-7 (chaos: rounding amplified); on Warp rows, MuJoCo Warp's error "
+                 "instead (4 worlds under vmap, the row's physics setting, max over worlds)",
     }
     common.record("mjx_physics", info, table, summary, rows, save=not args.no_record)
 
