@@ -128,32 +128,45 @@ def warp_capacity(env, episodes: int = 3, steps: int = 300) -> tuple[int, int]:
     return 2 * contacts, 2 * constraints
 
 
-def warp_rollout(env, num_envs: int, num_steps: int):
-    """As `physics_rollout`, with MuJoCo Warp stepping `env`'s model (`env.frame_skip` x
-    `mjx.step` an env step, from `qpos0` with the env's reset noise, zero velocity), or a
-    one-line reason it cannot run."""
+def warp_worlds(env, num_envs: int):
+    """`(start, advance)` for `num_envs` MuJoCo Warp worlds of `env`'s model, or `(None, why)`:
+    `start(qpos)` is the worlds' data from `qpos` `[num_envs, nq]` (zero velocity), `advance(data,
+    ctrl)` one env step (`env.frame_skip` x `mjx.step` under `vmap`). The contact pool is shared
+    by all worlds (`naconmax`), sized from a MuJoCo C rollout."""
     try:
         from mujoco import mjx  # noqa: PLC0415
         model = mjx.put_model(env.model, impl="warp")
     except (ImportError, RuntimeError) as err:
         return None, f"MuJoCo Warp not usable ({err.__class__.__name__}: pip install mujoco-warp)"
     contacts, constraints = warp_capacity(env)
-    low, high = (jnp.asarray(x, jnp.float32) for x in env.model.actuator_ctrlrange.T)
-    scale = float(env.default_params.reset_noise_scale)
     step = jax.vmap(mjx.step, in_axes=(None, 0))
 
-    def reset(key):
-        data = mjx.make_data(env.model, impl="warp", naconmax=num_envs * contacts, njmax=constraints)
-        noise = jax.random.uniform(key, data.qpos.shape, minval=-scale, maxval=scale)
-        return data.replace(qpos=jnp.asarray(env.model.qpos0, jnp.float32) + noise)
+    def start(qpos):
+        return jax.vmap(lambda q: mjx.make_data(env.model, impl="warp", naconmax=num_envs * contacts,
+                                                njmax=constraints).replace(qpos=q))(qpos)
+
+    def advance(data, ctrl):
+        return jax.lax.fori_loop(0, env.frame_skip, lambda _, d: step(model, d), data.replace(ctrl=ctrl))
+
+    return start, advance
+
+
+def warp_rollout(env, num_envs: int, num_steps: int):
+    """As `physics_rollout`, with MuJoCo Warp stepping `env`'s model (`warp_worlds`, from `qpos0`
+    with the env's reset noise), or a one-line reason it cannot run."""
+    start, advance = warp_worlds(env, num_envs)
+    if start is None:
+        return None, advance
+    low, high = (jnp.asarray(x, jnp.float32) for x in env.model.actuator_ctrlrange.T)
+    scale = float(env.default_params.reset_noise_scale)
 
     def run(key, params):
         del params
-        data = jax.vmap(reset)(jax.random.split(key, num_envs))
+        noise = jax.random.uniform(key, (num_envs, env.model.nq), minval=-scale, maxval=scale)
+        data = start(jnp.asarray(env.model.qpos0, jnp.float32) + noise)
 
         def body(data, key):
-            data = data.replace(ctrl=jax.random.uniform(key, (num_envs, env.model.nu), minval=low, maxval=high))
-            data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: step(model, d), data)
+            data = advance(data, jax.random.uniform(key, (num_envs, env.model.nu), minval=low, maxval=high))
             return data, data.qpos[:, 0].sum()
 
         data, positions = jax.lax.scan(body, data, jax.random.split(key, num_steps))
@@ -163,31 +176,24 @@ def warp_rollout(env, num_envs: int, num_steps: int):
 
 
 def warp_drift_from_mujoco_c(env, num_steps: int, checkpoints, worlds: int = 4) -> dict[str, float]:
-    """Max |qpos| difference between MuJoCo Warp (float32, `worlds` worlds under `vmap`) and
+    """Max |qpos| difference between MuJoCo Warp (float32, `worlds` worlds, `warp_worlds`) and
     MuJoCo C (float64) after each checkpoint step, from the same reset states (`qpos0` plus
     the env's reset noise, zero velocity) under the same random actions: `{"warp@t": error}`,
     empty when Warp cannot run."""
-    try:
-        from mujoco import mjx  # noqa: PLC0415
-        model = mjx.put_model(env.model, impl="warp")
-    except (ImportError, RuntimeError):
+    start, advance = warp_worlds(env, worlds)
+    if start is None:
         return {}
-    contacts, constraints = warp_capacity(env)
     rng = np.random.default_rng(0)
     scale = float(env.default_params.reset_noise_scale)
     qpos0 = (env.model.qpos0 + rng.uniform(-scale, scale, (worlds, env.model.nq))).astype(np.float32)
     actions = rng.uniform(*env.model.actuator_ctrlrange.T, size=(num_steps, worlds, env.model.nu))
-    step = jax.vmap(mjx.step, in_axes=(None, 0))
 
     def run(qpos, actions):
-        data = jax.vmap(lambda q: mjx.make_data(env.model, impl="warp", naconmax=worlds * contacts,
-                                                njmax=constraints).replace(qpos=q))(qpos)
-
         def body(data, action):
-            data = jax.lax.fori_loop(0, env.frame_skip, lambda _, d: step(model, d), data.replace(ctrl=action))
+            data = advance(data, action)
             return data, data.qpos
 
-        return jax.lax.scan(body, data, actions)[1]
+        return jax.lax.scan(body, start(qpos), actions)[1]
 
     qpos = np.asarray(jax.jit(run)(jnp.asarray(qpos0), jnp.asarray(actions, jnp.float32)))
     errors = {}
@@ -283,27 +289,27 @@ def main(argv=None):
     for name in args.robots:
         raw, params = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False)
         c_sps = mujoco_c_steps_per_second(raw)
-        drift = {}  # physics setting -> MJX's (and C's chaos) errors against MuJoCo C
-        # (side, label, env, sizes): each size and variant is a separate compile, so the
-        # variants beyond the physics settings run at the largest size only.
+        # (side, label, env, sizes, drift columns): each size and variant is a separate
+        # compile, so the variants beyond the physics settings run at the largest size only.
+        checkpoints = {10, drift_steps}
         variants = []
-        warp_drift = {}  # physics setting -> Warp's errors against MuJoCo C
         for setting in args.physics:
             env, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, physics=setting)
-            variants.append(("jaxnat", f"raw, {setting}", env, sizes))
-            if drift_steps:
-                drift[setting] = drift_from_mujoco_c(env, params, drift_steps, {10, drift_steps})
+            errors = drift_from_mujoco_c(env, params, drift_steps, checkpoints) if drift_steps else {}
+            variants.append(("jaxnat", f"raw, {setting}", env, sizes, {
+                "drift_10": errors.get("mjx@10"), "drift_n": errors.get(f"mjx@{drift_steps}"),
+                "c_drift_10": errors.get("c@10"), "c_drift_n": errors.get(f"c@{drift_steps}")}))
             if args.warp:
-                variants.append(("warp", f"raw, {setting}, MuJoCo Warp", env, sizes))
-                if drift_steps:
-                    warp_drift[setting] = warp_drift_from_mujoco_c(env, drift_steps, {10, drift_steps})
+                errors = warp_drift_from_mujoco_c(env, drift_steps, checkpoints) if drift_steps else {}
+                variants.append(("warp", f"raw, {setting}, MuJoCo Warp", env, sizes, {
+                    "drift_10": errors.get("warp@10"), "drift_n": errors.get(f"warp@{drift_steps}")}))
         if args.autoreset:
             variants.append(("jaxnat", "autoreset, default", jaxnat.make(f"MuJoCo/{name}-v0")[0],
-                             sizes[-1:]))
+                             sizes[-1:], {}))
         if args.other_ls:
             other, _ = jaxnat.make(f"MuJoCo/{name}-v0", autoreset=False, ls_iterations=args.other_ls)
             variants.append(("jaxnat", f"raw, default, ls_iterations={args.other_ls}", other,
-                             sizes[-1:]))
+                             sizes[-1:], {}))
         brax_sps = {}
         if args.brax:
             benv, why = brax_env(name)
@@ -311,8 +317,8 @@ def main(argv=None):
                 rows.append({"robot": name, "side": "brax", "variant": why})
                 print(f"  {name} Brax: {why}", flush=True)
             else:
-                variants.insert(0, ("brax", "raw, Brax MJX env", benv, sizes))
-        for side, label, env, env_sizes in variants:
+                variants.insert(0, ("brax", "raw, Brax MJX env", benv, sizes, {}))
+        for side, label, env, env_sizes, drift_columns in variants:
             if side == "brax":
                 substeps, forwards = env._n_frames, 1 if env.sys.opt.integrator == 0 else 4
             else:
@@ -353,15 +359,7 @@ def main(argv=None):
                     "vs_brax": (sps / brax_sps[num_envs]
                                 if side != "brax" and num_envs in brax_sps else None),
                 }
-                if side == "jaxnat" and label.startswith("raw, ") and label[5:] in drift:
-                    errors = drift[label[5:]]
-                    row.update({
-                        "drift_10": errors.get("mjx@10"), "drift_n": errors.get(f"mjx@{drift_steps}"),
-                        "c_drift_10": errors.get("c@10"), "c_drift_n": errors.get(f"c@{drift_steps}"),
-                    })
-                if side == "warp":
-                    errors = warp_drift.get(label.split(", ")[1], {})
-                    row.update({"drift_10": errors.get("warp@10"), "drift_n": errors.get(f"warp@{drift_steps}")})
+                row.update(drift_columns)
                 rows.append(row)
                 ratio = f", {row['vs_brax']:.2f}x Brax" if row["vs_brax"] is not None else ""
                 print(f"  {name} {side} {label} {num_envs} envs: {sps:.3e} env steps/s "
