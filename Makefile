@@ -3,7 +3,7 @@
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
-EXTRAS ?= dev,agents,gym,video,atari,mujoco
+EXTRAS ?= dev,agents,gym,video,atari,mujoco,warp
 STAMP := $(VENV)/.jaxnat-installed
 
 .PHONY: setup data run demo test bench clean

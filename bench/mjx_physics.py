@@ -47,6 +47,7 @@ sys.path[:0] = [str(_BENCH), str(_BENCH.parent)]  # bench/common.py; this checko
 import common  # noqa: E402
 
 import jaxnat  # noqa: E402
+from jaxnat.mjx_pixel.warp_physics import capacity  # noqa: E402
 
 ROBOTS = ("Ant", "HalfCheetah", "Hopper", "Swimmer")
 BRAX = {"Ant": "ant", "HalfCheetah": "halfcheetah", "Hopper": "hopper"}  # Brax's env names
@@ -112,22 +113,6 @@ def physics_rollout(env, params, num_envs: int, num_steps: int):
     return jax.jit(run)
 
 
-def warp_capacity(env, episodes: int = 3, steps: int = 300) -> tuple[int, int]:
-    """The most contacts and constraints of one MuJoCo C world under random actions, doubled:
-    MuJoCo Warp allocates them up front (contacts across all worlds, constraints per world) and
-    drops what does not fit."""
-    model, data = env.model, mujoco.MjData(env.model)
-    rng = np.random.default_rng(0)
-    contacts = constraints = 1
-    for _ in range(episodes):
-        mujoco.mj_resetData(model, data)
-        for _ in range(steps):
-            data.ctrl[:] = rng.uniform(*model.actuator_ctrlrange.T)
-            mujoco.mj_step(model, data, nstep=env.frame_skip)
-            contacts, constraints = max(contacts, data.ncon), max(constraints, data.nefc)
-    return 2 * contacts, 2 * constraints
-
-
 def warp_worlds(env, num_envs: int):
     """`(start, advance)` for `num_envs` MuJoCo Warp worlds of `env`'s model, or `(None, why)`:
     `start(qpos)` is the worlds' data from `qpos` `[num_envs, nq]` (zero velocity), `advance(data,
@@ -138,7 +123,7 @@ def warp_worlds(env, num_envs: int):
         model = mjx.put_model(env.model, impl="warp")
     except (ImportError, RuntimeError) as err:
         return None, f"MuJoCo Warp not usable ({err.__class__.__name__}: pip install mujoco-warp)"
-    contacts, constraints = warp_capacity(env)
+    contacts, constraints = capacity(env.model, env.frame_skip)
     step = jax.vmap(mjx.step, in_axes=(None, 0))
 
     def start(qpos):

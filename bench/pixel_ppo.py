@@ -2,10 +2,12 @@
 
     python bench/pixel_ppo.py [--robots HalfCheetah Hopper] [--observations checker video noise]
         [--total-envs 1024 4096 16384] [--seeds 5] [--dtypes float32 bfloat16] [--convs native s2d]
+        [--impls jax warp]
 
 For each robot, observation, total env count (split over `--seeds` vmapped seeds, as
 `jaxnat train --seeds` and `jaxnat reproduce` run them), trunk dtype and convolution form
-(`jaxnat.agents.conv`), one row:
+(`jaxnat.agents.conv`) and physics implementation (`--impls`: MJX's JAX implementation, or
+MuJoCo Warp, `physics_impl="warp"`), one row:
 
 - **compile s**: lowering and compiling the training program, and the env alone's program
   beside it (the first row compiles alone; later rows compile side by side on
@@ -79,7 +81,7 @@ def seconds(fn, *args, repeats: int = 3) -> float:
     return common.median_seconds(lambda: jax.block_until_ready(fn(*args)), repeats=repeats)
 
 
-def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, conv: str) -> dict:
+def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, conv: str, impl: str) -> dict:
     """One row's programs, compiled from shapes alone (no device work, so rows compile on
     worker threads while another row runs): the row's settings and `programs`."""
     import jax
@@ -87,11 +89,13 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
 
     import jaxnat
 
-    env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, **OBSERVATIONS[observation])
+    env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, physics_impl=impl,
+                              **OBSERVATIONS[observation])
     per_seed = total_envs // args.seeds
     config = ppo_config(per_seed, args.updates, dtype)
     row = {"robot": robot, "observation": observation, "seeds": args.seeds, "envs_per_seed": per_seed,
-           "total_envs": per_seed * args.seeds, "num_steps": config.num_steps, "dtype": dtype, "conv": conv}
+           "total_envs": per_seed * args.seeds, "num_steps": config.num_steps, "dtype": dtype, "conv": conv,
+           "physics_impl": impl}
     learner = learner_for(config, env, params, conv)
     keys = jax.eval_shape(lambda: jax.random.split(jax.random.key(1), args.seeds))
     init = jax.jit(jax.vmap(learner.init))
@@ -198,6 +202,8 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--dtypes", nargs="+", default=["float32", "bfloat16"], choices=["float32", "bfloat16"])
     parser.add_argument("--convs", nargs="+", default=["native", "s2d"], choices=IMPLEMENTATIONS)
+    parser.add_argument("--impls", nargs="+", default=["jax"], choices=["jax", "warp"],
+                        help="who steps the physics: MJX's JAX implementation or MuJoCo Warp")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
     parser.add_argument("--physics", default="fast", choices=["fast", "default"])
     parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,
@@ -209,8 +215,10 @@ def main(argv=None) -> None:
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    specs = [(robot, observation, total_envs, dtype, conv) for robot in args.robots for observation in args.observations
-             for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs]
+    specs = [(robot, observation, total_envs, dtype, conv, impl) for robot in args.robots
+             for observation in args.observations
+             for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs
+             for impl in args.impls]
     rows = []
     first = prepare(args, *specs[0])  # alone: its compile time is the clean one
     with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
@@ -227,7 +235,8 @@ def main(argv=None) -> None:
             print(json.dumps({k: v for k, v in row.items() if k != "top_kernels"}), flush=True)
     table = common.markdown_table(rows, [
         ("robot", "robot", ""), ("observation", "observation", ""), ("total_envs", "envs (all seeds)", ",d"),
-        ("dtype", "trunk dtype", ""), ("conv", "conv", ""), ("compile_s", "compile s", ".0f"),
+        ("dtype", "trunk dtype", ""), ("conv", "conv", ""), ("physics_impl", "physics", ""),
+        ("compile_s", "compile s", ".0f"),
         ("env_compile_s", "env compile s", ".0f"),
         ("env_sps", "env alone steps/s", ".3e"), ("train_sps", "train steps/s", ".3e"),
         ("train_over_env", "train / env", ".2f"), ("update_s", "update s", ".3f"), ("rollout_s", "rollout s", ".3f"),
@@ -244,6 +253,7 @@ def main(argv=None) -> None:
                     f"settings ({args.seeds} seeds vmapped, 16 steps per env, 4 epochs x 4 minibatches, "
                     f"normalised rewards); {args.updates} updates per timed call",
         "best train steps/s": {k: f"{r['train_sps']:.3e} ({r['total_envs']} envs, {r['dtype']}, {r['conv']}, "
+                                  f"{r['physics_impl']} physics, "
                                   f"train/env {r['train_over_env']:.2f})" for k, r in best.items()},
         "target": "issue 40: >= 5e5 env steps/s end to end, training >= 50% of the env alone, compile <= 60 s",
         "bench_seconds": round(time.perf_counter() - start),

@@ -89,6 +89,7 @@ class Ant(MJXEnv):
     qvel_noise = "normal"
     default_frame_skip = 5
     root_position_size = 2
+    needs_cfrc_ext = True
     fast_physics = PhysicsSettings(
         integrator="euler", iterations=1, ls_iterations=4, eulerdamp=False,
         contact_geoms=("left_foot", "right_foot", "third_foot", "fourth_foot"), fuse_static=True,
@@ -103,9 +104,10 @@ class Ant(MJXEnv):
         include_cfrc_ext_in_observation: bool = True,
         ls_iterations: int | None = 10,
         physics: str = "default",
+        impl: str = "jax",
     ):
         super().__init__(frame_skip, exclude_current_positions_from_observation, ls_iterations,
-                         physics)
+                         physics, impl)
         self.include_cfrc_ext_in_observation = include_cfrc_ext_in_observation
         gymnasium_model = self.model if physics == "default" else load_model(self.robot)
         self.gymnasium_nbody = gymnasium_model.nbody

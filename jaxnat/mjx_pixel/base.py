@@ -69,9 +69,10 @@ mjx = import_mjx()  # (before mjx_internals, which imports MJX's private modules
 
 from jaxnat.mjx_pixel import mjx_internals  # noqa: E402  MJX's private names: RK4 tableau, `_impl` fields
 
-__all__ = ["MJXState", "MJXEnv", "PhysicsSettings", "PHYSICS", "fused_body_index"]
+__all__ = ["MJXState", "MJXEnv", "PhysicsSettings", "PHYSICS", "IMPLS", "fused_body_index"]
 
 PHYSICS = ("default", "fast")  # the values of `MJXEnv(physics=...)`
+IMPLS = ("jax", "warp")  # the values of `MJXEnv(impl=...)`
 
 _PLANE, _CAPSULE = int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_CAPSULE)
 
@@ -186,6 +187,9 @@ class MJXEnv(Environment):
             the fast settings' own bound is used instead.
         physics: `"default"` (Gymnasium v5's dynamics) or `"fast"` (the robot's
             `fast_physics`: speed over fidelity; see the module docstring).
+        impl: who steps the physics: `"jax"` (MJX's JAX implementation) or `"warp"` (MuJoCo
+            Warp, the `warp` extra: the same model, solver and bounds, faster on a GPU;
+            `warp_physics.py`). Reset is the JAX implementation's either way.
     """
 
     robot: str  # a key of `jaxnat.mjx_pixel.models.ROBOTS`
@@ -195,6 +199,7 @@ class MJXEnv(Environment):
     default_frame_skip: int  # Gymnasium v5's
     root_position_size: int  # leading qpos entries that hold the root's x (or x, y)
     fast_physics: PhysicsSettings  # what physics="fast" changes
+    needs_cfrc_ext: bool = False  # steps with post_constraint=True (impl="warp" cannot)
 
     def __init__(
         self,
@@ -202,9 +207,16 @@ class MJXEnv(Environment):
         exclude_current_positions_from_observation: bool = True,
         ls_iterations: int | None = 10,
         physics: str = "default",
+        impl: str = "jax",
     ):
         if physics not in PHYSICS:
             raise ValueError(f"physics must be one of {PHYSICS}, got {physics!r}")
+        if impl not in IMPLS:
+            raise ValueError(f"impl must be one of {IMPLS}, got {impl!r}")
+        if impl == "warp" and self.needs_cfrc_ext:
+            raise ValueError(f"impl='warp' cannot step {type(self).__name__}: its observation and "
+                             f"reward read cfrc_ext, which MJX's Warp implementation does not "
+                             f"compute; use impl='jax'")
         self.physics_mode = physics
         frame_skip = self.default_frame_skip if frame_skip is None else frame_skip
         if int(frame_skip) < 1:
@@ -228,6 +240,12 @@ class MJXEnv(Environment):
         self.dt = float(self.model.opt.timestep) * self.frame_skip  # seconds per env step
         self.init_qpos = np.asarray(self.model.qpos0, np.float32)
         self.init_qvel = np.zeros(self.model.nv, np.float32)
+        self.impl = impl
+        self.warp = None
+        if impl == "warp":
+            from jaxnat.mjx_pixel.warp_physics import WarpPhysics  # noqa: PLC0415  optional
+
+            self.warp = WarpPhysics(self.model, self.frame_skip)
 
     @property
     def default_params(self):
@@ -271,6 +289,8 @@ class MJXEnv(Environment):
 
     def _step_data(self, data: mjx.Data, action: jax.Array, *, post_constraint: bool = False):
         """Gymnasium's `do_simulation(action, frame_skip)`."""
+        if self.warp is not None:
+            return self.warp.advance(data, action)
         with _full_precision():
             data = data.replace(ctrl=jnp.asarray(action, data.ctrl.dtype))
             data = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._physics_step(d), data)

@@ -218,6 +218,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             (see `mjx_pixel/base.py`); or a physics env instance to wrap instead of `robot`'s
             (its state must carry an `mjx.Data` as `.data` and the env its `mujoco.MjModel` as
             `.model`).
+        physics_impl: who steps `robot`'s physics: `"jax"` (MJX's JAX implementation) or
+            `"warp"` (MuJoCo Warp, the `warp` extra; `mjx_pixel/warp_physics.py`). Only with
+            `physics` given as a string.
     """
 
     params_type = PixelParams
@@ -247,6 +250,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         noise_sigma: float | None = None,
         num_videos: int | None = None,
         distraction: str | None = None,
+        physics_impl: str = "jax",
     ):
         if observation not in OBSERVATIONS:
             raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
@@ -269,7 +273,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
             if robot not in PHYSICS:
                 raise ValueError(f"robot must be one of {sorted(PHYSICS)}, got {robot!r}")
             module, _, cls = PHYSICS[robot].partition(":")
-            physics = getattr(importlib.import_module(module), cls)(physics=physics or "default")
+            physics = getattr(importlib.import_module(module), cls)(physics=physics or "default",
+                                                                    impl=physics_impl)
+        elif physics_impl != "jax":
+            raise ValueError(f"physics_impl={physics_impl!r} applies to the robot's own physics "
+                             f"env; pass impl= to the physics env you give instead")
         self.robot = robot
         self.physics = physics
         self.observation = observation
