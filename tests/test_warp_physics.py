@@ -142,3 +142,15 @@ def test_pixel_env_passes_the_impl_to_its_physics():
     env = PixelMuJoCo("hopper", observation="state", physics="fast", physics_impl="warp")
     assert env.physics.impl == "warp" and env.physics.warp is not None
     assert PixelMuJoCo("hopper", observation="state").physics.warp is None
+
+
+def test_capacity_holds_every_floor_contact_of_fast_half_cheetah():
+    """Fast HalfCheetah's five colliding geoms (a sphere: one floor contact; four capsules: two
+    each) can touch the floor in 9 contacts of 4 pyramidal rows each, which a trained policy
+    reaches (a flipped cheetah); the capacity holds them all, with the 6 joint limits' rows."""
+    from jaxnat.mjx_pixel.warp_physics import capacity, rows_per_contact
+
+    env = HalfCheetah(physics="fast")
+    contacts, constraints = capacity(env.model, env.frame_skip)
+    assert rows_per_contact(env.model) == 4
+    assert contacts >= 9 and constraints >= 9 * 4 + 6

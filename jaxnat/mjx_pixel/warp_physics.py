@@ -24,8 +24,8 @@ pure function of it:
   select between the reset and the stepped state is a select of JAX arrays.
 - **Capacity**: Warp allocates its contacts (across the worlds) and constraint rows (per
   world) up front and drops what does not fit (with a warning). `capacity` sizes them from
-  MuJoCo C rollouts of the model under random actions: twice the most contacts and constraint
-  rows one world needed.
+  MuJoCo C rollouts of the model under random actions: four times the most contacts one world
+  had, and constraint rows for that many contacts plus twice the other rows a world had.
 - **Warnings**: Warp prints a line when a step hits the Newton or line-search iteration
   bound; the fast settings bound them on purpose (MJX's JAX implementation stops there
   silently), so those two warnings are off. Dropped contacts and constraint rows still warn.
@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-__all__ = ["WarpPhysics", "capacity", "require_warp", "STATE_FIELDS"]
+__all__ = ["WarpPhysics", "capacity", "rows_per_contact", "require_warp", "STATE_FIELDS"]
 
 # What one env step reads of the previous one: MuJoCo's state (mjSTATE_INTEGRATION's fields
 # these robots have) and the solver's warm start. Everything else is recomputed by mj_step.
@@ -65,20 +65,39 @@ def require_warp():
 
 def capacity(model: mujoco.MjModel, frame_skip: int, episodes: int = 3, steps: int = 300,
              seed: int = 0) -> tuple[int, int]:
-    """`(contacts, constraints)` for one world of `model`: twice the most contacts and
-    constraint rows one MuJoCo C world needed over `episodes` rollouts of `steps` env steps
-    (`frame_skip` `mj_step`s each) under uniform random controls, from `mj_resetData`."""
+    """`(contacts, constraints)` for one world of `model`, from MuJoCo C rollouts of `episodes`
+    x `steps` env steps (`frame_skip` `mj_step`s each) under uniform random controls, from
+    `mj_resetData`: four times the most contacts one world had, and room for that many
+    contacts' constraint rows (each the most rows one contact of the model can make) plus
+    twice the most other rows (joint limits, equalities, friction loss) a world had.
+
+    A trained policy reaches states random controls do not (a flipped cheetah touches the
+    floor with more geoms): sized from the random rollouts alone (twice their rows), Warp ran
+    out of constraint rows in HalfCheetah's PPO on a GPU.
+    """
     data = mujoco.MjData(model)
     rng = np.random.default_rng(seed)
-    contacts = constraints = 1
+    contacts = other_rows = 1
     low, high = model.actuator_ctrlrange.T
     for _ in range(episodes):
         mujoco.mj_resetData(model, data)
         for _ in range(steps):
             data.ctrl[:] = rng.uniform(low, high)
             mujoco.mj_step(model, data, nstep=frame_skip)
-            contacts, constraints = max(contacts, data.ncon), max(constraints, data.nefc)
-    return 2 * contacts, 2 * constraints
+            contact_rows = int(np.sum(data.efc_type >= int(mujoco.mjtConstraint.mjCNSTR_CONTACT_FRICTIONLESS)))
+            contacts = max(contacts, data.ncon)
+            other_rows = max(other_rows, data.nefc - contact_rows)
+    contacts *= 4
+    return contacts, contacts * rows_per_contact(model) + 2 * other_rows
+
+
+def rows_per_contact(model: mujoco.MjModel) -> int:
+    """The most constraint rows one contact of `model` can make: `condim` for elliptic friction
+    cones, `2 (condim - 1)` for pyramidal ones (1 for a frictionless contact)."""
+    condim = int(max(np.max(model.geom_condim, initial=1), np.max(model.pair_dim, initial=1)))
+    if condim == 1 or model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC:
+        return condim
+    return 2 * (condim - 1)
 
 
 class WarpPhysics:
