@@ -7,7 +7,11 @@ The robots (`base.py`, `ant.py`) need three kinds of thing MJX keeps private:
   (`base._rk4_step`);
 - `mjx.Data._impl`'s `contact` (the contact frames are rebuilt as MuJoCo C makes them,
   `base._forward_with_c_capsule_frames`) and `efc_J` (whether there are constraints);
-- `mjx.Data._impl.cfrc_ext` (Ant's contact forces), read and set alone.
+- `mjx.Data._impl.cfrc_ext` (Ant's contact forces), read and set alone;
+- for `impl="warp"` (`warp_physics.py`): which Warp data fields have a world axis
+  (`mujoco.mjx.warp.types._BATCH_DIM`), MJX's name for a pytree path of a `Data`
+  (`mujoco.mjx._src.types.tree_path_to_attr_str`) and the Warp model's overflow warnings
+  (`Model.opt._impl.warn_overflow`). Warp is optional, so its names are read when called.
 
 A mujoco-mjx release may move or rename any of them. Importing this module checks every name
 below and, if one is missing, raises a one-line ImportError that names the release range this
@@ -33,6 +37,7 @@ NAMES = (
     ("mujoco.mjx._src.forward", "_integrate_pos"),
     ("mujoco.mjx._src.forward", "_advance"),
     ("mujoco.mjx._src.scan", "flat"),
+    ("mujoco.mjx._src.types", "tree_path_to_attr_str"),
 )
 # Fields of `mjx.Data._impl` (MJX's JAX implementation, `mujoco.mjx._src.types.DataJAX`).
 IMPL_CLASS = ("mujoco.mjx._src.types", "DataJAX")
@@ -82,6 +87,7 @@ check()
 _mjx = import_mjx()
 from mujoco.mjx._src import forward as _forward  # noqa: E402  (checked above)
 from mujoco.mjx._src import scan as _scan  # noqa: E402
+from mujoco.mjx._src import types as _types  # noqa: E402
 
 RK4_A = _forward._RK4_A  # Butcher tableau of `mjx.rungekutta4` (its `a` matrix)
 RK4_B = _forward._RK4_B  # and its weights
@@ -118,3 +124,23 @@ def with_cfrc_ext(m, d):
     which no robot here reads; taking only `cfrc_ext` from its result lets XLA drop them.
     """
     return d.tree_replace({"_impl.cfrc_ext": _mjx.rne_postconstraint(m, d)._impl.cfrc_ext})
+
+
+def field_name(path) -> str:
+    """MJX's dotted name of the `mjx.Data` field at pytree `path` (`qpos`; Warp's own fields
+    without their `_impl.`)."""
+    return _types.tree_path_to_attr_str(path).removeprefix("_impl.")
+
+
+def warp_world_axis() -> dict:
+    """Warp data field name -> whether it has a world axis (MuJoCo Warp installed)."""
+    from mujoco.mjx.warp import types as warp_types  # noqa: PLC0415  optional
+
+    return dict(warp_types._BATCH_DIM["Data"])
+
+
+def without_warp_warnings(warp_model, flags: int):
+    """`warp_model` (impl="warp") with Warp's overflow warnings `flags` turned off."""
+    opt = warp_model.opt
+    kept = int(opt._impl.warn_overflow) & ~int(flags)
+    return warp_model.replace(opt=opt.replace(_impl=opt._impl.replace(warn_overflow=kept)))

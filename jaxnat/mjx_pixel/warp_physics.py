@@ -42,6 +42,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from jaxnat.mjx_pixel import mjx_internals
+
 __all__ = ["WarpPhysics", "capacity", "rows_per_contact", "require_warp", "STATE_FIELDS"]
 
 # What one env step reads of the previous one: MuJoCo's state (mjSTATE_INTEGRATION's fields
@@ -108,7 +110,7 @@ class WarpPhysics:
     def __init__(self, model: mujoco.MjModel, frame_skip: int, contacts: int | None = None,
                  constraints: int | None = None):
         mjx = require_warp()
-        from mujoco.mjx.warp import types as warp_types  # noqa: PLC0415
+        from mujoco_warp import OverflowType  # noqa: PLC0415
 
         self._mjx = mjx
         self.model = model
@@ -118,8 +120,10 @@ class WarpPhysics:
             contacts = found[0] if contacts is None else contacts
             constraints = found[1] if constraints is None else constraints
         self.contacts, self.constraints = int(contacts), int(constraints)
-        self.warp_model = _quiet_solver_bounds(mjx.put_model(model, impl="warp"))
-        self._batched = warp_types._BATCH_DIM["Data"]  # which Warp fields have a world axis
+        # The fast settings bound the solver's iterations on purpose: no warning for reaching them.
+        self.warp_model = mjx_internals.without_warp_warnings(
+            mjx.put_model(model, impl="warp"), OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
+        self._world_axis = mjx_internals.warp_world_axis()
         self._worlds_cache: dict[int, object] = {}
         jax_data = mjx.make_data(model, impl="jax")
         warp_data = mjx.make_data(model, impl="warp", naconmax=self.contacts, njmax=self.constraints)
@@ -150,10 +154,9 @@ class WarpPhysics:
                                            njmax=self.constraints)
                 self._worlds_cache[n] = jax.tree.map(np.asarray, data)
         data = self._worlds_cache[n]
-        from mujoco.mjx._src.types import tree_path_to_attr_str  # noqa: PLC0415
 
         def fill(path, leaf):
-            batched = self._batched.get(tree_path_to_attr_str(path).removeprefix("_impl."), True)
+            batched = self._world_axis.get(mjx_internals.field_name(path), True)
             shape = ((n,) if batched else ()) + leaf.shape
             if leaf.size == 0 or np.all(leaf == leaf.flat[0]):
                 return jnp.full(shape, leaf.flat[0] if leaf.size else 0, leaf.dtype)
@@ -187,11 +190,3 @@ class WarpPhysics:
 
         return step_many
 
-
-def _quiet_solver_bounds(warp_model):
-    """`warp_model` without Warp's warnings for reaching the solver's iteration bounds."""
-    from mujoco_warp import OverflowType  # noqa: PLC0415
-
-    opt = warp_model.opt
-    flags = int(opt._impl.warn_overflow) & ~int(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS)
-    return warp_model.replace(opt=opt.replace(_impl=opt._impl.replace(warn_overflow=flags)))
