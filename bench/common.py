@@ -168,3 +168,60 @@ def scan_rollout(env, params, num_envs: int, num_steps: int, trajectory: bool):
         return jax.lax.scan(body, (obs, state), jax.random.split(key, num_steps))
 
     return jax.jit(run)
+
+
+def device_kernels(trace_dir: str, calls: int = 1) -> list:
+    """Every device kernel of a `jax.profiler` trace (its Perfetto JSON), by total time:
+    `[name, ms per call, share of device time]` (every stream of every GPU counted), for a
+    trace of `calls` calls of the program."""
+    import collections
+    import glob
+    import gzip
+
+    paths = sorted(glob.glob(f"{trace_dir}/**/perfetto_trace.json.gz", recursive=True))
+    if not paths:
+        return []
+    with gzip.open(paths[-1]) as f:
+        trace = json.load(f)
+    events = trace["traceEvents"] if isinstance(trace, dict) else trace
+    devices = {e["pid"] for e in events if e.get("ph") == "M" and e.get("name") == "process_name"
+               and "GPU" in str(e.get("args", {}).get("name", ""))}
+    totals = collections.Counter()
+    for e in events:
+        if e.get("ph") == "X" and e.get("pid") in devices:
+            totals[e["name"]] += e.get("dur", 0.0)
+    whole = sum(totals.values()) or 1.0
+    return [[name, us / 1e3 / calls, us / whole] for name, us in totals.most_common()]
+
+
+# Kernel classes of a GPU trace, by name (first match wins): copies the program makes, XLA's
+# own fused kernels (Triton GEMMs among them), then cuDNN's and cuBLAS's library kernels.
+KERNEL_CLASSES = (("copies (MemcpyD2D, Memset)", ("memcpy", "memset")),
+                  ("XLA GEMM fusions", ("gemm_fusion", "triton_gemm", "__triton_gemm")),
+                  ("XLA fusions", ("fusion", "triton", "copy", "transpose", "reduce", "slice", "gather", "scatter")),
+                  ("convolutions (cuDNN)", ("conv", "cudnn", "xmma", "implicit", "wgrad", "dgrad", "fprop",
+                                            "cutlass", "nhwc", "kernel_")),
+                  ("GEMMs (cuBLAS)", ("gemm", "cublas", "sm90", "sm80", "ampere", "hopper")))
+
+
+def kernel_classes(kernels: list) -> dict:
+    """`device_kernels` summed by `KERNEL_CLASSES` (the rest "other"): {class: [ms, share]}."""
+    sums: dict = {}
+    for name, ms, share in kernels:
+        lower = name.lower()
+        group = next((cls for cls, words in KERNEL_CLASSES if any(w in lower for w in words)), "other")
+        total = sums.setdefault(group, [0.0, 0.0])
+        total[0] += ms
+        total[1] += share
+    return dict(sorted(sums.items(), key=lambda kv: -kv[1][0]))
+
+
+def forward_mflop(network, params, observation_space) -> float:
+    """MFLOP of one sample's forward pass of `network` (unbatched `params`), from XLA:CPU's cost
+    analysis of XLA's own convolutions: on a GPU the convolutions are cuDNN calls, which its
+    cost analysis leaves out."""
+    obs = jax.ShapeDtypeStruct((1, *observation_space.shape), observation_space.dtype)
+    with jax.default_device(jax.devices("cpu")[0]):
+        analysis = jax.jit(network.clone(conv="native").apply).lower(params, obs).compile().cost_analysis()
+    analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
+    return float(analysis.get("flops", float("nan"))) / 1e6

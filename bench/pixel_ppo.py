@@ -112,14 +112,7 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     network = learner.network
     seeds_params = learner.policy_of(runner)[0]  # the runner is read through its learner only
     one_seed = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), seeds_params)
-    space = env.observation_space(params)
-    obs = jax.ShapeDtypeStruct((1, *space.shape), space.dtype)
-    # Counted by XLA:CPU's cost analysis of XLA's own convolutions: on a GPU the convolutions
-    # are cuDNN calls, which its cost analysis leaves out.
-    with jax.default_device(jax.devices("cpu")[0]):
-        analysis = jax.jit(network.clone(conv="native").apply).lower(one_seed, obs).compile().cost_analysis()
-    analysis = analysis[0] if isinstance(analysis, (list, tuple)) else analysis
-    row["forward_mflop"] = float(analysis.get("flops", float("nan"))) / 1e6
+    row["forward_mflop"] = common.forward_mflop(network, one_seed, env.observation_space(params))
     if args.phases:
         rollout = jax.jit(jax.vmap(lambda r: learner.rollout(r, config)))
         programs["rollout"] = rollout.lower(runner).compile()
@@ -130,29 +123,6 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     programs["policy_of"] = learner.policy_of
     row["programs"] = programs
     return row
-
-
-def device_kernels(trace_dir: str, updates: int, top: int = 20) -> list:
-    """The `top` device kernels of a `jax.profiler` trace (its Perfetto JSON) by total time:
-    `[name, ms per update, share of device time]` (every stream of every GPU counted)."""
-    import collections
-    import glob
-    import gzip
-
-    paths = sorted(glob.glob(f"{trace_dir}/**/perfetto_trace.json.gz", recursive=True))
-    if not paths:
-        return []
-    with gzip.open(paths[-1]) as f:
-        trace = json.load(f)
-    events = trace["traceEvents"] if isinstance(trace, dict) else trace
-    devices = {e["pid"] for e in events if e.get("ph") == "M" and e.get("name") == "process_name"
-               and "GPU" in str(e.get("args", {}).get("name", ""))}
-    totals = collections.Counter()
-    for e in events:
-        if e.get("ph") == "X" and e.get("pid") in devices:
-            totals[e["name"]] += e.get("dur", 0.0)
-    whole = sum(totals.values()) or 1.0
-    return [[name, us / 1e3 / updates, us / whole] for name, us in totals.most_common(top)]
 
 
 def measure(args, row: dict) -> dict:
@@ -178,7 +148,7 @@ def measure(args, row: dict) -> dict:
         with tempfile.TemporaryDirectory() as trace_dir:
             with jax.profiler.trace(trace_dir, create_perfetto_trace=True):
                 runner, _ = jax.block_until_ready(programs["chunk"](runner))
-            row["top_kernels"] = device_kernels(trace_dir, args.updates)
+            row["top_kernels"] = common.device_kernels(trace_dir, args.updates)[:20]
         for name, ms, share in row["top_kernels"]:
             print(f"    {ms:9.2f} ms/update {share:6.1%}  {name[:110]}", flush=True)
     learner_flop = 3 * row["forward_mflop"] * 1e6 * ppo.PPOConfig.update_epochs * steps_per_update

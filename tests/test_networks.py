@@ -11,7 +11,7 @@ from jaxnat.agents.conv import conv2d
 from jaxnat.agents.networks import Memory, default_trunk, init_params, make_actor_critic
 
 
-@pytest.mark.parametrize("implementation", ["im2col", "native", "s2d", "grouped"])
+@pytest.mark.parametrize("implementation", ["im2col", "native", "s2d", "unrolled", "grouped"])
 @pytest.mark.parametrize("shape, kernel, stride", [((2, 28, 28, 3), 5, 2), ((1, 3, 12, 12, 10), 5, 1), ((2, 84, 84, 4), 8, 4),
                                                    ((2, 20, 20, 3), 4, 2), ((1, 23, 22, 2), 4, 2)])
 def test_conv_equals_xla_convolution(implementation, shape, kernel, stride):
@@ -51,16 +51,17 @@ def test_native_conv_shared_weights_and_per_example_gradients():
     np.testing.assert_allclose(np.asarray(got), np.asarray(per_example("im2col")), rtol=1e-4, atol=1e-4)
 
 
-def test_space_to_depth_conv_vmapped_over_weights_matches_native():
+@pytest.mark.parametrize("implementation", ["s2d", "unrolled"])
+def test_space_to_depth_conv_vmapped_over_weights_matches_native(implementation):
     """The Atari trunk's first two layers (8x8 stride 4, 4x4 stride 2) as stride-1
-    convolutions on tiled inputs: values and both gradients under vmap over weight sets
-    (`native` equals im2col above)."""
+    convolutions on tiled inputs, the seeds' convolutions in a loop or unrolled: values and
+    both gradients under vmap over weight sets (`native` equals im2col above)."""
     x = jax.random.normal(jax.random.key(0), (2, 2, 44, 44, 4))
     k = jax.random.normal(jax.random.key(1), (2, 8, 8, 4, 5))
     loss = lambda impl: lambda x, k: jnp.sum(jnp.sin(conv2d(conv2d(x, k, 4, impl), k2, 2, impl)))
     k2 = jax.random.normal(jax.random.key(2), (4, 4, 5, 3)) * 0.1
     for fun in (lambda impl: jax.vmap(loss(impl)), lambda impl: jax.vmap(jax.grad(loss(impl), (0, 1)))):
-        want, got = jax.jit(fun("native"))(x, k), jax.jit(fun("s2d"))(x, k)
+        want, got = jax.jit(fun("native"))(x, k), jax.jit(fun(implementation))(x, k)
         for w, g in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
             np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-4, atol=1e-4)
 

@@ -20,6 +20,12 @@ over its weights into one *grouped* convolution, several times slower than the f
   same products, in a shape a GPU's tensor cores fill (4 input channels leave them mostly
   idle). The stride-1 convolution is then `"native"`'s. Layers it cannot rewrite (a kernel not
   a multiple of its stride) run `"native"`.
+- `"unrolled"`: `"s2d"` with its one convolution per weight set written out in the program
+  (a static slice per seed, the outputs stacked) instead of a `lax.map` loop. In a loop each
+  iteration copies its seed's operands out of the stacked batch before the convolution reads
+  them, and copies the result back; unrolled, XLA can fuse each seed's slice into the
+  elementwise work that produces it (the uint8-to-float scaling, the previous layer's bias and
+  ReLU) and schedule the seeds' convolutions without the loop.
 
 All compute the same function (tests check values and gradients under vmap); `"auto"` picks by
 the backend at trace time: im2col on CPU, s2d elsewhere (the GPU's pixel-PPO learner is
@@ -35,7 +41,7 @@ import jax.numpy as jnp
 
 __all__ = ["IMPLEMENTATIONS", "conv2d", "im2col_patches", "space_to_depth"]
 
-IMPLEMENTATIONS = ("auto", "im2col", "native", "s2d", "grouped")
+IMPLEMENTATIONS = ("auto", "im2col", "native", "s2d", "unrolled", "grouped")
 _DIMENSIONS = ("NHWC", "HWIO", "NHWC")
 
 
@@ -90,17 +96,22 @@ def _xla_conv(x, kernel, stride: int):
     return y.reshape(*lead, *y.shape[1:])
 
 
-def _one_per_weight_set(fun, axis_size, in_batched, args):
-    """Batching rule body: `fun` applied to each batch element in a loop (unbatched arguments
-    broadcast), outputs stacked along axis 0."""
+def _one_per_weight_set(fun, axis_size, in_batched, args, unrolled: bool = False):
+    """Batching rule body: `fun` applied to each batch element (unbatched arguments broadcast),
+    outputs stacked along axis 0; in a `lax.map` loop, or with `unrolled` one call per element
+    written out in the program."""
+    if unrolled:
+        outputs = [fun(*[a[i] if b else a for a, b in zip(args, in_batched)]) for i in range(axis_size)]
+        return jax.tree_util.tree_map(lambda *ys: jnp.stack(ys), *outputs)
     args = [a if b else jnp.broadcast_to(a, (axis_size, *a.shape)) for a, b in zip(args, in_batched)]
     return jax.lax.map(lambda a: fun(*a), args)
 
 
 @functools.cache
-def _native(stride: int):
+def _native(stride: int, unrolled: bool = False):
     """The `"native"` form for one stride: a custom_vjp whose forward and backward passes carry
-    their own batching rules (JAX cannot differentiate through a custom_vmap function itself)."""
+    their own batching rules (JAX cannot differentiate through a custom_vmap function itself);
+    `unrolled`: the rules' one convolution per weight set written out, not looped."""
 
     @jax.custom_batching.custom_vmap
     def forward(x, kernel):
@@ -111,7 +122,7 @@ def _native(stride: int):
         x_batched, kernel_batched = in_batched
         if not kernel_batched:  # shared weights: the batch is just more leading dims
             return forward(x, kernel), x_batched
-        return _one_per_weight_set(forward, axis_size, in_batched, (x, kernel)), True
+        return _one_per_weight_set(forward, axis_size, in_batched, (x, kernel), unrolled), True
 
     @jax.custom_batching.custom_vmap
     def backward(x, kernel, grad):
@@ -122,7 +133,7 @@ def _native(stride: int):
     def _backward_rule(axis_size, in_batched, x, kernel, grad):
         # Per-element kernel gradients: never fold the batch into one convolution (that would
         # sum them).
-        return _one_per_weight_set(backward, axis_size, in_batched, (x, kernel, grad)), (True, True)
+        return _one_per_weight_set(backward, axis_size, in_batched, (x, kernel, grad), unrolled), (True, True)
 
     @jax.custom_vjp
     def conv(x, kernel):
@@ -136,7 +147,7 @@ def _native(stride: int):
 def conv2d(x, kernel, stride: int, implementation: str = "auto"):
     """VALID convolution of `x` `[..., H, W, C]` with an HWIO `kernel`, any leading dims.
 
-    `implementation`: `"im2col"`, `"native"`, `"s2d"`, `"grouped"` or `"auto"` (im2col on CPU, s2d
+    `implementation`: `"im2col"`, `"native"`, `"s2d"`, `"unrolled"`, `"grouped"` or `"auto"` (im2col on CPU, s2d
     elsewhere); see the module docstring for why each exists."""
     if implementation not in IMPLEMENTATIONS:
         raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
@@ -146,6 +157,8 @@ def conv2d(x, kernel, stride: int, implementation: str = "auto"):
         return _im2col(x, kernel, stride)
     if implementation == "s2d":
         return _s2d(x, kernel, int(stride))
+    if implementation == "unrolled":
+        return _s2d(x, kernel, int(stride), lambda x, kernel, stride: _native(int(stride), True)(x, kernel))
     if implementation == "grouped":
         return _s2d(x, kernel, int(stride), _xla_conv)
     return _native(int(stride))(x, kernel)

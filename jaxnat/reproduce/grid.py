@@ -403,7 +403,8 @@ def _mujoco_cells(profile: Profile) -> list[Cell]:
     return cells
 
 
-# The calibration's settings per group: (algo, variant, settings). "authors": their envs per
+# The calibration's settings per group: (algo, variant, settings[, env kwargs added to the
+# group's env's, `CALIBRATION_ENVS`]). "authors": their envs per
 # update (pytorch-a2c-ppo-acktr's Atari settings); "512 envs": the first sitting's batch
 # (`_LARGE_BATCH`); the others restore optimizer steps per env step, or change the reward
 # treatment. Each group's cells are judged against its "authors" cell of the same algorithm
@@ -439,6 +440,10 @@ CALIBRATION_VARIANTS: dict[str, list[tuple[str, str, dict[str, Any]]]] = {
                                                           "clip_rewards": True}),
         ("ppo", "Atari settings, normalised rewards", {**_MUJOCO_F32, **_ATARI_PPO}),
         ("ppo", "sign-clipped rewards", {**_MUJOCO_F32, "normalize_rewards": False, "clip_rewards": True}),
+        # The profile's settings with MuJoCo Warp stepping the physics (`physics_impl="warp"`,
+        # faster from pixels: bench/results/pixel_ppo.md): does a policy learn the same as
+        # with MJX's JAX implementation, which the profile's PixelMuJoCo cells train on?
+        ("ppo", "profile, MuJoCo Warp physics", _MUJOCO_PPO, {"physics_impl": "warp"}),
         # A2C from pixels keeps the authors' entropy bonus (0.01) at 64x their batch (1,024 envs
         # x 5 steps). HalfCheetah's pixel A2C cells ended below their untrained policy in sitting 9
         # (SITTINGS.md), where its state cell learned. Two suspects, one cell each: the bonus
@@ -455,8 +460,8 @@ def profile_variant(group: str, algo: str) -> str | None:
     """The calibration variant of `group` and `algo` whose settings are the paper profile's
     (`PAPER_SCALE`), None if none is."""
     wanted = _settings(algo, PAPER_SCALE[group])
-    return next((variant for a, variant, settings in CALIBRATION_VARIANTS.get(group, [])
-                 if a == algo and settings == wanted), None)
+    return next((variant for a, variant, settings, *env in CALIBRATION_VARIANTS.get(group, [])
+                 if a == algo and settings == wanted and not env), None)
 
 
 CALIBRATION_ENVS = {"mujoco": ("PixelMuJoCo/HalfCheetah-v0", {"observation": "pixels", "floor": "checker",
@@ -476,13 +481,13 @@ def _calibration_cells(profile: Profile) -> list[Cell]:
     cells = []
     for group in profile.subset("calibration", tuple(CALIBRATION_VARIANTS)):
         group_env, kwargs = CALIBRATION_ENVS.get(group, (env_id, {}))
-        for algo, variant, settings in CALIBRATION_VARIANTS[group]:
+        for algo, variant, settings, *env in CALIBRATION_VARIANTS[group]:
             if algo not in profile.subset("calibration_algos", ALGOS) or \
                     variant not in profile.subset("calibration_variants", (variant,)):
                 continue
             settings = {**settings, **_settings(algo, extra)}
             cells.append(Cell(f"calibration-{group}-{algo}-{_slug(variant)}", CALIBRATION, CALIBRATION, group_env,
-                              dict(kwargs), algo, None,
+                              {**kwargs, **(env[0] if env else {})}, algo, None,
                               dataclasses.replace(budget, eval_episodes=min(budget.eval_episodes, 10))
                               if group == "mujoco" else budget, _settings(algo, settings),
                               {"group": group, "variant": variant, **({"dataset": "mnist"} if group == "classify" else {})},
