@@ -28,8 +28,9 @@ over its weights into one *grouped* convolution, several times slower than the f
   ReLU) and schedule the seeds' convolutions without the loop.
 
 All compute the same function (tests check values and gradients under vmap); `"auto"` picks by
-the backend at trace time: im2col on CPU, s2d elsewhere (the GPU's pixel-PPO learner is
-fastest in that form; its measurements are in `bench/results/pixel_ppo.md`).
+the backend at trace time: im2col on CPU, unrolled elsewhere (the GPU's pixel-PPO learner is
+fastest in that form: 1.75x s2d's, whose loop copies were 43% of its device time;
+`bench/results/ppo_learner.md`, `bench/results/pixel_ppo.md`).
 """
 
 from __future__ import annotations
@@ -147,12 +148,12 @@ def _native(stride: int, unrolled: bool = False):
 def conv2d(x, kernel, stride: int, implementation: str = "auto"):
     """VALID convolution of `x` `[..., H, W, C]` with an HWIO `kernel`, any leading dims.
 
-    `implementation`: `"im2col"`, `"native"`, `"s2d"`, `"unrolled"`, `"grouped"` or `"auto"` (im2col on CPU, s2d
-    elsewhere); see the module docstring for why each exists."""
+    `implementation`: `"im2col"`, `"native"`, `"s2d"`, `"unrolled"`, `"grouped"` or `"auto"` (im2col on
+    CPU, unrolled elsewhere); see the module docstring for why each exists."""
     if implementation not in IMPLEMENTATIONS:
         raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
     if implementation == "auto":
-        implementation = "im2col" if jax.default_backend() == "cpu" else "s2d"
+        implementation = "im2col" if jax.default_backend() == "cpu" else "unrolled"
     if implementation == "im2col":
         return _im2col(x, kernel, stride)
     if implementation == "s2d":
