@@ -194,7 +194,7 @@ def main(argv=None):
     parser.add_argument("--updates", type=int, default=3, help="timed updates of the loop")
     parser.add_argument("--reps", type=int, default=2000, help="calls per piece")
     parser.add_argument("--trunk-reps", type=int, default=300, help="calls per round trip with the Atari trunk")
-    parser.add_argument("--convs", nargs="*", default=["im2col", "native", "s2d", "grouped"], choices=IMPLEMENTATIONS,
+    parser.add_argument("--convs", nargs="*", default=["im2col", "native", "s2d", "unrolled", "grouped"], choices=IMPLEMENTATIONS,
                         help="conv implementations also timed the learner's way (none: only the default)")
     parser.add_argument("--trunk", action=argparse.BooleanOptionalAction, default=True,
                         help="also the round trips with the Atari trunk")

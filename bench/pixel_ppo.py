@@ -1,7 +1,7 @@
 """PPO from pixels end to end, the env alone beside it, and where an update's time goes.
 
     python bench/pixel_ppo.py [--robots HalfCheetah Hopper] [--observations checker video noise]
-        [--total-envs 1024 4096 16384] [--seeds 5] [--dtypes float32 bfloat16] [--convs native s2d]
+        [--total-envs 1024 4096 16384] [--seeds 5] [--dtypes float32 bfloat16] [--convs s2d unrolled]
         [--impls jax warp]
 
 For each robot, observation, total env count (split over `--seeds` vmapped seeds, as
@@ -171,7 +171,7 @@ def main(argv=None) -> None:
     parser.add_argument("--total-envs", nargs="+", type=int, default=[1024, 4096, 16384])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--dtypes", nargs="+", default=["float32", "bfloat16"], choices=["float32", "bfloat16"])
-    parser.add_argument("--convs", nargs="+", default=["native", "s2d"], choices=IMPLEMENTATIONS)
+    parser.add_argument("--convs", nargs="+", default=["s2d", "unrolled"], choices=IMPLEMENTATIONS)
     parser.add_argument("--impls", nargs="+", default=["jax"], choices=["jax", "warp"],
                         help="who steps the physics: MJX's JAX implementation or MuJoCo Warp")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
