@@ -196,3 +196,18 @@ def test_paper_trunks_stay_shared_and_dqn_has_one_relu_mlp():
     _, state = q.apply(params, x, capture_intermediates=True)
     (hidden,) = state["intermediates"]["MLP_0"]["__call__"]
     assert float(hidden.min()) == 0.0 and float(hidden.max()) > 1.0  # ReLU, not tanh
+
+
+def test_auto_conv_on_gpu_is_one_unlooped_convolution_per_seed(monkeypatch):
+    """Off CPU, `"auto"` is the unrolled form: under vmap over weight sets, one convolution per
+    seed written out, no `lax.map` loop (whose operand copies were most of a pixel update's
+    copies on a GPU: bench/results/ppo_learner.md)."""
+    import jaxnat.agents.conv as conv_module
+
+    monkeypatch.setattr(conv_module.jax, "default_backend", lambda: "gpu")
+    seeds = 3
+    x = jnp.zeros((seeds, 2, 84, 84, 4))
+    k = jnp.zeros((seeds, 8, 8, 4, 32))
+    text = str(jax.make_jaxpr(jax.vmap(lambda x, k: conv2d(x, k, 4)))(x, k))
+    assert "while" not in text
+    assert text.count("conv_general_dilated") == seeds
