@@ -122,6 +122,12 @@ class Environment(Generic[TState, TParams]):
         select, so the select carries no observation and a batched step renders one."""
         return self.get_obs(state, params), state
 
+    # `AutoResetWrapper` computes this env's reset, and the final observation of an ended
+    # episode, behind one `lax.cond` on whether any env of the (vmapped) batch ended: for an
+    # env whose reset and observation are costly (a render) and whose episodes rarely end in
+    # the same step as others; otherwise every env of a batch computes them every step.
+    gated_autoreset: bool = False
+
     @property
     def has_state_observation(self) -> bool:
         """True when `get_obs(state, params)` is implemented (observation = f(state))."""

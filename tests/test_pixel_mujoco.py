@@ -276,6 +276,47 @@ def compiled_renders(fn, *args):
     return sum(1 for line in text.splitlines() if RENDER_SCOPE in line and " sqrt(" in line)
 
 
+def compiled_render_paths(fn, *args):
+    """`compiled_renders` of `fn` split by XLA's conditionals: `(renders outside any
+    conditional, [[renders of each branch] per conditional])`, a callee's renders counted with
+    its caller."""
+    import re
+
+    from jaxnat.mjx_pixel.render import RENDER_SCOPE
+
+    text = jax.jit(fn).lower(*args).compile().as_text()
+    computations, name, entry = {}, None, None
+    for line in text.splitlines():
+        start = re.match(r"^(ENTRY )?%?([\w.\-]+) \(.*\{$", line)
+        if start:
+            name = start.group(2)
+            computations[name] = []
+            entry = name if start.group(1) else entry
+        elif line == "}":
+            name = None
+        elif name:
+            computations[name].append(line)
+
+    def paths(computation):
+        own, conditionals = 0, []
+        for line in computations[computation]:
+            own += RENDER_SCOPE in line and " sqrt(" in line
+            branches = re.search(r"branch_computations=\{([^}]*)\}", line)
+            if branches:
+                conditionals.append([total(b.strip().lstrip("%")) for b in branches.group(1).split(",")])
+                continue
+            for callee in re.findall(r"(?:calls|to_apply|body|condition)=%([\w.\-]+)", line):
+                callee_own, callee_conditionals = paths(callee)
+                own, conditionals = own + callee_own, conditionals + callee_conditionals
+        return own, conditionals
+
+    def total(computation):
+        own, conditionals = paths(computation)
+        return own + sum(max(branches) for branches in conditionals)
+
+    return paths(entry)
+
+
 @pytest.fixture(scope="module")
 def autoreset_batch(physics):
     """An autoresetting batch of 6 where some envs end at the first step (stop_x = 0). The XLA
@@ -306,11 +347,36 @@ def test_autoreset_renders_one_frame_per_step(autoreset_batch):
         return jnp.where(terminated | truncated, env.reset(key_reset, params)[0], obs)
 
     batched = lambda f: jax.vmap(f, in_axes=(0, 0, 0, None))  # noqa: E731
-    assert compiled_renders(batched(step), *args) == one
     assert compiled_renders(batched(two_renders), *args) == 2 * one  # the counter can tell
-    # Reading the final observation needs the stepped frame too.
-    final = batched(lambda *a: (auto.step(*a)[0], auto.step(*a)[5]["final_observation"]))
-    assert compiled_renders(final, *args) == 2 * one
+    # PixelMuJoCo's `gated_autoreset`: the step is one conditional on whether any env of the
+    # batch ended, nothing rendered outside it, one frame rendered in either branch.
+    assert compiled_render_paths(batched(step), *args) == (0, [[one, one]])
+    # Reading the final observation needs the stepped frame too, but only in a step where
+    # some env ended; where none did, the final observation is the one frame rendered.
+    final = batched(lambda *a: (lambda out: (out[0], out[5]["final_observation"]))(auto.step(*a)))
+    assert compiled_render_paths(final, *args) == (0, [[one, 2 * one]])
+
+
+def test_gated_autoreset_in_a_batch_where_no_episode_ends(physics):
+    """No env of the batch ends: the observations and final observations are the stepped
+    env's own, bit for bit, as where some do (the test below)."""
+    from jaxnat.wrappers import AutoResetWrapper
+
+    env = make_env(physics, render_kernel="xla")
+    params = env.default_params  # stop_x = 1e9: no episode ends in these steps
+    auto = AutoResetWrapper(env)
+    _, state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(jax.random.key(5), 4), params)
+    step = jax.jit(jax.vmap(auto.step, in_axes=(0, 0, 0, None)))
+    raw_step = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
+    for t in range(2):
+        keys = jax.random.split(jax.random.key(20 + t), 4)
+        key_step = jax.vmap(jax.random.split)(keys)[:, 0]
+        obs, next_state, _, terminated, truncated, info = step(keys, state, jnp.ones((4, 6)), params)
+        raw_obs = raw_step(key_step, state, jnp.ones((4, 6)), params)[0]
+        assert not np.asarray(terminated | truncated).any()
+        np.testing.assert_array_equal(obs, raw_obs)
+        np.testing.assert_array_equal(info["final_observation"], raw_obs)
+        state = next_state
 
 
 def test_autoreset_observations_are_those_of_step_or_reset(autoreset_batch):

@@ -195,3 +195,22 @@ def test_make_observation_noise_composes_inside_the_autoreset():
     assert centred._env.law is NOISE_LAWS["centred"]
     with pytest.raises(TypeError, match="background='noise'"):
         jaxnat.make_vec("NaturalAtari/Pong-v0", 2, observation_noise=True)
+
+
+def test_any_in_batch_is_one_value_for_the_whole_batch():
+    """Under nested vmap the predicate is one unbatched value (any env of every axis), so a
+    cond on it stays a conditional; unbatched it is the flag itself."""
+    from jaxnat.wrappers.autoreset import any_in_batch
+
+    def f(x):
+        done = x > 1.0
+        return jax.lax.cond(any_in_batch(done), lambda: jnp.where(done, -x, x), lambda: x + 0.5)
+
+    x = jnp.array([[0.5, 2.0], [0.1, 0.2]])
+    np.testing.assert_array_equal(jax.jit(jax.vmap(jax.vmap(f)))(x), x.at[0, 1].set(-2.0))
+    np.testing.assert_array_equal(jax.vmap(jax.vmap(f))(x * 0.1), x * 0.1 + 0.5)  # none ended
+    assert float(f(jnp.float32(3.0))) == -3.0 and float(f(jnp.float32(0.0))) == 0.5
+    text = str(jax.make_jaxpr(jax.vmap(jax.vmap(f)))(x))
+    assert "cond[" in text and "select_n" in text  # the cond kept, the per-env where inside it
+    # Differentiable through (the flag carries no tangent).
+    np.testing.assert_array_equal(jax.grad(lambda x: jax.vmap(f)(x).sum())(x[0]), [1.0, -1.0])

@@ -71,9 +71,12 @@ Semantics: `docs/environments.md` section 4.
   the key of its noise; `observe` renders the newest frame from the state and writes it. A step
   carries the older frames over without rendering them again, and `AutoResetWrapper` selects
   between the stepped and the reset state first and calls `observe` once on the result, so the
-  frames the step and the reset rendered are dead code to XLA (unless the caller reads
-  `info["final_observation"]`, which needs the stepped frame). The noise observation is drawn
-  the same way, once per step.
+  frames the step and the reset rendered are dead code to XLA. A caller that reads
+  `info["final_observation"]` (a learner bootstrapping from it) needs the stepped frame of an
+  ended episode too; the env sets `gated_autoreset`, so under `vmap` the reset and that second
+  frame are computed only in steps where some env of the batch ended (for every env then),
+  and a step where none did renders once. The noise observation is drawn the same way, once
+  per step.
 
 Example::
 
@@ -224,6 +227,11 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
     """
 
     params_type = PixelParams
+    # A reset runs the robot's kinematics and renders, and a step rendering the final frame of
+    # an ended episode renders twice; few steps of a batch end an episode (none for robots that
+    # never terminate, between their time limits): `AutoResetWrapper` computes both only in a
+    # step where some env of the batch ended (its docstring).
+    gated_autoreset = True
 
     def __init__(
         self,
