@@ -2,12 +2,14 @@
 
     python bench/pixel_ppo.py [--robots HalfCheetah Hopper] [--observations checker video noise]
         [--total-envs 1024 4096 16384] [--seeds 5] [--dtypes float32 bfloat16] [--convs s2d unrolled]
-        [--impls jax warp]
+        [--impls jax warp] [--compaction on off]
 
 For each robot, observation, total env count (split over `--seeds` vmapped seeds, as
 `jaxnat train --seeds` and `jaxnat reproduce` run them), trunk dtype and convolution form
-(`jaxnat.agents.conv`) and physics implementation (`--impls`: MJX's JAX implementation, or
-MuJoCo Warp, `physics_impl="warp"`), one row:
+(`jaxnat.agents.conv`), physics implementation (`--impls`: MJX's JAX implementation, or
+MuJoCo Warp, `physics_impl="warp"`) and compaction (`--compaction`: "on", the default, resets
+the few envs of a step that ended and values their final observations alone; "off" computes
+both for every env in a step where any ended), one row:
 
 - **compile s**: lowering and compiling the training program, and the env alone's program
   beside it (the first row compiles alone; later rows compile side by side on
@@ -19,8 +21,9 @@ MuJoCo Warp, `physics_impl="warp"`), one row:
 - **env alone steps/s**: the same envs (all seeds' in one batch) stepping uniform random actions
   in `jit(scan(vmap(step)))`, in the same run; **train / env** is the issue's ratio;
 - **phases** (`--phases`, each jitted alone, vmapped over seeds, seconds per update): the rollout
-  (env steps plus acting), acting alone (the policy's forward pass on the rollout's batches:
-  each step values the previous step's final observations in the same call, so 2N per step),
+  (env steps plus acting), acting alone (the policy's forward pass on the rollout's batches,
+  N per step: with compaction on, a step values the previous step's truncated final
+  observations alone, a few rows, in the same call; off, every row in such a step),
   and the update's GAE and epochs (the end-to-end update time less the rollout's; the bench
   reads the runner only through its learner, as code outside the agents must). Rollout minus
   acting is the env inside the learner;
@@ -64,13 +67,16 @@ def ppo_config(envs_per_seed: int, updates: int, dtype: str):
                      **settings)
 
 
-def learner_for(config, env, params, conv: str):
-    """PPO's learner with the trunk's convolutions computed as `conv`."""
+def learner_for(config, env, params, conv: str, compaction: str = "on"):
+    """PPO's learner with the trunk's convolutions computed as `conv`; `compaction="off"`
+    values every final observation in a step where any env truncated (`final_value_share`)."""
     from jaxnat.agents import ppo
     from jaxnat.agents.rollout import dtype_and_memory, on_policy_learner
+    from jaxnat.agents.rollout.on_policy import FINAL_VALUE_SHARE
 
     rule = ppo.RULE._replace(network_options=lambda config: {**dtype_and_memory(config), "conv": conv})
-    return on_policy_learner(config, env, params, rule)
+    share = FINAL_VALUE_SHARE if compaction == "on" else None
+    return on_policy_learner(config, env, params, rule, final_value_share=share)
 
 
 def seconds(fn, *args, repeats: int = 3) -> float:
@@ -81,22 +87,25 @@ def seconds(fn, *args, repeats: int = 3) -> float:
     return common.median_seconds(lambda: jax.block_until_ready(fn(*args)), repeats=repeats)
 
 
-def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, conv: str, impl: str) -> dict:
+def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, conv: str, impl: str,
+            compaction: str) -> dict:
     """One row's programs, compiled from shapes alone (no device work, so rows compile on
     worker threads while another row runs): the row's settings and `programs`."""
     import jax
     import jax.numpy as jnp
 
     import jaxnat
+    from jaxnat.wrappers import AutoResetWrapper
 
     env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, physics_impl=impl,
-                              **OBSERVATIONS[observation])
+                              autoreset=False, **OBSERVATIONS[observation])
+    env = AutoResetWrapper(env) if compaction == "on" else AutoResetWrapper(env, reset_share=None)
     per_seed = total_envs // args.seeds
     config = ppo_config(per_seed, args.updates, dtype)
     row = {"robot": robot, "observation": observation, "seeds": args.seeds, "envs_per_seed": per_seed,
            "total_envs": per_seed * args.seeds, "num_steps": config.num_steps, "dtype": dtype, "conv": conv,
-           "physics_impl": impl}
-    learner = learner_for(config, env, params, conv)
+           "physics_impl": impl, "compaction": compaction}
+    learner = learner_for(config, env, params, conv, compaction)
     keys = jax.eval_shape(lambda: jax.random.split(jax.random.key(1), args.seeds))
     init = jax.jit(jax.vmap(learner.init))
     runner = jax.eval_shape(init, keys)
@@ -118,7 +127,7 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
         programs["rollout"] = rollout.lower(runner).compile()
         _, transitions = jax.eval_shape(rollout, runner)
         programs["acting"] = jax.jit(jax.vmap(lambda p, o: jax.lax.map(
-            lambda x: network.apply(p, jnp.concatenate([x, x]))[1].sum(), o))).lower(
+            lambda x: network.apply(p, x)[1].sum(), o))).lower(
                 seeds_params, transitions.obs).compile()
     programs["policy_of"] = learner.policy_of
     row["programs"] = programs
@@ -174,6 +183,9 @@ def main(argv=None) -> None:
     parser.add_argument("--convs", nargs="+", default=["s2d", "unrolled"], choices=IMPLEMENTATIONS)
     parser.add_argument("--impls", nargs="+", default=["jax"], choices=["jax", "warp"],
                         help="who steps the physics: MJX's JAX implementation or MuJoCo Warp")
+    parser.add_argument("--compaction", nargs="+", default=["on"], choices=["on", "off"],
+                        help="on: resets and final values of the few envs that ended computed "
+                             "alone (`jaxnat.gating`); off: for every env in a step where any ended")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
     parser.add_argument("--physics", default="fast", choices=["fast", "default"])
     parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,
@@ -188,7 +200,7 @@ def main(argv=None) -> None:
     specs = [(robot, observation, total_envs, dtype, conv, impl) for robot in args.robots
              for observation in args.observations
              for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs
-             for impl in args.impls]
+             for impl in args.impls for compaction in args.compaction]
     rows = []
     first = prepare(args, *specs[0])  # alone: its compile time is the clean one
     with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
@@ -206,7 +218,7 @@ def main(argv=None) -> None:
     table = common.markdown_table(rows, [
         ("robot", "robot", ""), ("observation", "observation", ""), ("total_envs", "envs (all seeds)", ",d"),
         ("dtype", "trunk dtype", ""), ("conv", "conv", ""), ("physics_impl", "physics", ""),
-        ("compile_s", "compile s", ".0f"),
+        ("compaction", "compaction", ""), ("compile_s", "compile s", ".0f"),
         ("env_compile_s", "env compile s", ".0f"),
         ("env_sps", "env alone steps/s", ".3e"), ("train_sps", "train steps/s", ".3e"),
         ("train_over_env", "train / env", ".2f"), ("update_s", "update s", ".3f"), ("rollout_s", "rollout s", ".3f"),
@@ -215,7 +227,7 @@ def main(argv=None) -> None:
         ("outcome", "outcome", "")])
     best = {}
     for row in (r for r in rows if "train_sps" in r):
-        key = f"{row['robot']} {row['observation']}"
+        key = f"{row['robot']} {row['observation']} compaction {row['compaction']}"
         if key not in best or row["train_sps"] > best[key]["train_sps"]:
             best[key] = row
     summary = {

@@ -123,9 +123,10 @@ class Environment(Generic[TState, TParams]):
         return self.get_obs(state, params), state
 
     # `AutoResetWrapper` computes this env's reset, and the final observation of an ended
-    # episode, behind one `lax.cond` on whether any env of the (vmapped) batch ended: for an
-    # env whose reset and observation are costly (a render) and whose episodes rarely end in
-    # the same step as others; otherwise every env of a batch computes them every step.
+    # episode, for the envs of the (vmapped) batch that ended alone, behind one `lax.switch`
+    # (`jaxnat.gating`): for an env whose reset and observation are costly (a render) and whose
+    # episodes rarely end in the same step as others; otherwise every env of a batch computes
+    # them every step.
     gated_autoreset: bool = False
 
     @property

@@ -186,15 +186,26 @@ def test_truncated_steps_bootstrap_from_the_final_observation(algo):
 
 
 @pytest.mark.parametrize("num_steps", [10, 12])
-def test_rollout_next_value_is_the_value_of_the_final_observation(num_steps):
+@pytest.mark.parametrize("final_rows", ["normalised", "all", "compacted", "uncompacted"])
+def test_rollout_next_value_is_the_value_of_the_final_observation(num_steps, final_rows):
     """The rollout's `next_value` (read in the next step's network call for a feed-forward
     policy, the last step's after the loop) is exactly V(final observation) on every step of
     an untrained policy: on the costly-start probe every final observation is [0, 1], and the
     truncated steps (t = 4, 9) would read V([1, 0]) from the next episode's first observation
-    if it came from the wrong place. With 10 steps the last one is truncated; with 12 not."""
+    if it came from the wrong place. With 10 steps the last one is truncated; with 12 not.
+    Unnormalised observations value only the truncated rows' final ones: every env of the
+    probe truncates together, past the compacted share (all rows valued) or within it when
+    the share is the whole batch (the truncated rows gathered, valued and put back), or with
+    no compacted call (share None)."""
+    from jaxnat.agents import ppo
+    from jaxnat.agents.rollout import on_policy_learner
+
     env, params = make_probe("costly_start")
     config = CONFIGS["ppo"].replace(num_steps=num_steps)
-    learner = make_ppo(config, env, params)
+    if final_rows != "normalised":
+        config = config.replace(normalize_observations=False)
+    share = {"compacted": 1.0, "uncompacted": None}.get(final_rows, 0.125)
+    learner = on_policy_learner(config, env, params, ppo.RULE, final_value_share=share)
     runner = learner.init(jax.random.key(3))
     _, batch = jax.jit(learner.rollout)(runner, config)
     _, value = learner.network.apply(runner.train_state.params, jnp.asarray([[0.0, 1.0], [1.0, 0.0]]))

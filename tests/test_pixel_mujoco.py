@@ -348,13 +348,15 @@ def test_autoreset_renders_one_frame_per_step(autoreset_batch):
 
     batched = lambda f: jax.vmap(f, in_axes=(0, 0, 0, None))  # noqa: E731
     assert compiled_renders(batched(two_renders), *args) == 2 * one  # the counter can tell
-    # PixelMuJoCo's `gated_autoreset`: the step is one conditional on whether any env of the
-    # batch ended, nothing rendered outside it, one frame rendered in either branch.
-    assert compiled_render_paths(batched(step), *args) == (0, [[one, one]])
+    # PixelMuJoCo's `gated_autoreset`: the step is one conditional on how many envs of the
+    # batch ended (none, a few: those reset alone, more: all), nothing rendered outside it,
+    # one frame rendered in each branch.
+    assert compiled_render_paths(batched(step), *args) == (0, [[one, one, one]])
     # Reading the final observation needs the stepped frame too, but only in a step where
-    # some env ended; where none did, the final observation is the one frame rendered.
+    # some env ended (of those rows alone in the compacted branch: one more render op); where
+    # none did, the final observation is the one frame rendered.
     final = batched(lambda *a: (lambda out: (out[0], out[5]["final_observation"]))(auto.step(*a)))
-    assert compiled_render_paths(final, *args) == (0, [[one, 2 * one]])
+    assert compiled_render_paths(final, *args) == (0, [[one, 2 * one, 2 * one]])
 
 
 def test_gated_autoreset_in_a_batch_where_no_episode_ends(physics):
@@ -400,6 +402,38 @@ def test_autoreset_observations_are_those_of_step_or_reset(autoreset_batch):
         np.testing.assert_array_equal(info["final_observation"], raw_obs)
         state = next_state
     assert 0 < ended < 18, "some episodes should end and some go on"
+
+
+@pytest.mark.parametrize("layout", ["flat", "nested"])
+def test_autoreset_compacted_and_select_branches_agree(autoreset_batch, layout):
+    """The compacted reset (only the ended rows reset and render their final frame) and the
+    select (every row computes both) give the same step, bit for bit, flat and under nested
+    vmap (seeds x envs: each inner batch compacts its own rows); so does `reset_share=None`."""
+    from jaxnat.wrappers import AutoResetWrapper
+
+    env, _, params, state = autoreset_batch
+    keys = jax.random.split(jax.random.key(6), 6)
+    action = jnp.linspace(-1.0, 1.0, 36).reshape(6, 6)
+    outs = {}
+    # Every batch compacted; one row compacted, a select past it; no compacted branch.
+    for share in (1.0, 1e-6, None):
+        auto = AutoResetWrapper(env, reset_share=share)
+        step = jax.vmap(auto.step, in_axes=(0, 0, 0, None))
+        if layout == "nested":
+            fold = lambda x: x.reshape(2, 3, *x.shape[1:])  # noqa: E731
+            out = jax.jit(jax.vmap(step, in_axes=(0, 0, 0, None)))(
+                *jax.tree.map(fold, (keys, state, action)), params)
+            out = jax.tree.map(lambda x: x.reshape(6, *x.shape[2:]), out)
+        else:
+            out = jax.jit(step)(keys, state, action, params)
+        outs[share] = out
+    done = np.asarray(outs[1.0][3] | outs[1.0][4])
+    assert done.sum() >= 2 and not done.all(), "some rows should end, more than one"
+    if layout == "nested":
+        assert done.reshape(2, 3).sum(1).max() >= 2, "an inner batch should fall to the select"
+    for other in (1e-6, None):
+        for a, b in zip(jax.tree.leaves(outs[1.0]), jax.tree.leaves(outs[other])):
+            np.testing.assert_array_equal(a, b)
 
 
 def test_state_observation(physics):

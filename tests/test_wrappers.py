@@ -200,7 +200,7 @@ def test_make_observation_noise_composes_inside_the_autoreset():
 def test_any_in_batch_is_one_value_for_the_whole_batch():
     """Under nested vmap the predicate is one unbatched value (any env of every axis), so a
     cond on it stays a conditional; unbatched it is the flag itself."""
-    from jaxnat.wrappers.autoreset import any_in_batch
+    from jaxnat.gating import any_in_batch
 
     def f(x):
         done = x > 1.0
@@ -214,3 +214,29 @@ def test_any_in_batch_is_one_value_for_the_whole_batch():
     assert "cond[" in text and "select_n" in text  # the cond kept, the per-env where inside it
     # Differentiable through (the flag carries no tangent).
     np.testing.assert_array_equal(jax.grad(lambda x: jax.vmap(f)(x).sum())(x[0]), [1.0, -1.0])
+
+
+def test_rows_of_take_rows_put_rows_round_trip():
+    """The true rows in order, padded out of range; the padding reads the last row and its
+    writes are dropped."""
+    from jaxnat.gating import compact_size, put_rows, rows_of, take_rows
+
+    mask = jnp.array([False, True, False, True, True])
+    rows = rows_of(mask, 4)
+    np.testing.assert_array_equal(rows, [1, 3, 4, 5])
+    np.testing.assert_array_equal(rows_of(mask, 2), [1, 3])  # at most `size` kept
+    tree = {"a": jnp.arange(5.0), "b": jnp.arange(10).reshape(5, 2)}
+    taken = take_rows(tree, rows)
+    np.testing.assert_array_equal(taken["a"], [1.0, 3.0, 4.0, 4.0])
+    put = put_rows(tree, rows, jax.tree.map(lambda x: -x - 1, taken))
+    np.testing.assert_array_equal(put["a"], [0.0, -2.0, 2.0, -4.0, -5.0])
+    np.testing.assert_array_equal(put["b"][:, 0], [0, -3, 4, -7, -9])
+    assert (compact_size(0.125, 6), compact_size(0.125, 32768), compact_size(1.0, 7)) == (1, 4096, 7)
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match=r"share must be in \(0, 1\]"):
+            compact_size(bad, 8)
+
+
+def test_autoreset_reset_share_out_of_range_is_an_error(env):
+    with pytest.raises(ValueError, match="share must be in"):
+        AutoResetWrapper(env, reset_share=0.0)

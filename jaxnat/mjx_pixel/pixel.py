@@ -74,8 +74,8 @@ Semantics: `docs/environments.md` section 4.
   frames the step and the reset rendered are dead code to XLA. A caller that reads
   `info["final_observation"]` (a learner bootstrapping from it) needs the stepped frame of an
   ended episode too; the env sets `gated_autoreset`, so under `vmap` the reset and that second
-  frame are computed only in steps where some env of the batch ended (for every env then),
-  and a step where none did renders once. The noise observation is drawn the same way, once
+  frame are computed only in steps where some env of the batch ended, for those envs alone
+  where they are few (for every env where more did), and a step where none did renders once. The noise observation is drawn the same way, once
   per step.
 
 Example::
@@ -228,9 +228,9 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
 
     params_type = PixelParams
     # A reset runs the robot's kinematics and renders, and a step rendering the final frame of
-    # an ended episode renders twice; few steps of a batch end an episode (none for robots that
-    # never terminate, between their time limits): `AutoResetWrapper` computes both only in a
-    # step where some env of the batch ended (its docstring).
+    # an ended episode renders twice; few envs of a batch end an episode in a step (none for
+    # robots that never terminate, between their time limits): `AutoResetWrapper` computes both
+    # only for the envs that ended (its docstring).
     gated_autoreset = True
 
     def __init__(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaxnat.gating import compact_size, put_rows, switch_rows, take_rows
 from jaxnat.wrappers.base import Wrapper
 
 
@@ -23,12 +24,28 @@ class AutoResetWrapper(Wrapper):
     renders once, not twice; `final_observation` is then computed only if the caller uses it
     (XLA drops it otherwise).
 
-    An env with `gated_autoreset` (PixelMuJoCo) also gets one `lax.cond` on whether any env of
-    the batch ended (`any_in_batch`: a predicate that stays one value under `vmap`, nested
-    too): in a step where none did, no env computes the reset, and `final_observation` is the
-    step's observation itself, rendered once; in a step where one did, every env computes both
-    as above. The outputs are the same either way.
+    An env with `gated_autoreset` (PixelMuJoCo) computes its resets for the rows of the batch
+    that need them. Under `vmap` the step is one `lax.switch` on an unbatched branch
+    (`jaxnat.gating`; nested `vmap`s decide per inner batch, the branch for all of them):
+
+    - no env of the batch ended: nothing is reset; the step's observation is rendered once and
+      is also `final_observation`;
+    - at most `ceil(reset_share * batch)` ended: only those envs are reset (gathered, reset,
+      scattered back); the batch is rendered once from the result, and `final_observation`
+      renders the stepped frame of the ended rows only;
+    - more ended: every env computes the reset and the final frame, as a select.
+
+    The outputs are the same in every branch (a test compares them bit for bit). `reset_share`
+    (default 1/8) trades the compacted branch's size against how often a step falls to the
+    select: a batch of robots that only truncate ends together, which the select serves.
+    `reset_share=None` has no compacted branch (every env computes the reset in a step where
+    any ended).
     """
+
+    def __init__(self, env, reset_share: float | None = 0.125):
+        super().__init__(env)
+        compact_size(reset_share, 1)  # a one-line error for a share out of range
+        self.reset_share = reset_share
 
     def step(self, key, state, action, params=None):
         if params is None:
@@ -55,33 +72,44 @@ class AutoResetWrapper(Wrapper):
         return next_obs, next_state, reward, terminated, truncated, info
 
     def _gated(self, done, stepped, key_reset, params):
-        """`(next_obs, next_state, final_observation)` with the reset and the stepped frame
-        behind `any_in_batch(done)`; each branch renders from the state it returns (the inner
-        step's own frame is then dead code to XLA)."""
-        env = self._env
+        """`(next_obs, next_state, final_observation)` of one env, whose `vmap` rule computes
+        the resets and final frames of the ended rows only (the class docstring). Each branch
+        renders from the state it returns (the inner step's own frame is dead code to XLA)."""
+        env, share = self._env, self.reset_share
 
-        def some_ended():
+        def one(done, stepped, key_reset, params):  # one env; under vmap, the select
             fresh = jax.lax.cond(done, lambda: env.reset(key_reset, params)[1], lambda: stepped)
             next_obs, next_state = env.observe(fresh, params)
             final = jax.lax.cond(done, lambda: env.observe(stepped, params)[0], lambda: next_obs)
             return next_obs, next_state, final
 
-        def none_ended():
-            next_obs, next_state = env.observe(stepped, params)
-            return next_obs, next_state, next_obs
+        gated = jax.custom_batching.custom_vmap(one)
 
-        return jax.lax.cond(any_in_batch(done), some_ended, none_ended)
+        @gated.def_vmap
+        def _rule(axis_size, in_batched, done, stepped, key_reset, params):
+            done_b, stepped_b, key_b, params_b = in_batched
+            done, stepped, key_reset = (
+                jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x))), t, tb)
+                for t, tb in ((done, done_b), (stepped, stepped_b), (key_reset, key_b)))
+            p_axes = jax.tree.map(lambda b: 0 if b else None, params_b)
+            observe = jax.vmap(env.observe, in_axes=(0, p_axes))
+            size = compact_size(share, axis_size)
 
+            def none_ended():
+                next_obs, next_state = observe(stepped, params)
+                return next_obs, next_state, next_obs
 
-@jax.custom_batching.custom_vmap
-def any_in_batch(flag):
-    """`flag` (a scalar bool) itself; under `vmap`, whether it is true for any env of the batch,
-    as one unbatched value (nested `vmap`s reduce each axis), so a `lax.cond` on it stays a
-    conditional instead of becoming a select that computes both branches for every env."""
-    return flag
+            def few_ended(rows):
+                p_rows = jax.tree.map(lambda x, b: take_rows(x, rows) if b else x, params, params_b)
+                _, fresh = jax.vmap(env.reset, in_axes=(0, p_axes))(take_rows(key_reset, rows), p_rows)
+                next_obs, next_state = observe(put_rows(stepped, rows, fresh), params)
+                final = jax.vmap(env.observe, in_axes=(0, p_axes))(take_rows(stepped, rows), p_rows)[0]
+                return next_obs, next_state, put_rows(next_obs, rows, final)
 
+            def many_ended():
+                return jax.vmap(one, in_axes=(0, 0, 0, p_axes))(done, stepped, key_reset, params)
 
-@any_in_batch.def_vmap
-def _any_in_batch_rule(axis_size, in_batched, flag):
-    (batched,) = in_batched
-    return any_in_batch(jnp.any(flag) if batched else flag), False
+            out = switch_rows(done, size, none_ended, few_ended, many_ended)
+            return out, jax.tree.map(lambda _: True, out)
+
+        return gated(done, stepped, key_reset, params)

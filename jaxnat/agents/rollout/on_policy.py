@@ -24,8 +24,14 @@ from jaxnat.agents.rollout.parallel import pmean_gradients, shard_slice
 from jaxnat.agents.rollout.policy import act, final_value, sample_each
 from jaxnat.agents.rollout.records import EnvStep, Transition, bootstrap, count_updates, episode_metrics, gae, step_info
 from jaxnat.agents.rollout.scan import Learner, scan_learner, scan_steps, vector_env
+from jaxnat.gating import compact_size, put_rows, switch_rows, take_rows
 
 __all__ = ["RunnerState", "UpdateRule", "dtype_and_memory", "on_policy_learner"]
+
+# The share of a batch whose final observations are valued in a compacted network call (the
+# truncated rows; `act_and_value_final`): a batch in which more truncate at once (envs that
+# started together reaching their time limit) values every row.
+FINAL_VALUE_SHARE = 0.125
 
 
 class RunnerState(NamedTuple):
@@ -91,7 +97,8 @@ def _stack_batches(a, b):
     return jax.tree_util.tree_map(lambda x, y: jnp.concatenate([x, y]), a, b)
 
 
-def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None) -> Learner:
+def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None,
+                      final_value_share: float | None = FINAL_VALUE_SHARE) -> Learner:
     """The jitted on-policy learner: a `lax.scan` of updates, each a `lax.scan` rollout of
     `config.num_steps` steps of `config.num_envs` envs, GAE, then `rule.update_step`.
 
@@ -105,6 +112,10 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             `jax.shard_map` over it, the runner's per-env fields split along their env axis,
             the rest replicated; `config.num_envs` counts every device's envs). See the
             module docstring; None: one device, the default learner.
+        final_value_share: where observations are not normalised, the share of a batch whose
+            final observations are valued in a compacted call (`act_and_value_final`); a batch
+            in which more envs truncate values every row; None: every row in any step where
+            one truncated (no compacted call).
     """
     check_ranges(config)
     total_updates = count_updates(config)
@@ -133,6 +144,36 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
         normalizer = normalize.init_normalizer(*normalizing, observation_space, len(keys))
         return RunnerState(train_state, env_state, obs, key, jnp.zeros((), jnp.int32), memory, normalizer)
 
+    def act_and_value_final(params, obs, pending):
+        """`(logits, value, V(the previous step's final observations))` in one network call on
+        this step's observations and those final ones. Only a truncated step needs its final
+        value (`bootstrap` zeroes a terminated one's); where observations are not normalised,
+        an episode that went on has this step's observation as its final one, so the call
+        takes the truncated rows alone where few envs of the batch truncated (`jaxnat.gating`),
+        none where none did, every row where more did."""
+        final_obs, truncated = pending
+        n = len(truncated)
+
+        def with_rows(extra):  # this step's rows, then `extra`'s, in one call
+            logits, values, _ = act(network, params, _stack_batches(obs, extra), None)
+            # (Every leaf of the head's output has a row per observation: a Gaussian's log-std
+            # is broadcast to the mean's shape.)
+            return jax.tree_util.tree_map(lambda x: x[:n], logits), values[:n], values[n:]
+
+        if normalizing[0]:  # the final observation was normalised one step earlier
+            return with_rows(final_obs)
+        size = compact_size(final_value_share, n)
+
+        def none_truncated():
+            logits, value, _ = act(network, params, obs, None)
+            return logits, value, value
+
+        def few_truncated(rows):
+            logits, value, finals = with_rows(take_rows(final_obs, rows))
+            return logits, value, put_rows(value, rows, finals)
+
+        return switch_rows(truncated, size, none_truncated, few_truncated, lambda: with_rows(final_obs))
+
     def policy(carry, obs, key, t):
         params, memory, normalizer, pending = carry
         normalizer = normalize.observe(normalizer, obs, axis_name)
@@ -140,12 +181,9 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
         if pending is None:  # recurrent: the final observation is valued in `observe`
             logits, value, hidden = act(network, params, obs, memory)
             pending_value = None
-        else:  # this step's observations and the previous step's final ones, in one batch
-            logits, values, hidden = act(network, params, _stack_batches(obs, pending), None)
-            # (Every leaf of the head's output has a row per observation: a Gaussian's log-std
-            # is broadcast to the mean's shape.)
-            value, pending_value = jnp.split(values, 2)
-            logits = jax.tree_util.tree_map(lambda x: x[:len(value)], logits)
+        else:  # this step's observations and the previous step's final ones, in one call
+            logits, value, pending_value = act_and_value_final(params, obs, pending)
+            hidden = None
         if axis_name is None:
             action = distributions.sample(key, logits)
         else:
@@ -170,7 +208,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             following = None if memory is None else Memory(hidden, s.action, s.reward.astype(jnp.float32),
                                                            jnp.zeros_like(s.done))
             if memory is None:  # V(the previous step's final observation); moved to its step below
-                value_final, pending = pending_value, final_obs
+                value_final, pending = pending_value, (final_obs, s.done & ~s.terminated)
             else:
                 value_final, pending = final_value(network, params, final_obs, following), None
             normalizer, reward = normalize.scale_rewards(normalizer, s.reward, s.done, config.gamma, axis_name,
@@ -181,8 +219,9 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
             next_memory = None if memory is None else following._replace(start=s.done)
             return (params, next_memory, normalizer, pending), transition
 
-        pending = None if runner.memory is not None else jax.tree_util.tree_map(
-            jnp.zeros_like, normalize.normalize(runner.normalizer, runner.obs))
+        pending = None if runner.memory is not None else (  # (final observations, truncated)
+            jax.tree_util.tree_map(jnp.zeros_like, normalize.normalize(runner.normalizer, runner.obs)),
+            jnp.zeros(len(jax.tree_util.tree_leaves(runner.obs)[0]), jnp.bool_))
         ((_, memory, normalizer, pending), env_state, obs, key), transitions = scan_steps(
             step, env_params, action_space, config.num_envs, config.num_steps, policy, observe,
             (params, runner.memory, runner.normalizer, pending), runner.env_state, runner.obs, runner.key,
@@ -191,7 +230,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None)
         if runner.memory is not None:  # the state before the rollout's first step (`replay`)
             transitions = transitions._replace(memory=transitions.memory._replace(hidden=runner.memory.hidden[None]))
         else:  # step t's final value was read at step t + 1; the last step's now
-            last = final_value(network, params, pending)
+            last = final_value(network, params, pending[0])
             final_values = jnp.concatenate([final_values[1:], last[None]])
         transitions = transitions._replace(next_value=bootstrap(final_values, transitions.info["terminated"]))
         return runner._replace(env_state=env_state, obs=obs, key=key, memory=memory, normalizer=normalizer), transitions
