@@ -8,8 +8,9 @@ For each robot, observation, total env count (split over `--seeds` vmapped seeds
 `jaxnat train --seeds` and `jaxnat reproduce` run them), trunk dtype and convolution form
 (`jaxnat.agents.conv`), physics implementation (`--impls`: MJX's JAX implementation, or
 MuJoCo Warp, `physics_impl="warp"`) and compaction (`--compaction`: "on", the default, resets
-the few envs of a step that ended and values their final observations alone; "off" computes
-both for every env in a step where any ended), one row:
+the few envs of a step that ended and values their final observations alone, up to the
+library's shares of the batch (`AutoResetWrapper.reset_share`, `FINAL_VALUE_SHARE`); a number
+sets both shares; "off" computes both for every env in a step where any ended), one row:
 
 - **compile s**: lowering and compiling the training program, and the env alone's program
   beside it (the first row compiles alone; later rows compile side by side on
@@ -75,8 +76,16 @@ def learner_for(config, env, params, conv: str, compaction: str = "on"):
     from jaxnat.agents.rollout.on_policy import FINAL_VALUE_SHARE
 
     rule = ppo.RULE._replace(network_options=lambda config: {**dtype_and_memory(config), "conv": conv})
-    share = FINAL_VALUE_SHARE if compaction == "on" else None
+    share = compaction_share(compaction, FINAL_VALUE_SHARE)
     return on_policy_learner(config, env, params, rule, final_value_share=share)
+
+
+def compaction_share(compaction: str, default: float):
+    """The share a `--compaction` value means: "on" the library's `default`, "off" None (no
+    compacted branch), a number that share."""
+    if compaction in ("on", "off"):
+        return default if compaction == "on" else None
+    return float(compaction)
 
 
 def seconds(fn, *args, repeats: int = 3) -> float:
@@ -99,7 +108,7 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
 
     env, params = jaxnat.make(f"PixelMuJoCo/{robot}-v0", physics=args.physics, physics_impl=impl,
                               autoreset=False, **OBSERVATIONS[observation])
-    env = AutoResetWrapper(env) if compaction == "on" else AutoResetWrapper(env, reset_share=None)
+    env = AutoResetWrapper(env, reset_share=compaction_share(compaction, AutoResetWrapper(env).reset_share))
     per_seed = total_envs // args.seeds
     config = ppo_config(per_seed, args.updates, dtype)
     row = {"robot": robot, "observation": observation, "seeds": args.seeds, "envs_per_seed": per_seed,
@@ -173,6 +182,19 @@ def measure(args, row: dict) -> dict:
     return row
 
 
+def compaction_value(text: str) -> str:
+    """A `--compaction` value: "on", "off" or a share in (0, 1]."""
+    if text in ("on", "off"):
+        return text
+    try:
+        share = float(text)
+    except ValueError:
+        share = -1.0
+    if not 0.0 < share <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected on, off or a share in (0, 1]")
+    return text
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--robots", nargs="+", default=["HalfCheetah", "Hopper"], choices=ROBOTS)
@@ -183,9 +205,10 @@ def main(argv=None) -> None:
     parser.add_argument("--convs", nargs="+", default=["s2d", "unrolled"], choices=IMPLEMENTATIONS)
     parser.add_argument("--impls", nargs="+", default=["jax"], choices=["jax", "warp"],
                         help="who steps the physics: MJX's JAX implementation or MuJoCo Warp")
-    parser.add_argument("--compaction", nargs="+", default=["on"], choices=["on", "off"],
+    parser.add_argument("--compaction", nargs="+", default=["on"], type=compaction_value,
                         help="on: resets and final values of the few envs that ended computed "
-                             "alone (`jaxnat.gating`); off: for every env in a step where any ended")
+                             "alone (`jaxnat.gating`, the library's shares); a number in (0, 1]: "
+                             "that share of a batch for both; off: for every env in a step where any ended")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
     parser.add_argument("--physics", default="fast", choices=["fast", "default"])
     parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,
@@ -197,7 +220,7 @@ def main(argv=None) -> None:
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    specs = [(robot, observation, total_envs, dtype, conv, impl) for robot in args.robots
+    specs = [(robot, observation, total_envs, dtype, conv, impl, compaction) for robot in args.robots
              for observation in args.observations
              for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs
              for impl in args.impls for compaction in args.compaction]
