@@ -37,32 +37,33 @@ def _any_in_batch_rule(axis_size, in_batched, flag):
     return any_in_batch(jnp.any(flag) if batched else flag), False
 
 
-def compact_size(share: float | None, batch: int) -> int:
-    """Rows kept for the compacted branch of a batch of `batch`: `ceil(share * batch)`, at
-    least 1; `share` in (0, 1], or None for no compacted branch (0 rows)."""
-    if share is None:
-        return 0
-    if not 0.0 < share <= 1.0:
-        raise ValueError(f"share must be in (0, 1] (the fraction of a batch computed compacted) or None, got {share}")
-    return max(1, math.ceil(share * batch))
+def compact_sizes(shares, batch: int) -> tuple[int, ...]:
+    """The row counts of the compacted branches of a batch of `batch`, ascending and distinct:
+    `ceil(share * batch)` (at least 1) for each share. `shares`: one share in (0, 1], several in
+    increasing order (tiers: a step takes the smallest that holds its rows), or None for no
+    compacted branch."""
+    if shares is None:
+        return ()
+    shares = tuple(shares) if isinstance(shares, (tuple, list)) else (shares,)
+    for share in shares:
+        if not (isinstance(share, (int, float)) and 0.0 < share <= 1.0):
+            raise ValueError(f"share must be in (0, 1] (the fraction of a batch computed compacted) or None, "
+                             f"got {share!r}")
+    if list(shares) != sorted(set(shares)) or not shares:
+        raise ValueError(f"shares must be increasing, got {shares!r}")
+    return tuple(sorted({max(1, math.ceil(share * batch)) for share in shares}))
 
 
-def count_branch(mask: jax.Array, size: int) -> jax.Array:
-    """The branch a batch with the 1-D `mask` of rows in need takes, one unbatched int32 for
-    `lax.switch` (under `vmap` the most any batch needs): 0 where no row needs it, 1 where at
-    most `size` do (compute those rows alone), 2 where more do (compute every row)."""
+def switch_rows(mask: jax.Array, sizes: tuple[int, ...], none, few, every):
+    """One `lax.switch` on how many rows of the 1-D `mask` need a branch, unbatched (under
+    `vmap`, the most any batch needs: `any_in_batch`): `none()` where no row does,
+    `few(rows_of(mask, size))` for the smallest of `sizes` that holds them, `every()` where more
+    do (or `sizes` is empty). The branches return the same shapes."""
     count = jnp.sum(mask)
-    return jnp.where(any_in_batch(count > size), 2, jnp.where(any_in_batch(count > 0), 1, 0)).astype(jnp.int32)
-
-
-def switch_rows(mask: jax.Array, size: int, none, few, every):
-    """`none()`, `few(rows_of(mask, size))` or `every()` by `count_branch`; with `size` 0
-    (`compact_size(None, ...)`) there is no compacted branch: `every()` where any row needs it.
-    The branches return the same shapes."""
-    branch = count_branch(mask, size)
-    if size == 0:
-        return jax.lax.switch(branch // 2, (none, every))
-    return jax.lax.switch(branch, (none, lambda: few(rows_of(mask, size)), every))
+    tier = sum((any_in_batch(count > size).astype(jnp.int32) for size in sizes), jnp.int32(0))
+    branch = jnp.where(any_in_batch(count > 0), 1 + tier, 0)
+    tiers = [lambda size=size: few(rows_of(mask, size)) for size in sizes]
+    return jax.lax.switch(branch, (none, *tiers, every))
 
 
 def rows_of(mask: jax.Array, size: int) -> jax.Array:

@@ -349,14 +349,14 @@ def test_autoreset_renders_one_frame_per_step(autoreset_batch):
     batched = lambda f: jax.vmap(f, in_axes=(0, 0, 0, None))  # noqa: E731
     assert compiled_renders(batched(two_renders), *args) == 2 * one  # the counter can tell
     # PixelMuJoCo's `gated_autoreset`: the step is one conditional on how many envs of the
-    # batch ended (none, a few: those reset alone, more: all), nothing rendered outside it,
-    # one frame rendered in each branch.
-    assert compiled_render_paths(batched(step), *args) == (0, [[one, one, one]])
+    # batch ended (none; a few, in two tiers of rows: those reset alone; more: all), nothing
+    # rendered outside it, one frame rendered in each branch.
+    assert compiled_render_paths(batched(step), *args) == (0, [[one, one, one, one]])
     # Reading the final observation needs the stepped frame too, but only in a step where
-    # some env ended (of those rows alone in the compacted branch: one more render op); where
-    # none did, the final observation is the one frame rendered.
+    # some env ended (of those rows alone in the compacted branches: one more render op);
+    # where none did, the final observation is the one frame rendered.
     final = batched(lambda *a: (lambda out: (out[0], out[5]["final_observation"]))(auto.step(*a)))
-    assert compiled_render_paths(final, *args) == (0, [[one, 2 * one, 2 * one]])
+    assert compiled_render_paths(final, *args) == (0, [[one, 2 * one, 2 * one, 2 * one]])
 
 
 def test_gated_autoreset_in_a_batch_where_no_episode_ends(physics):
@@ -415,8 +415,8 @@ def test_autoreset_compacted_and_select_branches_agree(autoreset_batch, layout):
     keys = jax.random.split(jax.random.key(6), 6)
     action = jnp.linspace(-1.0, 1.0, 36).reshape(6, 6)
     outs = {}
-    # Every batch compacted; one row compacted, a select past it; no compacted branch.
-    for share in (1.0, 1e-6, None):
+    # Every batch compacted; one row compacted, a select past it; the default tiers; none.
+    for share in (1.0, 1e-6, (0.125, 0.375), None):
         auto = AutoResetWrapper(env, reset_share=share)
         step = jax.vmap(auto.step, in_axes=(0, 0, 0, None))
         if layout == "nested":
@@ -431,7 +431,7 @@ def test_autoreset_compacted_and_select_branches_agree(autoreset_batch, layout):
     assert done.sum() >= 2 and not done.all(), "some rows should end, more than one"
     if layout == "nested":
         assert done.reshape(2, 3).sum(1).max() >= 2, "an inner batch should fall to the select"
-    for other in (1e-6, None):
+    for other in (1e-6, (0.125, 0.375), None):
         for a, b in zip(jax.tree.leaves(outs[1.0]), jax.tree.leaves(outs[other])):
             np.testing.assert_array_equal(a, b)
 

@@ -219,7 +219,7 @@ def test_any_in_batch_is_one_value_for_the_whole_batch():
 def test_rows_of_take_rows_put_rows_round_trip():
     """The true rows in order, padded out of range; the padding reads the last row and its
     writes are dropped."""
-    from jaxnat.gating import compact_size, put_rows, rows_of, take_rows
+    from jaxnat.gating import put_rows, rows_of, take_rows
 
     mask = jnp.array([False, True, False, True, True])
     rows = rows_of(mask, 4)
@@ -231,10 +231,36 @@ def test_rows_of_take_rows_put_rows_round_trip():
     put = put_rows(tree, rows, jax.tree.map(lambda x: -x - 1, taken))
     np.testing.assert_array_equal(put["a"], [0.0, -2.0, 2.0, -4.0, -5.0])
     np.testing.assert_array_equal(put["b"][:, 0], [0, -3, 4, -7, -9])
-    assert (compact_size(0.125, 6), compact_size(0.125, 32768), compact_size(1.0, 7)) == (1, 4096, 7)
-    for bad in (0.0, -0.5, 1.5):
+
+
+def test_compact_sizes_are_the_tiers_rows():
+    from jaxnat.gating import compact_sizes
+
+    assert compact_sizes(0.125, 6) == (1,) and compact_sizes(0.125, 32768) == (4096,)
+    assert compact_sizes((0.125, 0.375), 6) == (1, 3) and compact_sizes((0.125, 0.375), 2) == (1,)
+    assert compact_sizes(None, 8) == ()
+    for bad in (0.0, -0.5, 1.5, "0.5", (0.2, 1.2)):
         with pytest.raises(ValueError, match=r"share must be in \(0, 1\]"):
-            compact_size(bad, 8)
+            compact_sizes(bad, 8)
+    with pytest.raises(ValueError, match="shares must be increasing"):
+        compact_sizes((0.5, 0.25), 8)
+
+
+@pytest.mark.parametrize("needed, branch", [(0, 0), (1, 1), (2, 2), (3, 2), (4, 3), (8, 3)])
+def test_switch_rows_takes_the_smallest_tier_that_holds_the_rows(needed, branch):
+    """Branch 0 for no row, then the first tier whose size holds the rows (sizes 1 and 3), then
+    every row; the tier's rows are the needed ones, padded out of range."""
+    from jaxnat.gating import switch_rows
+
+    mask = jnp.arange(8) < needed
+    out = jax.jit(lambda m: switch_rows(
+        m, (1, 3), lambda: (jnp.int32(0), jnp.full(3, -1)),
+        lambda rows: (jnp.int32(len(rows)), jnp.pad(rows, (0, 3 - len(rows)), constant_values=-1)),
+        lambda: (jnp.int32(8), jnp.full(3, -1))))(mask)
+    size, rows = (int(out[0]), np.asarray(out[1]))
+    assert size == (0, 1, 3, 8)[branch]
+    if branch in (1, 2):
+        np.testing.assert_array_equal(rows[:size], [i if i < needed else 8 for i in range(size)])
 
 
 def test_autoreset_reset_share_out_of_range_is_an_error(env):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaxnat.gating import compact_size, put_rows, switch_rows, take_rows
+from jaxnat.gating import compact_sizes, put_rows, switch_rows, take_rows
 from jaxnat.wrappers.base import Wrapper
 
 
@@ -30,21 +30,23 @@ class AutoResetWrapper(Wrapper):
 
     - no env of the batch ended: nothing is reset; the step's observation is rendered once and
       is also `final_observation`;
-    - at most `ceil(reset_share * batch)` ended: only those envs are reset (gathered, reset,
-      scattered back); the batch is rendered once from the result, and `final_observation`
-      renders the stepped frame of the ended rows only;
+    - at most `ceil(share * batch)` ended, for the smallest share of `reset_share` that holds
+      them: only that many rows are reset (the ended ones gathered, reset, scattered back); the
+      batch is rendered once from the result, and `final_observation` renders the stepped frame
+      of those rows only;
     - more ended: every env computes the reset and the final frame, as a select.
 
     The outputs are the same in every branch (a test compares them bit for bit). `reset_share`
-    (default 1/8) trades the compacted branch's size against how often a step falls to the
-    select: a batch of robots that only truncate ends together, which the select serves.
-    `reset_share=None` has no compacted branch (every env computes the reset in a step where
-    any ended).
+    (default the tiers 1/8 and 3/8) sets the compacted branches' sizes: a step computes the rows
+    of its tier, padding included, and one past the largest falls to the select. An untrained
+    Hopper ends about a quarter of a batch every step, a learning one far fewer, and a batch of
+    robots that only truncate ends together, which the select serves. `reset_share=None` has
+    no compacted branch (every env computes the reset in a step where any ended).
     """
 
-    def __init__(self, env, reset_share: float | None = 0.125):
+    def __init__(self, env, reset_share: float | tuple[float, ...] | None = (0.125, 0.375)):
         super().__init__(env)
-        compact_size(reset_share, 1)  # a one-line error for a share out of range
+        compact_sizes(reset_share, 1)  # a one-line error for a share out of range
         self.reset_share = reset_share
 
     def step(self, key, state, action, params=None):
@@ -93,7 +95,7 @@ class AutoResetWrapper(Wrapper):
                 for t, tb in ((done, done_b), (stepped, stepped_b), (key_reset, key_b)))
             p_axes = jax.tree.map(lambda b: 0 if b else None, params_b)
             observe = jax.vmap(env.observe, in_axes=(0, p_axes))
-            size = compact_size(share, axis_size)
+            sizes = compact_sizes(share, axis_size)
 
             def none_ended():
                 next_obs, next_state = observe(stepped, params)
@@ -109,7 +111,7 @@ class AutoResetWrapper(Wrapper):
             def many_ended():
                 return jax.vmap(one, in_axes=(0, 0, 0, p_axes))(done, stepped, key_reset, params)
 
-            out = switch_rows(done, size, none_ended, few_ended, many_ended)
+            out = switch_rows(done, sizes, none_ended, few_ended, many_ended)
             return out, jax.tree.map(lambda _: True, out)
 
         return gated(done, stepped, key_reset, params)

@@ -24,7 +24,7 @@ from jaxnat.agents.rollout.parallel import pmean_gradients, shard_slice
 from jaxnat.agents.rollout.policy import act, final_value, sample_each
 from jaxnat.agents.rollout.records import EnvStep, Transition, bootstrap, count_updates, episode_metrics, gae, step_info
 from jaxnat.agents.rollout.scan import Learner, scan_learner, scan_steps, vector_env
-from jaxnat.gating import compact_size, put_rows, switch_rows, take_rows
+from jaxnat.gating import compact_sizes, put_rows, switch_rows, take_rows
 
 __all__ = ["RunnerState", "UpdateRule", "dtype_and_memory", "on_policy_learner"]
 
@@ -98,7 +98,7 @@ def _stack_batches(a, b):
 
 
 def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None,
-                      final_value_share: float | None = FINAL_VALUE_SHARE) -> Learner:
+                      final_value_share: float | tuple[float, ...] | None = FINAL_VALUE_SHARE) -> Learner:
     """The jitted on-policy learner: a `lax.scan` of updates, each a `lax.scan` rollout of
     `config.num_steps` steps of `config.num_envs` envs, GAE, then `rule.update_step`.
 
@@ -162,7 +162,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None,
 
         if normalizing[0]:  # the final observation was normalised one step earlier
             return with_rows(final_obs)
-        size = compact_size(final_value_share, n)
+        sizes = compact_sizes(final_value_share, n)
 
         def none_truncated():
             logits, value, _ = act(network, params, obs, None)
@@ -172,7 +172,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None,
             logits, value, finals = with_rows(take_rows(final_obs, rows))
             return logits, value, put_rows(value, rows, finals)
 
-        return switch_rows(truncated, size, none_truncated, few_truncated, lambda: with_rows(final_obs))
+        return switch_rows(truncated, sizes, none_truncated, few_truncated, lambda: with_rows(final_obs))
 
     def policy(carry, obs, key, t):
         params, memory, normalizer, pending = carry
