@@ -75,8 +75,8 @@ Semantics: `docs/environments.md` section 4.
   `info["final_observation"]` (a learner bootstrapping from it) needs the stepped frame of an
   ended episode too; the env sets `gated_autoreset`, so under `vmap` the reset and that second
   frame are computed only in steps where some env of the batch ended, for those envs alone
-  where they are few (for every env where more did), and a step where none did renders once. The noise observation is drawn the same way, once
-  per step.
+  where they are few (for every env where more did), and a step where none did renders once.
+  The noise observation is drawn the same way, once per step.
 
 Example::
 

@@ -105,7 +105,7 @@ class AutoResetWrapper(Wrapper):
                 p_rows = jax.tree.map(lambda x, b: take_rows(x, rows) if b else x, params, params_b)
                 _, fresh = jax.vmap(env.reset, in_axes=(0, p_axes))(take_rows(key_reset, rows), p_rows)
                 next_obs, next_state = observe(put_rows(stepped, rows, fresh), params)
-                final = jax.vmap(env.observe, in_axes=(0, p_axes))(take_rows(stepped, rows), p_rows)[0]
+                final = observe(take_rows(stepped, rows), p_rows)[0]
                 return next_obs, next_state, put_rows(next_obs, rows, final)
 
             def many_ended():
