@@ -131,7 +131,8 @@ def test_effect_grows_with_alpha(video):
 
 def test_vmapped_sweep_equals_separate_calls_in_one_trace(video):
     """jax.vmap over a strength axis (`PixelParams.sweep`): each element's reset and steps equal
-    the call with that strength alone, and the jitted sweep is traced once, also for other
+    the call with that strength alone (bit for bit at the endpoints, within the blend's
+    rounding elsewhere), and the jitted sweep is traced once, also for other
     strengths of the same count."""
     env, params, reset, step = video
     traces = []
@@ -163,7 +164,15 @@ def test_vmapped_sweep_equals_separate_calls_in_one_trace(video):
         for t in range(2):
             obs, state, *_ = step(jax.random.fold_in(keys[i], t + 1), state, jnp.zeros(6), alone)
             observations.append(obs)
-        np.testing.assert_array_equal(batched[i], np.stack(observations))
+        alone = np.stack(observations)
+        if i == 0:  # both strengths at an endpoint: selected, not blended, so exact
+            np.testing.assert_array_equal(batched[i], alone)
+        else:
+            # A blend `a * x + (1 - a) * y` is rounded as the compiler contracts it (a fused
+            # multiply-add or not), which XLA decides per program: the vmapped and the single
+            # program may put a pixel a level apart, and no more.
+            diff = np.abs(batched[i].astype(int) - alone.astype(int))
+            assert diff.max() <= 1 and (diff > 0).mean() < 0.005, (i, diff.max(), (diff > 0).mean())
     other, _ = params.sweep(video_alpha=jnp.array([0.1, 0.2, 0.9, 0.5]),
                             frame_rate=jnp.array([3, 1, 0, 1]), sky_alpha=jnp.ones(4))
     sweep(keys, other)

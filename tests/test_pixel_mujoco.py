@@ -139,6 +139,41 @@ def test_frame_skip_sums_rewards_and_the_stack_shifts(checker):
     np.testing.assert_allclose(obs[..., 3], env.render(None, state.physics, params)[..., 0], atol=1)
 
 
+@pytest.mark.parametrize("channels,depth,packed", [(1, 4, True), (1, 4, False), (3, 2, False), (1, 3, False)])
+def test_frame_stack_layouts_give_the_last_frames_oldest_first(channels, depth, packed):
+    # Two envs under jit(vmap), each with its own episode starts; the reference is a list of
+    # the last `depth` frames, refilled with copies of the first frame at each start.
+    from jaxnat.mjx_pixel.stack import FrameStack
+
+    fs = FrameStack(5, 3, channels, depth)
+    assert fs.packed == (channels == 1 and depth == 4)
+    fs.packed = packed  # the bytes layout is the general one: it must agree where both apply
+    steps = 9
+    frames = np.random.default_rng(0).integers(0, 256, (steps, 2, 5, 3, channels), np.uint8)
+    fresh = np.zeros((steps, 2), bool)
+    fresh[0] = True
+    fresh[[4, 5], [0, 1]] = True  # a new episode at step 4 in env 0, at step 5 in env 1
+    observe = jax.jit(jax.vmap(fs.observation))
+    push = jax.jit(jax.vmap(fs.push))
+    history = jnp.stack([fs.empty()] * 2)
+    expected = [None, None]
+    for t in range(steps):
+        if t:
+            history = push(history, frames[t - 1], fresh[t - 1])
+        obs = np.asarray(observe(history, frames[t], fresh[t]))
+        assert obs.dtype == np.uint8 and obs.shape == (2, 5, 3, channels * depth)
+        for e in range(2):
+            expected[e] = [frames[t, e]] * depth if fresh[t, e] else expected[e][1:] + [frames[t, e]]
+            np.testing.assert_array_equal(obs[e], np.concatenate(expected[e], -1), err_msg=f"t={t}")
+
+
+def test_frame_stack_rejects_empty_shapes():
+    from jaxnat.mjx_pixel.stack import FrameStack
+
+    with pytest.raises(ValueError, match="must be >= 1"):
+        FrameStack(84, 84, 1, 0)
+
+
 def test_termination_stops_the_repeats(checker):
     env, params, reset, step = checker
     obs, state = reset(jax.random.key(0), params)

@@ -67,8 +67,9 @@ Semantics: `docs/environments.md` section 4.
   `num_videos` to [1, the bank's videos]).
 - **Info**: the physics env's info of the last repeat that ran.
 - **Cost**: one render per agent step, also batched under autoreset (`jaxnat.make`'s
-  default). The state holds the newest frame and the `frame_stack - 1` before it apart, plus
-  the key of its noise; `observe` renders the newest frame from the state and writes it. A step
+  default). The state holds the newest frame and the `frame_stack - 1` before it apart (for
+  grayscale x 4, packed as the bytes of one uint32 per pixel: `stack.FrameStack`), plus the
+  key of its noise; `observe` renders the newest frame from the state and writes it. A step
   carries the older frames over without rendering them again, and `AutoResetWrapper` selects
   between the stepped and the reset state first and calls `observe` once on the result, so the
   frames the step and the reset rendered are dead code to XLA. A caller that reads
@@ -109,6 +110,7 @@ from jaxnat.core import Environment, EnvParams, EnvState, is_concrete, sweep_dis
 from jaxnat.mjx_pixel.camera import TrackingCamera
 from jaxnat.mjx_pixel.floor import FLOOR_MODES, blend_video, floor_rgb, screen_video
 from jaxnat.mjx_pixel.render import GeomTable, Renderer
+from jaxnat.mjx_pixel.stack import FrameStack
 from jaxnat.natural.noise import DEFAULT_NOISE, NOISE_SCALE, NoiseLaw, noise_law
 
 __all__ = ["PixelMuJoCo", "PixelState", "PixelParams", "Distraction", "PHYSICS", "OBSERVATIONS", "NAMED_POINTS"]
@@ -132,7 +134,7 @@ class PixelState(EnvState):
     physics: Any  # the physics env's state; `physics.data` is its mjx.Data
     key: jax.Array  # uint32 data of the key that draws this state's noise (floor, observation)
     latest: jax.Array  # "pixels": the newest frame [H, W, C]; "state": the physics obs; else [0]
-    history: jax.Array  # "pixels": the frame_stack - 1 frames before it, oldest first
+    history: jax.Array  # "pixels": the frame_stack - 1 frames before it (`stack.FrameStack`)
     fresh: jax.Array  # bool: the episode's first state (the stack is `latest` repeated)
     cursor: Any = None  # natural.VideoCursor with floor="video", else None
 
@@ -297,6 +299,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         self.renderer = Renderer(self.table, height, width, fovy=self.camera.fovy,
                                  grayscale=grayscale, shadows=shadows, kernel=render_kernel,
                                  floor_filter=floor_filter)
+        self.stack = FrameStack(height, width, self.renderer.channels, self.frame_stack)
         self._video = None
         if observation == "pixels" and floor == "video":
             from jaxnat import natural
@@ -351,8 +354,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
 
     def get_obs(self, state: PixelState, params: PixelParams) -> jax.Array:
         if self.observation == "pixels":
-            stack = jnp.concatenate([state.history, state.latest], axis=-1)
-            return jnp.where(state.fresh, jnp.tile(state.latest, self.frame_stack), stack)
+            return self.stack.observation(state.history, state.latest, state.fresh)
         if self.observation == "noise":
             return self.noise.sample_scaled(_noise_key(state), self.observation_space(params).shape,
                                             params.distraction.noise_sigma)
@@ -425,7 +427,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
                                  params.video, params.distraction.num_videos)
         latest, history = self._placeholders(physics_obs, params)
         if self.observation == "pixels":  # the stack so far, less its oldest frame
-            history = self.get_obs(state, params)[..., self.renderer.channels:]
+            history = self.stack.push(state.history, state.latest, state.fresh)
         state = state.replace(physics=physics_state, key=jax.random.key_data(key_obs),
                               latest=latest, history=history,
                               fresh=jnp.zeros((), jnp.bool_), cursor=cursor)
@@ -440,8 +442,7 @@ class PixelMuJoCo(Environment[PixelState, PixelParams]):
         if self.observation in ("noise", "constant"):
             return jnp.zeros((0,), jnp.uint8), jnp.zeros((0,), jnp.uint8)
         r = self.renderer
-        frame = jnp.zeros((r.height, r.width, r.channels), jnp.uint8)
-        return frame, jnp.zeros((r.height, r.width, r.channels * (self.frame_stack - 1)), jnp.uint8)
+        return jnp.zeros((r.height, r.width, r.channels), jnp.uint8), self.stack.empty()
 
     def _repeat(self, key, physics_state, action, params: PixelParams):
         """`frame_skip` physics steps with `action`; steps after a termination are void."""
