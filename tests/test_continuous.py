@@ -119,8 +119,11 @@ def test_gaussian_head_shapes_and_initial_log_std():
 # --- `jaxnat train` on a MuJoCo robot ----------------------------------------------------------
 
 FAST = {"xla_backend_optimization_level": 0}
-SWIMMER = ["--env-id", "MuJoCo/Swimmer-v0", "--algo", "ppo", "--seeds", "2", "--num-envs", "4",
-           "--num-steps", "8", "--total-timesteps", "128", "--eval-every", "2", "--eval-episodes", "2"]
+# Episodes of 32 steps: the test episodes of Gymnasium's 1,000 steps took most of the test's
+# time on a CPU (MJX at XLA's lowest optimisation level), and no contract here needs them long.
+SWIMMER = ["--env-id", "MuJoCo/Swimmer-v0", "--env-kwargs", "max_steps_in_episode=32", "--algo", "ppo",
+           "--seeds", "2", "--num-envs", "4", "--num-steps", "8", "--total-timesteps", "128",
+           "--eval-every", "2", "--eval-episodes", "2"]
 
 
 @pytest.mark.xdist_group("mujoco_train")
