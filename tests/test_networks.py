@@ -211,3 +211,55 @@ def test_auto_conv_on_gpu_is_one_unlooped_convolution_per_seed(monkeypatch):
     text = str(jax.make_jaxpr(jax.vmap(lambda x, k: conv2d(x, k, 4)))(x, k))
     assert "while" not in text
     assert text.count("conv_general_dilated") == seeds
+
+
+@pytest.mark.parametrize("implementation, goal", [("s2d", False), ("unrolled", True), ("grouped", False)])
+def test_tiled_observations_give_the_same_outputs_and_gradients(implementation, goal):
+    """`tile_observations` hands the first layer its input already tiled (a uint8 permutation):
+    under vmap over seeds the outputs and every parameter gradient are exactly those of the
+    untiled pixels (the same sums in the same order), and the parameters keep their shapes."""
+    from jaxnat.agents.networks import TiledPixels, tile_observations
+
+    pixels = spaces.Box(0, 255, (44, 44, 3), jnp.uint8)
+    obs_space = spaces.Dict({"pixels": pixels, "goal": spaces.Discrete(3)}) if goal else pixels
+    net = make_actor_critic(obs_space, spaces.Discrete(5), "atari", conv=implementation, tile_pixels=True)
+    keys = jax.random.split(jax.random.key(0), 2)
+    params = jax.vmap(lambda k: init_params(net, obs_space, k))(keys)
+    obs = jax.vmap(jax.vmap(obs_space.sample))(jax.random.split(jax.random.key(1), (2, 6)))
+    tiled = jax.vmap(lambda o: tile_observations(net, o))(obs)
+    leaf = tiled["pixels"] if goal else tiled
+    assert isinstance(leaf, TiledPixels) and leaf.block == 4
+    assert leaf.pixels.shape == (2, 6, 11, 11, 48) and leaf.pixels.dtype == jnp.uint8
+    forward = jax.jit(jax.vmap(net.apply))
+    loss = jax.jit(jax.vmap(jax.grad(lambda p, o: jnp.sum(jnp.sin(net.apply(p, o)[1])) + jnp.sum(net.apply(p, o)[0][0]))))
+    for fun in (forward, loss):
+        for want, got in zip(jax.tree_util.tree_leaves(fun(params, obs)), jax.tree_util.tree_leaves(fun(params, tiled))):
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    assert jax.tree_util.tree_map(jnp.shape, params) == jax.tree_util.tree_map(
+        jnp.shape, jax.vmap(lambda k: init_params(net, obs_space, k))(keys))
+
+
+@pytest.mark.parametrize("trunk, conv, tile", [("atari", "im2col", True), ("atari", "native", True),
+                                               ("atari", "unrolled", False), ("mnist", "unrolled", True)])
+def test_observations_stay_untiled_where_the_first_layer_does_not_take_tiles(trunk, conv, tile):
+    """No tiling unless the network asks for it, its first layer's kernel is a multiple of its
+    stride (the mnist trunk's 5x5 at stride 2 is not) and its conv implementation is of the s2d
+    family; on CPU, "auto" is im2col: observations pass as they are."""
+    from jaxnat.agents.networks import tile_observations
+
+    space = spaces.Box(0, 255, (44, 44, 3), jnp.uint8)
+    obs = jnp.zeros((2, 44, 44, 3), jnp.uint8)
+    assert tile_observations(make_actor_critic(space, spaces.Discrete(2), trunk, conv=conv, tile_pixels=tile), obs) is obs
+    auto = make_actor_critic(space, spaces.Discrete(2), "atari", tile_pixels=True)
+    assert tile_observations(auto, obs) is obs
+
+
+def test_tiled_pixels_of_another_trunk_are_a_clear_error():
+    from jaxnat.agents.conv import tile_input
+    from jaxnat.agents.networks import TiledPixels
+
+    space = spaces.Box(0, 255, (28, 28, 3), jnp.uint8)
+    net = make_actor_critic(space, spaces.Discrete(2), "mnist", conv="unrolled")  # 5x5 at stride 2: no tiles
+    params = net.init(jax.random.key(0), jnp.zeros((1, 28, 28, 3), jnp.uint8))
+    with pytest.raises(ValueError, match="tile_observations"):
+        net.apply(params, TiledPixels(tile_input(jnp.zeros((1, 28, 28, 3), jnp.uint8), 4, 4, 2), 2))
