@@ -68,16 +68,14 @@ def ppo_config(envs_per_seed: int, updates: int, dtype: str):
                      **settings)
 
 
-def learner_for(config, env, params, conv: str, compaction: str = "on", tiles: str = "on"):
+def learner_for(config, env, params, conv: str, compaction: str = "on"):
     """PPO's learner with the trunk's convolutions computed as `conv`; `compaction="off"`
-    values every final observation in a step where any env truncated (`final_value_share`);
-    `tiles="off"` stores and feeds the pixels untiled (`networks.tile_observations`)."""
+    values every final observation in a step where any env truncated (`final_value_share`)."""
     from jaxnat.agents import ppo
     from jaxnat.agents.rollout import dtype_and_memory, on_policy_learner
     from jaxnat.agents.rollout.on_policy import FINAL_VALUE_SHARE
 
-    rule = ppo.RULE._replace(network_options=lambda config: {**dtype_and_memory(config), "conv": conv,
-                                                             "tile_pixels": tiles == "on"})
+    rule = ppo.RULE._replace(network_options=lambda config: {**dtype_and_memory(config), "conv": conv})
     share = compaction_share(compaction, FINAL_VALUE_SHARE)
     return on_policy_learner(config, env, params, rule, final_value_share=share)
 
@@ -99,7 +97,7 @@ def seconds(fn, *args, repeats: int = 3) -> float:
 
 
 def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, conv: str, impl: str,
-            compaction: str, tiles: str) -> dict:
+            compaction: str) -> dict:
     """One row's programs, compiled from shapes alone (no device work, so rows compile on
     worker threads while another row runs): the row's settings and `programs`."""
     import jax
@@ -115,8 +113,8 @@ def prepare(args, robot: str, observation: str, total_envs: int, dtype: str, con
     config = ppo_config(per_seed, args.updates, dtype)
     row = {"robot": robot, "observation": observation, "seeds": args.seeds, "envs_per_seed": per_seed,
            "total_envs": per_seed * args.seeds, "num_steps": config.num_steps, "dtype": dtype, "conv": conv,
-           "physics_impl": impl, "compaction": compaction, "tiles": tiles}
-    learner = learner_for(config, env, params, conv, compaction, tiles)
+           "physics_impl": impl, "compaction": compaction}
+    learner = learner_for(config, env, params, conv, compaction)
     keys = jax.eval_shape(lambda: jax.random.split(jax.random.key(1), args.seeds))
     init = jax.jit(jax.vmap(learner.init))
     runner = jax.eval_shape(init, keys)
@@ -211,9 +209,6 @@ def main(argv=None) -> None:
                         help="on: resets and final values of the few envs that ended computed "
                              "alone (`jaxnat.gating`, the library's shares); a number in (0, 1]: "
                              "that share of a batch for both; off: for every env in a step where any ended")
-    parser.add_argument("--tiles", nargs="+", default=["on"], choices=["on", "off"],
-                        help="on: each step's pixels stored tiled for the first layer (the library's "
-                             "default, where the conv takes tiles); off: as the env returns them")
     parser.add_argument("--updates", type=int, default=3, help="PPO updates per timed program call")
     parser.add_argument("--physics", default="fast", choices=["fast", "default"])
     parser.add_argument("--phases", action=argparse.BooleanOptionalAction, default=True,
@@ -225,10 +220,10 @@ def main(argv=None) -> None:
     parser.add_argument("--no-record", action="store_true")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    specs = [(robot, observation, total_envs, dtype, conv, impl, compaction, tiles) for robot in args.robots
+    specs = [(robot, observation, total_envs, dtype, conv, impl, compaction) for robot in args.robots
              for observation in args.observations
              for total_envs in args.total_envs for dtype in args.dtypes for conv in args.convs
-             for impl in args.impls for compaction in args.compaction for tiles in args.tiles]
+             for impl in args.impls for compaction in args.compaction]
     rows = []
     first = prepare(args, *specs[0])  # alone: its compile time is the clean one
     with concurrent.futures.ThreadPoolExecutor(max(1, args.compile_ahead)) as pool:
@@ -246,7 +241,7 @@ def main(argv=None) -> None:
     table = common.markdown_table(rows, [
         ("robot", "robot", ""), ("observation", "observation", ""), ("total_envs", "envs (all seeds)", ",d"),
         ("dtype", "trunk dtype", ""), ("conv", "conv", ""), ("physics_impl", "physics", ""),
-        ("compaction", "compaction", ""), ("tiles", "tiles", ""), ("compile_s", "compile s", ".0f"),
+        ("compaction", "compaction", ""), ("compile_s", "compile s", ".0f"),
         ("env_compile_s", "env compile s", ".0f"),
         ("env_sps", "env alone steps/s", ".3e"), ("train_sps", "train steps/s", ".3e"),
         ("train_over_env", "train / env", ".2f"), ("update_s", "update s", ".3f"), ("rollout_s", "rollout s", ".3f"),
@@ -263,7 +258,7 @@ def main(argv=None) -> None:
                     f"settings ({args.seeds} seeds vmapped, 16 steps per env, 4 epochs x 4 minibatches, "
                     f"normalised rewards); {args.updates} updates per timed call",
         "best train steps/s": {k: f"{r['train_sps']:.3e} ({r['total_envs']} envs, {r['dtype']}, {r['conv']}, "
-                                  f"{r['physics_impl']} physics, tiles {r['tiles']}, "
+                                  f"{r['physics_impl']} physics, "
                                   f"train/env {r['train_over_env']:.2f})" for k, r in best.items()},
         "target": "issue 40: >= 5e5 env steps/s end to end, training >= 50% of the env alone, compile <= 60 s",
         "bench_seconds": round(time.perf_counter() - start),

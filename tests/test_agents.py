@@ -497,32 +497,3 @@ def test_a_steps_per_env_scalars_round_trip_exactly_through_one_packed_write():
     assert np.signbit(back["info"]["value"][0, 1])  # -0.0 survives
     one = {"reward": jnp.zeros(4), "obs": jnp.zeros((4, 2))}  # a single vector: nothing to pack
     assert pack_vectors(one, layout) is one and unpack_vectors(one, layout) is one
-
-
-def test_tiled_rollouts_train_exactly_as_untiled_ones():
-    """A learner whose network takes tiled pixels (`networks.tile_observations`, the s2d conv
-    family: the GPU's default) stores each step's observations tiled, final ones included, and
-    trains to the same bits as one fed the pixels as they are: 2 seeds vmapped, episodes of 3
-    steps truncated inside the rollout (their final observations valued in the compacted call)."""
-    import jaxnat
-    from jaxnat.agents import ppo
-    from jaxnat.agents.networks import TiledPixels
-    from jaxnat.agents.rollout import dtype_and_memory, on_policy_learner
-
-    env, params = jaxnat.make("Classify/Digits-v0", image_size=36, M=3)
-    config = PPOConfig(total_timesteps=4 * 6 * 2, num_envs=4, num_steps=6, num_minibatches=2, update_epochs=1,
-                       trunk="atari")
-    rule = ppo.RULE
-    runs = {}
-    for tile in (False, True):
-        options = lambda c, tile=tile: {**dtype_and_memory(c), "conv": "unrolled", "tile_pixels": tile}  # noqa: E731
-        learner = on_policy_learner(config, env, params, rule._replace(network_options=options), final_value_share=1.0)
-        if tile:
-            _, batch = jax.eval_shape(learner.rollout, learner.init(jax.random.key(0)), config)
-            assert isinstance(batch.obs, TiledPixels) and batch.obs.pixels.shape == (6, 4, 9, 9, 48)
-        runner, metrics = jax.jit(jax.vmap(learner.train))(jax.random.split(jax.random.key(0), 2))
-        runs[tile] = runner.train_state.params, metrics
-    ended, terminated = (np.asarray(runs[True][1][k]) for k in ("episodes", "terminated_fraction"))
-    assert ended.min() > 0 and terminated.min() < 1  # some episodes truncated in every run
-    for want, got in zip(jax.tree_util.tree_leaves(runs[False]), jax.tree_util.tree_leaves(runs[True])):
-        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))

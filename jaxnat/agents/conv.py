@@ -31,13 +31,6 @@ All compute the same function (tests check values and gradients under vmap); `"a
 the backend at trace time: im2col on CPU, unrolled elsewhere (the GPU's pixel-PPO learner is
 fastest in that form: 1.75x s2d's, whose loop copies were 43% of its device time;
 `bench/results/ppo_learner.md`, `bench/results/pixel_ppo.md`).
-
-The s2d family's rewrite of a layer's input (`tile_input`: a crop and a space-to-depth, a pure
-permutation) can also be done by the caller, once, on the uint8 pixels: `conv2d_tiled` then
-takes the tiled input. The on-policy learners tile each step's observations as they store them
-(`networks.tile_observations`), so the acting call and every epoch's minibatches read the first
-layer's input in the order its convolution wants, rather than each permuting the scaled bf16
-copy again.
 """
 
 from __future__ import annotations
@@ -47,12 +40,9 @@ import functools
 import jax
 import jax.numpy as jnp
 
-__all__ = ["IMPLEMENTATIONS", "TILED", "conv2d", "conv2d_tiled", "im2col_patches", "resolve", "space_to_depth",
-           "takes_tiled_input", "tile_input"]
+__all__ = ["IMPLEMENTATIONS", "conv2d", "im2col_patches", "space_to_depth"]
 
 IMPLEMENTATIONS = ("auto", "im2col", "native", "s2d", "unrolled", "grouped")
-# The implementations that compute a tileable strided layer from `tile_input`'s form.
-TILED = ("s2d", "unrolled", "grouped")
 _DIMENSIONS = ("NHWC", "HWIO", "NHWC")
 
 
@@ -77,40 +67,21 @@ def space_to_depth(x, block: int):
     return jnp.moveaxis(x, -4, -3).reshape(*lead, h // block, w // block, block * block * c)
 
 
-def _tileable(kh: int, kw: int, stride: int) -> bool:
-    """Whether `"s2d"`'s rewrite applies to a kernel of this size and stride."""
-    return stride > 1 and kh % stride == 0 and kw % stride == 0
-
-
-def tile_input(x, kh: int, kw: int, stride: int):
-    """`[..., H, W, C] -> [..., H', W', stride * stride * C]`: the input of a VALID convolution
-    of a `kh` x `kw` kernel at this stride in the form `"s2d"` computes it from: the rows and
-    columns it reads (a multiple of the stride; the rest are cut), space-to-depth. A pure
-    permutation of elements, so it can be applied to uint8 pixels before their scaling
-    (`conv2d_tiled` takes the result)."""
-    oh, ow = (x.shape[-3] - kh) // stride + 1, (x.shape[-2] - kw) // stride + 1
-    x = x[..., : stride * (oh - 1) + kh, : stride * (ow - 1) + kw, :]
-    return space_to_depth(x, stride)
-
-
-def _tile_kernel(kernel, stride: int):
-    """An HWIO kernel of a strided convolution as the stride-1 kernel over `tile_input`'s
-    channels (output pixel (i, j) reads input rows stride*i + p, p < kh, which are rows
-    i + P of the tiled input, P < kh / stride)."""
-    kh, kw, cin, cout = kernel.shape
-    tiled = kernel.reshape(kh // stride, stride, kw // stride, stride, cin, cout)
-    return jnp.transpose(tiled, (0, 2, 1, 3, 4, 5)).reshape(kh // stride, kw // stride, stride * stride * cin, cout)
-
-
 def _s2d(x, kernel, stride: int, conv=None):
     """A VALID convolution with `kernel` a multiple of `stride`, as a stride-1 convolution on
-    `tile_input(x)`. `conv(x, kernel, stride)` computes the convolutions (default:
-    `"native"`'s)."""
-    conv = conv or _stride_conv("s2d")
-    kh, kw = kernel.shape[:2]
-    if not _tileable(kh, kw, stride):
+    `space_to_depth(x, stride)` (output pixel (i, j) reads input rows stride*i + p, p < kh,
+    which are rows i + P of the tiled input, P < kh / stride). `conv(x, kernel, stride)`
+    computes the convolutions (default: `"native"`'s)."""
+    conv = conv or (lambda x, kernel, stride: _native(int(stride))(x, kernel))
+    kh, kw, cin, cout = kernel.shape
+    if stride == 1 or kh % stride or kw % stride:
         return conv(x, kernel, stride)
-    return conv(tile_input(x, kh, kw, stride), _tile_kernel(kernel, stride), 1)
+    oh, ow = (x.shape[-3] - kh) // stride + 1, (x.shape[-2] - kw) // stride + 1
+    # The rows and columns the convolution reads (a multiple of the stride); the rest are cut.
+    x = x[..., : stride * (oh - 1) + kh, : stride * (ow - 1) + kw, :]
+    tiled = kernel.reshape(kh // stride, stride, kw // stride, stride, cin, cout)
+    tiled = jnp.transpose(tiled, (0, 2, 1, 3, 4, 5)).reshape(kh // stride, kw // stride, stride * stride * cin, cout)
+    return conv(space_to_depth(x, stride), tiled, 1)
 
 
 def _im2col(x, kernel, stride: int):
@@ -174,49 +145,21 @@ def _native(stride: int, unrolled: bool = False):
     return conv
 
 
-def resolve(implementation: str) -> str:
-    """The implementation `"auto"` stands for on the backend being traced for (im2col on CPU,
-    unrolled elsewhere); any other name unchanged (checked)."""
-    if implementation not in IMPLEMENTATIONS:
-        raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
-    if implementation == "auto":
-        return "im2col" if jax.default_backend() == "cpu" else "unrolled"
-    return implementation
-
-
-def takes_tiled_input(implementation: str, kh: int, kw: int, stride: int) -> bool:
-    """Whether this implementation computes a layer of this kernel and stride from
-    `tile_input`'s form (so a caller may hand it over tiled: `conv2d_tiled`)."""
-    return resolve(implementation) in TILED and _tileable(kh, kw, stride)
-
-
-def _stride_conv(implementation: str):
-    """`conv(x, kernel, stride)` of the s2d family: the convolution that runs on the tiled input."""
-    if implementation == "unrolled":
-        return lambda x, kernel, stride: _native(int(stride), True)(x, kernel)
-    if implementation == "grouped":
-        return _xla_conv
-    return lambda x, kernel, stride: _native(int(stride))(x, kernel)
-
-
 def conv2d(x, kernel, stride: int, implementation: str = "auto"):
     """VALID convolution of `x` `[..., H, W, C]` with an HWIO `kernel`, any leading dims.
 
     `implementation`: `"im2col"`, `"native"`, `"s2d"`, `"unrolled"`, `"grouped"` or `"auto"` (im2col on
     CPU, unrolled elsewhere); see the module docstring for why each exists."""
-    implementation = resolve(implementation)
+    if implementation not in IMPLEMENTATIONS:
+        raise ValueError(f"conv implementation must be one of {IMPLEMENTATIONS}, got {implementation!r}")
+    if implementation == "auto":
+        implementation = "im2col" if jax.default_backend() == "cpu" else "unrolled"
     if implementation == "im2col":
         return _im2col(x, kernel, stride)
-    if implementation in TILED:
-        return _s2d(x, kernel, int(stride), _stride_conv(implementation))
+    if implementation == "s2d":
+        return _s2d(x, kernel, int(stride))
+    if implementation == "unrolled":
+        return _s2d(x, kernel, int(stride), lambda x, kernel, stride: _native(int(stride), True)(x, kernel))
+    if implementation == "grouped":
+        return _s2d(x, kernel, int(stride), _xla_conv)
     return _native(int(stride))(x, kernel)
-
-
-def conv2d_tiled(x, kernel, stride: int, implementation: str = "auto"):
-    """`conv2d(x0, kernel, stride, implementation)` given `x = tile_input(x0, kh, kw, stride)`
-    (`kernel` HWIO of the untiled input, `[kh, kw, C, features]`): the same values, without the
-    tiling inside (where `takes_tiled_input(implementation, kh, kw, stride)`; else a ValueError)."""
-    if not takes_tiled_input(implementation, kernel.shape[0], kernel.shape[1], stride):
-        raise ValueError(f"conv implementation {implementation!r} does not take a tiled input for a "
-                         f"{kernel.shape[0]}x{kernel.shape[1]} kernel at stride {stride}: use conv2d")
-    return _stride_conv(resolve(implementation))(x, _tile_kernel(kernel, int(stride)), 1)

@@ -35,13 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxnat import spaces
-from flax import struct
-
-from jaxnat.agents.conv import IMPLEMENTATIONS, conv2d, conv2d_tiled, im2col_patches, takes_tiled_input, tile_input
+from jaxnat.agents.conv import IMPLEMENTATIONS, conv2d, im2col_patches
 from jaxnat.agents.distributions import Gaussian
 
-__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "LogStd", "Memory", "TiledPixels", "tile_observations",
-           "initial_memory", "one_step_sequence",
+__all__ = ["TRUNKS", "DTYPES", "ActorCritic", "LogStd", "Memory", "initial_memory", "one_step_sequence",
            "make_actor_critic", "default_trunk", "action_dims", "action_size", "is_box", "init_params",
            "im2col_patches"]
 
@@ -74,15 +71,12 @@ class ValidConv(nn.Module):
     dtype: str = "float32"  # computation dtype; the parameters are float32
 
     @nn.compact
-    def __call__(self, x, tiled: bool = False):
-        """`tiled`: `x` is `conv.tile_input` of the layer's input (its channels `stride**2`
-        times the kernel's); the parameters are the same either way."""
-        channels = x.shape[-1] // self.stride ** 2 if tiled else x.shape[-1]
+    def __call__(self, x):
         kernel = self.param("kernel", nn.initializers.orthogonal(np.sqrt(2)),
-                            (self.kernel, self.kernel, channels, self.features))
+                            (self.kernel, self.kernel, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
         x, kernel, bias = (a.astype(self.dtype) for a in (x, kernel, bias))
-        return (conv2d_tiled if tiled else conv2d)(x, kernel, self.stride, self.implementation) + bias
+        return conv2d(x, kernel, self.stride, self.implementation) + bias
 
 
 class PaperCNN(nn.Module):
@@ -92,10 +86,9 @@ class PaperCNN(nn.Module):
     conv: str = "auto"  # `ValidConv.implementation`
 
     @nn.compact
-    def __call__(self, x, tiled: bool = False):
-        """`tiled`: `x` is `conv.tile_input` of the first layer's input (`TiledPixels`)."""
-        for i, (features, kernel, stride) in enumerate(self.layers):
-            x = nn.relu(ValidConv(features, kernel, stride, self.conv, dtype=self.dtype)(x, tiled and i == 0))
+    def __call__(self, x):
+        for features, kernel, stride in self.layers:
+            x = nn.relu(ValidConv(features, kernel, stride, self.conv, dtype=self.dtype)(x))
         x = x.reshape(*x.shape[:-3], -1)
         return nn.relu(_dense(self.dense, dtype=self.dtype)(x))
 
@@ -187,18 +180,6 @@ def one_step_sequence(memory: Memory) -> Memory:
     return per_step._replace(hidden=memory.hidden)
 
 
-@struct.dataclass
-class TiledPixels:
-    """Pixel observations `[..., H', W', block**2 * C]` already in the form the first layer of a
-    paper trunk computes from (`conv.tile_input` of `[..., H, W, C]`: a crop and a
-    space-to-depth, the same uint8 values permuted), made by `tile_observations`. An
-    `ActorCritic` takes them in place of the pixels, with the same parameters and the same
-    outputs; a pytree, so rollouts store and minibatches gather them as arrays."""
-
-    pixels: jax.Array
-    block: int = struct.field(pytree_node=False)
-
-
 class _ResettingGRU(nn.Module):
     """One GRU step whose state is zeroed first where an episode starts (scanned over time)."""
 
@@ -235,7 +216,6 @@ class ActorCritic(nn.Module):
     q_network: bool = False  # DQN's: the "logits" are Q values, the value head is unused
     action_size: int = 0  # > 0: a Box of this many dimensions, a Gaussian policy
     conv: str = "auto"  # how the paper's trunks compute their convolutions (`jaxnat.agents.conv`)
-    tile_pixels: bool = False  # whether `tile_observations` tiles this network's pixels
 
     @nn.compact
     def __call__(self, obs, memory: Memory | None = None):
@@ -274,13 +254,6 @@ class ActorCritic(nn.Module):
         of several trunks ("actor", "critic"), None keeps flax's automatic names."""
         named = (lambda suffix: f"{branch}{suffix}") if branch else (lambda suffix: None)
         pixels = obs["pixels"] if isinstance(obs, dict) else obs
-        tiled = isinstance(pixels, TiledPixels)
-        if tiled:
-            first = _PAPER_CNNS.get(self.trunk, [(0, 0, 0)])[0]
-            if pixels.block != first[2] or not takes_tiled_input(self.conv, first[1], first[1], first[2]):
-                raise ValueError(f"TiledPixels of block {pixels.block} do not fit this network (trunk {self.trunk!r}, "
-                                 f"conv {self.conv!r}): tile observations with tile_observations(network, obs)")
-            pixels = pixels.pixels
         x = pixels.astype(jnp.float32)
         if pixels.dtype == jnp.uint8:
             x = x / 255.0
@@ -291,29 +264,12 @@ class ActorCritic(nn.Module):
         elif self.trunk == "resnet18":
             features = ResNet18(dtype=self.dtype)(x)
         else:
-            features = PaperCNN(_PAPER_CNNS[self.trunk], dtype=self.dtype, conv=self.conv)(x, tiled)
+            features = PaperCNN(_PAPER_CNNS[self.trunk], dtype=self.dtype, conv=self.conv)(x)
         features = features.astype(jnp.float32)
         if self.num_goals:
             goal = nn.Embed(self.num_goals, 32, name=named("_goal"))(obs["goal"])
             features = nn.relu(_dense(512, name=named("_goal_dense"))(jnp.concatenate([features, goal], axis=-1)))
         return features
-
-
-def tile_observations(network: ActorCritic, obs):
-    """`obs` with its pixels as `TiledPixels` where `network` computes its first layer from
-    that form (`network.tile_pixels`, a paper trunk whose first kernel is a multiple of its
-    stride, a conv implementation of the s2d family: `conv.takes_tiled_input`; on GPU
-    `"auto"`'s), else `obs` unchanged. The network's outputs are the same for either; the tiled
-    form saves the network permuting a float copy of every batch it reads (an on-policy
-    learner tiles each step's observations once, before it acts on and stores them)."""
-    if not network.tile_pixels or network.trunk not in _PAPER_CNNS:
-        return obs
-    _, kernel, stride = _PAPER_CNNS[network.trunk][0]
-    pixels = obs["pixels"] if isinstance(obs, dict) else obs
-    if isinstance(pixels, TiledPixels) or not takes_tiled_input(network.conv, kernel, kernel, stride):
-        return obs
-    tiled = TiledPixels(tile_input(pixels, kernel, kernel, stride), stride)
-    return {**obs, "pixels": tiled} if isinstance(obs, dict) else tiled
 
 
 def is_box(action_space) -> bool:
@@ -362,12 +318,11 @@ def default_trunk(observation_space: spaces.Space) -> str:
 
 def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Space, trunk: str | None = None,
                       dtype: str = "float32", memory: int = 0, q_network: bool = False,
-                      conv: str = "auto", tile_pixels: bool = False) -> ActorCritic:
+                      conv: str = "auto") -> ActorCritic:
     """An `ActorCritic` for these spaces; checks that the trunk fits the observation.
     `q_network`: DQN's network (the `mlp` trunk is then `Q_MLP`, one MLP for all heads), which
     needs discrete actions. `conv`: how the paper's trunks compute convolutions (one of
-    `jaxnat.agents.conv.IMPLEMENTATIONS`; the same function each way). `tile_pixels`: the
-    network's observations may be tiled by `tile_observations` (the same outputs)."""
+    `jaxnat.agents.conv.IMPLEMENTATIONS`; the same function each way)."""
     trunk = trunk or default_trunk(observation_space)
     if trunk not in TRUNKS:
         raise ValueError(f"Unknown trunk {trunk!r}; choose one of {TRUNKS}")
@@ -397,8 +352,7 @@ def make_actor_critic(observation_space: spaces.Space, action_space: spaces.Spac
         raise ValueError(f"DQN takes Discrete or MultiDiscrete actions, not {action_space}; "
                          f"train continuous actions with ppo, a2c or acktr")
     return ActorCritic(action_dims=action_dims(action_space), trunk=trunk, num_goals=num_goals, dtype=dtype,
-                       memory=memory, q_network=q_network, action_size=action_size(action_space), conv=conv,
-                       tile_pixels=tile_pixels)
+                       memory=memory, q_network=q_network, action_size=action_size(action_space), conv=conv)
 
 
 def init_params(network: ActorCritic, observation_space: spaces.Space, key: jax.Array):

@@ -104,21 +104,14 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
     elif transitions.memory is None:  # minibatches of single steps
         if batch % config.num_minibatches:
             raise ValueError(f"num_envs * num_steps = {batch} is not divisible by num_minibatches={config.num_minibatches}")
-        # Kept time-major [T, N, ...]: minibatch row r is step r // N of env r % N (the rows of
-        # the flattened batch), gathered in place. Under vmap over seeds the rollout's scan
-        # leaves the seed axis second; flattening [T, N] would first copy the whole rollout
-        # into seed-major order, every update.
+        data = jax.tree_util.tree_map(lambda x: x.reshape(batch, *x.shape[2:]), data)
         units = batch
-        flat = lambda x: x.reshape(batch, *x.shape[2:])  # noqa: E731
-        take = lambda x, rows: x[rows // config.num_envs, rows % config.num_envs]  # noqa: E731
     else:  # a recurrent policy replays whole env rollouts: minibatches of envs, time-major
         if config.num_envs % config.num_minibatches:
             raise ValueError(f"a recurrent policy's minibatches hold whole env rollouts: num_envs={config.num_envs} "
                              f"is not divisible by num_minibatches={config.num_minibatches}")
         data = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), data)  # [N, T, ...]
         units = config.num_envs
-        flat = lambda x: x  # noqa: E731
-        take = lambda x, rows: x[rows]  # noqa: E731
 
     def loss_fn(params, obs, action, old_log_prob, old_value, advantage, target, memory):
         if memory is not None:  # back to time-major [T, B, ...]
@@ -157,13 +150,13 @@ def _update(config: PPOConfig, network, train_state, transitions, advantages, ta
                                 _per_env_minibatches(data, key_or_order, config.num_minibatches, axis_name))
         if _in_shard_map():  # seeds placed on devices (`--shard seeds`): see `_per_env_minibatches`
             shuffled = jax.tree_util.tree_map(
-                lambda x: flat(x)[key_or_order].reshape(config.num_minibatches, -1, *flat(x).shape[1:]), data)
+                lambda x: x[key_or_order].reshape(config.num_minibatches, -1, *x.shape[1:]), data)
             return jax.lax.scan(minibatch_step, train_state, shuffled)
         # Each minibatch gathered from the rollout as it is needed, not a shuffled copy of the
         # whole rollout per epoch: the same rows in the same order, one rollout's memory less
         # (a pixel rollout is most of a large batch's memory).
         def gathered_step(train_state, rows):
-            return minibatch_step(train_state, jax.tree_util.tree_map(lambda x: take(x, rows), data))
+            return minibatch_step(train_state, jax.tree_util.tree_map(lambda x: x[rows], data))
 
         return jax.lax.scan(gathered_step, train_state, key_or_order.reshape(config.num_minibatches, -1))
 

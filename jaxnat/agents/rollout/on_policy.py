@@ -19,7 +19,7 @@ from flax.training.train_state import TrainState
 
 from jaxnat.agents import distributions, normalize
 from jaxnat.agents.config import check_ranges
-from jaxnat.agents.networks import Memory, init_params, initial_memory, make_actor_critic, tile_observations
+from jaxnat.agents.networks import Memory, init_params, initial_memory, make_actor_critic
 from jaxnat.agents.rollout.parallel import pmean_gradients, shard_slice
 from jaxnat.agents.rollout.policy import act, final_value, sample_each
 from jaxnat.agents.rollout.records import EnvStep, Transition, bootstrap, count_updates, episode_metrics, gae, step_info
@@ -88,10 +88,8 @@ class UpdateRule(NamedTuple):
 
 
 def dtype_and_memory(config) -> dict:
-    """`UpdateRule.network_options` of a config with `dtype` and `memory` fields (PPO's, A2C's);
-    their networks' pixels are tiled as they are stored (`networks.tile_observations`). Not
-    ACKTR's: K-FAC reads each conv layer's untiled input."""
-    return {"dtype": config.dtype, "memory": config.memory, "tile_pixels": True}
+    """`UpdateRule.network_options` of a config with `dtype` and `memory` fields (PPO's, A2C's)."""
+    return {"dtype": config.dtype, "memory": config.memory}
 
 
 def _stack_batches(a, b):
@@ -156,8 +154,8 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None,
         final_obs, truncated = pending
         n = len(truncated)
 
-        def with_rows(extra):  # this step's rows, then `extra`'s (tiled as `obs`, once taken), in one call
-            logits, values, _ = act(network, params, _stack_batches(obs, tile_observations(network, extra)), None)
+        def with_rows(extra):  # this step's rows, then `extra`'s, in one call
+            logits, values, _ = act(network, params, _stack_batches(obs, extra), None)
             # (Every leaf of the head's output has a row per observation: a Gaussian's log-std
             # is broadcast to the mean's shape.)
             return jax.tree_util.tree_map(lambda x: x[:n], logits), values[:n], values[n:]
@@ -179,7 +177,7 @@ def on_policy_learner(config, env, env_params, rule: UpdateRule, axis_name=None,
     def policy(carry, obs, key, t):
         params, memory, normalizer, pending = carry
         normalizer = normalize.observe(normalizer, obs, axis_name)
-        obs = tile_observations(network, normalize.normalize(normalizer, obs))
+        obs = normalize.normalize(normalizer, obs)
         if pending is None:  # recurrent: the final observation is valued in `observe`
             logits, value, hidden = act(network, params, obs, memory)
             pending_value = None
