@@ -21,8 +21,11 @@ def _report_body(path):
     return [line for line in path.read_text().splitlines() if not line.startswith("- Written")]
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def smoke(tmp_path_factory):
+    """The smoke profile, run once a session. Not once a module: xdist runs other modules' tests
+    between this group's on one worker, and a module fixture is built again after such a
+    gap (twice on CI, 9 minutes each)."""
     out = tmp_path_factory.mktemp("smoke")
     assert command.main(["--profile", "smoke", "--out", str(out)]) == 0
     return out
