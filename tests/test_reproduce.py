@@ -23,9 +23,9 @@ def _report_body(path):
 
 @pytest.fixture(scope="session")
 def smoke(tmp_path_factory):
-    """The smoke profile, run once a session. Not once a module: xdist runs other modules' tests
-    between this group's on one worker, and a module fixture is built again after such a
-    gap (twice on CI, 9 minutes each)."""
+    """The smoke profile, run once per test process (9 minutes on CI): this module's tests share
+    it in whatever order and company their worker runs them (tests/test_xdist_groups.py checks
+    that the module's group keeps them on one worker)."""
     out = tmp_path_factory.mktemp("smoke")
     assert command.main(["--profile", "smoke", "--out", str(out)]) == 0
     return out
