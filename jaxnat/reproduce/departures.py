@@ -97,9 +97,10 @@ DEPARTURES: tuple[Departure, ...] = (
     Departure("natural videos",
               "840 Kinetics \"driving car\" clips, one set for training and testing (the authors' PixelMuJoCo "
               "advanced 4 video frames per agent step)",
-              "the 5 clips Debian's `opencv-doc` ships (vtest, tree, Megamind, box, cup), split by whole file: "
-              "test play sees clips never trained on; one video frame per agent step, a random clip and start "
-              "frame at each reset",
+              "the natural clips of Debian's `opencv-doc` found on the machine that trained (its 4.6 package "
+              "ships vtest, tree and Megamind; later ones add box and cup; \"Natural data the cells saw\" lists "
+              "each file used), split by whole file: test play sees clips never trained on; one video frame per "
+              "agent step, a random clip and start frame at each reset",
               _natural_video),
     Departure("ALE: sticky actions",
               "\"frame skipping and sticky actions\" (no probability given)",
