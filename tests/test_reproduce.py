@@ -5,6 +5,7 @@ a killed cell, the bootstrap interval on hand-made data, and one-line errors for
 import collections
 import dataclasses
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -182,6 +183,21 @@ def test_unwritable_out_is_refused(tmp_path, capsys):
     assert command.main(["--profile", "smoke", "--out", str(blocker / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert "is not writable" in err and "\n" not in err
+
+
+def test_a_broken_statistics_install_is_refused_before_any_cell_trains(tmp_path, monkeypatch, capsys):
+    # As arch 7 fails to import under pandas 3: an error raised while rliable imports.
+    class Broken:
+        def find_spec(self, name, path=None, target=None):
+            if name == "rliable.library":
+                raise TypeError("deprecate_kwarg() missing 1 required positional argument")
+
+    monkeypatch.delitem(sys.modules, "rliable.library", raising=False)
+    monkeypatch.setattr(sys, "meta_path", [Broken(), *sys.meta_path])
+    assert command.main(["--profile", "smoke", "--only", "classify", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "need rliable" in err and "TypeError" in err and "pandas below 3" in err and "\n" not in err
+    assert not list((tmp_path / "out").glob("classify-*"))  # no cell started
 
 
 def test_a_folder_of_other_settings_is_refused(smoke, tmp_path, capsys):

@@ -187,6 +187,19 @@ def _check_writable(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)  # the cells' logs go there
 
 
+def check_report_imports() -> None:
+    """Raise `ReproduceError` now, before any cell trains, when the report's aggregates could
+    not be computed at the end: rliable (and arch and pandas under it) must import. A broken
+    install otherwise shows only after the last cell, as a traceback."""
+    try:
+        import rliable.library  # noqa: F401
+    except Exception as error:  # arch 7 under pandas 3 fails with a TypeError, not an ImportError
+        raise ReproduceError(
+            f"the report's aggregates need rliable, which does not import here ({type(error).__name__}: "
+            f"{error}); install the agents extra's versions (pip install 'jaxnat[agents]', which pins "
+            f"pandas below 3 for arch 7)") from error
+
+
 def _gpus_wanted(args: ReproduceArgs) -> int | None:
     """`--gpus` as a count (None: all)."""
     if args.gpus == "all":
@@ -366,6 +379,7 @@ def reproduce(args: ReproduceArgs, *, console=None, overlap: bool | None = None,
     if args.dry_run:
         dry_run(picked, shard, console)
         return plan.out / "report.md"
+    check_report_imports()
     outcomes = {}
     if not args.report_only:
         platform, gpus = choose_gpus(args, devices)
