@@ -36,7 +36,8 @@ logger = logging.getLogger("jaxnat.natural")
 
 DEFAULT_SHAPE = (84, 84)
 # With opencv-doc's 5 videos this puts 2 in test (Megamind.avi, box.mp4.gz: 725 frames) and 3 in
-# train (vtest.avi, tree.avi, cup.mp4.gz: 1,080 frames); see docs/design.md.
+# train (vtest.avi, tree.avi, cup.mp4.gz: 1,080 frames); with the 3 of its 4.6 package, Megamind.avi
+# in test (270) and vtest.avi, tree.avi in train (863); see docs/design.md.
 DEFAULT_TEST_FRACTION = 0.4
 # Bump when decoding changes what a bank holds for the same files (invalidates cache entries).
 FORMAT_VERSION = 1
