@@ -43,7 +43,7 @@ import numpy as np
 from jaxnat.reproduce.labels import dataset_label
 from jaxnat.reproduce.stats import CONFIDENCE, RESAMPLES, Interval
 
-__all__ = ["MAX_RETURNS", "POOLED_FIGURES", "Aggregate", "bootstrap_seed", "interval_estimates", "aggregate",
+__all__ = ["MAX_RETURNS", "POOLED_FIGURES", "Aggregate", "bootstrap_seed", "interval_estimates", "rliable_modules", "aggregate",
            "aggregates_section"]
 
 MAX_RETURNS = {"classify": 1.0, "localize": 1.0}  # the best episode return of each env family (docstring)
@@ -73,6 +73,13 @@ def bootstrap_seed(seed: int, key: str) -> int:
     return (seed * 0x9E3779B1 + zlib.crc32(key.encode())) % 2**32
 
 
+def rliable_modules():
+    """rliable's `(library, metrics)`, imported on first use (the report's only import of it;
+    `jaxnat reproduce` calls this before training to refuse a broken install early)."""
+    from rliable import library, metrics
+    return library, metrics
+
+
 def interval_estimates(scores: dict[str, np.ndarray], *, reps: int = RESAMPLES, seed: int = 0
                        ) -> dict[str, tuple[Interval, Interval]]:
     """`{key: [runs, tasks] scores}` -> `{key: (IQM, mean)}`, the point estimates of
@@ -81,7 +88,7 @@ def interval_estimates(scores: dict[str, np.ndarray], *, reps: int = RESAMPLES, 
     generator seeded with `bootstrap_seed(seed, key)` for each key; its state is restored after)."""
     if not scores:
         return {}
-    from rliable import library, metrics
+    library, metrics = rliable_modules()
 
     def both(values):
         return np.array([metrics.aggregate_iqm(values), metrics.aggregate_mean(values)])

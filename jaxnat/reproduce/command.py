@@ -191,8 +191,10 @@ def check_report_imports() -> None:
     """Raise `ReproduceError` now, before any cell trains, when the report's aggregates could
     not be computed at the end: rliable (and arch and pandas under it) must import. A broken
     install otherwise shows only after the last cell, as a traceback."""
+    from jaxnat.reproduce.aggregates import rliable_modules
+
     try:
-        import rliable.library  # noqa: F401
+        rliable_modules()
     except Exception as error:  # arch 7 under pandas 3 fails with a TypeError, not an ImportError
         raise ReproduceError(
             f"the report's aggregates need rliable, which does not import here ({type(error).__name__}: "
