@@ -5,12 +5,11 @@ a killed cell, the bootstrap interval on hand-made data, and one-line errors for
 import collections
 import dataclasses
 import json
-import sys
 
 import numpy as np
 import pytest
 
-from jaxnat.reproduce import cell_stream, command, estimates, findings, grid, stats
+from jaxnat.reproduce import aggregates, cell_stream, command, estimates, findings, grid, stats
 from jaxnat.reproduce.cells import append_jsonl
 from jaxnat.training import read_run
 
@@ -186,14 +185,12 @@ def test_unwritable_out_is_refused(tmp_path, capsys):
 
 
 def test_a_broken_statistics_install_is_refused_before_any_cell_trains(tmp_path, monkeypatch, capsys):
-    # As arch 7 fails to import under pandas 3: an error raised while rliable imports.
-    class Broken:
-        def find_spec(self, name, path=None, target=None):
-            if name == "rliable.library":
-                raise TypeError("deprecate_kwarg() missing 1 required positional argument")
+    # As arch 7 fails to import under pandas 3: an error raised while rliable imports. Patched
+    # where the report imports it, since a worker that already imported rliable skips the finders.
+    def broken():
+        raise TypeError("deprecate_kwarg() missing 1 required positional argument")
 
-    monkeypatch.delitem(sys.modules, "rliable.library", raising=False)
-    monkeypatch.setattr(sys, "meta_path", [Broken(), *sys.meta_path])
+    monkeypatch.setattr(aggregates, "rliable_modules", broken)
     assert command.main(["--profile", "smoke", "--only", "classify", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert "need rliable" in err and "TypeError" in err and "pandas below 3" in err and "\n" not in err
